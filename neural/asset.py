@@ -1,0 +1,160 @@
+"""The asset on disk: ``asset.json`` + ``field.safetensors`` + ``shell_outer.ply`` + ``shell_inner.ply``
+(+ ``cage.npz``, made on demand by :mod:`shellsim.cage`).
+
+Loading validates everything and never executes code from the asset: JSON, safetensors and PLY only,
+and every file name must stay inside the asset directory.
+
+``asset.json`` (format version 1)::
+
+    {"format": "shellsim-asset", "format_version": 1, "name": "lego",
+     "normalisation": {"center": [x, y, z], "scale": k},   # x_unit = (x_world - center) * k
+     "up": [0, 0, 1], "background": [1, 1, 1],
+     "files": {"field": "field.safetensors", "shell_outer": "shell_outer.ply",
+               "shell_inner": "shell_inner.ply"},
+     "field": {...FieldConfig...}, "shell": {...}, "training": {...}, "metrics": {...}}
+
+Shells, cage and cameras all live in the dataset's world frame.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+FORMAT = "shellsim-asset"
+FORMAT_VERSION = 1
+REQUIRED_FILES = ("field", "shell_outer", "shell_inner")
+CAGE_FILE = "cage.npz"
+
+
+def shipped_assets_dir() -> Path:
+    """Directory of the assets shipped with the project (``$SHELLSIM_ASSETS`` overrides it)."""
+    env = os.environ.get("SHELLSIM_ASSETS")
+    return Path(env) if env else Path(__file__).resolve().parents[1] / "assets"
+
+
+def resolve_asset(spec: str | os.PathLike) -> Path:
+    """``--asset NAME`` (a shipped asset) or ``--asset PATH`` (any asset directory) -> its directory."""
+    path = Path(spec)
+    if path.is_dir():
+        return path
+    shipped = shipped_assets_dir() / str(spec)
+    if os.sep not in str(spec) and shipped.is_dir():
+        return shipped
+    available = sorted(p.name for p in shipped_assets_dir().glob("*/asset.json") for p in [p.parent])
+    raise InputError(
+        f"asset {str(spec)!r}: no such directory and no shipped asset of that name "
+        f"(shipped: {', '.join(available) or 'none'})"
+    )
+
+
+def _inside(root: Path, name: str, what: str) -> Path:
+    if not isinstance(name, str) or not name or Path(name).is_absolute():
+        raise InputError(f"{root / 'asset.json'}: files.{what} must be a relative file name, got {name!r}")
+    target = (root / name).resolve()
+    if root.resolve() not in target.parents:
+        raise InputError(f"{root / 'asset.json'}: files.{what} = {name!r} points outside the asset")
+    return target
+
+
+@dataclass
+class Asset:
+    """A validated asset directory. ``meta`` is the parsed ``asset.json``."""
+
+    root: Path
+    meta: dict
+
+    @property
+    def name(self) -> str:
+        return str(self.meta.get("name", self.root.name))
+
+    def file(self, key: str) -> Path:
+        """Absolute path of ``files[key]``, checked to lie inside the asset."""
+        return _inside(self.root, self.meta["files"][key], key)
+
+    @property
+    def center(self) -> np.ndarray:
+        return np.asarray(self.meta["normalisation"]["center"], dtype=np.float64)
+
+    @property
+    def scale(self) -> float:
+        return float(self.meta["normalisation"]["scale"])
+
+    @property
+    def up(self) -> np.ndarray:
+        return np.asarray(self.meta.get("up", [0.0, 0.0, 1.0]), dtype=np.float64)
+
+    @property
+    def cage_path(self) -> Path:
+        return self.root / CAGE_FILE
+
+    def outer_mesh(self):
+        """M+ as a ``trimesh.Trimesh`` in world coordinates."""
+        return load_mesh(self.file("shell_outer"))
+
+    def inner_mesh(self):
+        """M- as a ``trimesh.Trimesh`` in world coordinates."""
+        return load_mesh(self.file("shell_inner"))
+
+
+def load_mesh(path: Path, require_closed: bool = True):
+    """Read a triangle mesh (PLY/OBJ/STL/OFF...) with trimesh; empty, garbage or open meshes are errors."""
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: mesh file not found")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=True)
+    except Exception as err:  # trimesh raises many types for garbage input
+        raise InputError(f"{path}: cannot read a triangle mesh ({err})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError(f"{path}: contains no triangles")
+    if not np.isfinite(mesh.vertices).all():
+        raise InputError(f"{path}: vertex coordinates contain NaN or infinity")
+    if require_closed and not mesh.is_watertight:
+        raise InputError(f"{path}: mesh is not closed (watertight); a solid needs a closed surface")
+    return mesh
+
+
+def load_asset(spec: str | os.PathLike) -> Asset:
+    """Find and validate an asset; every problem is one :class:`InputError` naming the file."""
+    root = resolve_asset(spec)
+    meta_path = root / "asset.json"
+    if not meta_path.is_file():
+        raise InputError(f"{root}: not an asset (asset.json missing)")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"{meta_path}: malformed JSON ({err})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise InputError(f"{meta_path}: not a shellsim asset (format must be {FORMAT!r})")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise InputError(
+            f"{meta_path}: format_version {meta.get('format_version')!r} is not supported "
+            f"(this shellsim reads {FORMAT_VERSION})"
+        )
+    for key in ("normalisation", "files", "field"):
+        if not isinstance(meta.get(key), dict):
+            raise InputError(f"{meta_path}: missing or invalid key {key!r}")
+    norm = meta["normalisation"]
+    try:
+        center = np.asarray(norm["center"], dtype=np.float64)
+        scale = float(norm["scale"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{meta_path}: normalisation needs center [x, y, z] and scale > 0") from None
+    if center.shape != (3,) or not np.isfinite(center).all() or not (scale > 0 and np.isfinite(scale)):
+        raise InputError(f"{meta_path}: normalisation needs center [x, y, z] and scale > 0")
+    asset = Asset(root, meta)
+    for key in REQUIRED_FILES:
+        if key not in meta["files"]:
+            raise InputError(f"{meta_path}: files.{key} is missing")
+        if not asset.file(key).is_file():
+            raise InputError(f"{asset.file(key)}: file listed in asset.json is missing")
+    return asset

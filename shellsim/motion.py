@@ -1,0 +1,159 @@
+"""The motion file: per-frame cage vertex positions written by the simulator and the wind animator.
+
+A ``.npz`` holding
+
+- ``rest_vertices`` (V, 3) float64: the rest cage, in the asset's world frame,
+- ``tets`` (T, 4) int64: cage tetrahedra,
+- ``positions`` (F, V, 3) float32: cage vertices per frame; frame 0 is the initial state,
+- ``times`` (F,) float64: seconds,
+- ``meta``: a JSON string (what made it, parameters, solver statistics, wall time).
+
+:class:`MotionWriter` rewrites the file atomically (temporary file + rename) at most every
+``flush_seconds``, so a killed run keeps the frames written so far and ``--resume`` can continue.
+Loading never unpickles anything.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from neural.errors import InputError
+
+KEYS = ("rest_vertices", "tets", "positions", "times", "meta")
+
+
+@dataclass
+class Motion:
+    """A loaded motion file. Shapes: rest_vertices (V, 3), tets (T, 4), positions (F, V, 3), times (F,)."""
+
+    rest_vertices: np.ndarray
+    tets: np.ndarray
+    positions: np.ndarray
+    times: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.positions.shape[0])
+
+
+def save_motion(path: str | os.PathLike, motion: Motion) -> None:
+    """Write ``motion`` to ``path`` atomically: a reader sees the old file or the new one, never a torn one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(
+        tmp,
+        rest_vertices=np.asarray(motion.rest_vertices, dtype=np.float64),
+        tets=np.asarray(motion.tets, dtype=np.int64),
+        positions=np.asarray(motion.positions, dtype=np.float32),
+        times=np.asarray(motion.times, dtype=np.float64),
+        meta=np.array(json.dumps(motion.meta)),
+    )
+    os.replace(tmp, path)
+
+
+def load_motion(path: str | os.PathLike) -> Motion:
+    """Read and validate a motion file; any problem is an :class:`InputError` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: motion file not found")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in KEYS if k not in data.files]
+            if missing:
+                raise InputError(f"{path}: not a motion file, missing {', '.join(missing)}")
+            arrays = {k: data[k] for k in KEYS}
+    except InputError:
+        raise
+    except Exception as err:  # zip/npy format errors come in many types
+        raise InputError(f"{path}: cannot read motion file ({err})") from None
+    rest, tets, pos, times = (arrays[k] for k in KEYS[:4])
+    if rest.ndim != 2 or rest.shape[1] != 3:
+        raise InputError(f"{path}: rest_vertices must be (V, 3), got {rest.shape}")
+    if tets.ndim != 2 or tets.shape[1] != 4 or not np.issubdtype(tets.dtype, np.integer):
+        raise InputError(f"{path}: tets must be (T, 4) integers, got {tets.shape} {tets.dtype}")
+    if tets.size and (tets.min() < 0 or tets.max() >= len(rest)):
+        raise InputError(f"{path}: tets index vertices outside 0..{len(rest) - 1}")
+    if pos.ndim != 3 or pos.shape[1:] != rest.shape or pos.shape[0] < 1:
+        raise InputError(f"{path}: positions must be (F, {len(rest)}, 3) with F >= 1, got {pos.shape}")
+    if times.shape != (pos.shape[0],):
+        raise InputError(f"{path}: times must be ({pos.shape[0]},), got {times.shape}")
+    if not (np.isfinite(pos).all() and np.isfinite(times).all()):
+        raise InputError(f"{path}: positions or times contain NaN or infinity")
+    try:
+        meta = json.loads(str(arrays["meta"]))
+    except json.JSONDecodeError as err:
+        raise InputError(f"{path}: meta is not valid JSON ({err})") from None
+    return Motion(rest.astype(np.float64), tets.astype(np.int64), pos.astype(np.float32), times.astype(np.float64), meta)
+
+
+class MotionWriter:
+    """Collects frames and keeps ``path`` up to date on disk.
+
+    ``append`` adds one frame (V, 3); the file is rewritten when ``flush_seconds`` have passed since the
+    last write, and always by ``close`` (also on an exception inside a ``with`` block).
+    ``MotionWriter.resume(path)`` reopens an existing file to continue after its last frame.
+    """
+
+    def __init__(self, path, rest_vertices, tets, meta: dict, flush_seconds: float = 2.0):
+        self.path = Path(path)
+        self.motion = Motion(np.asarray(rest_vertices, np.float64), np.asarray(tets, np.int64),
+                             np.zeros((0, len(rest_vertices), 3), np.float32), np.zeros(0), dict(meta))
+        self._frames: list[np.ndarray] = []
+        self._times: list[float] = []
+        self.flush_seconds = flush_seconds
+        self._last_flush = time.monotonic()
+
+    @classmethod
+    def resume(cls, path, flush_seconds: float = 2.0) -> MotionWriter:
+        motion = load_motion(path)
+        writer = cls(path, motion.rest_vertices, motion.tets, motion.meta, flush_seconds)
+        writer._frames = list(motion.positions)
+        writer._times = list(motion.times)
+        return writer
+
+    @property
+    def n_frames(self) -> int:
+        return len(self._frames)
+
+    @property
+    def last_positions(self) -> np.ndarray:
+        """(V, 3) float32: the last frame appended."""
+        return self._frames[-1]
+
+    @property
+    def last_time(self) -> float:
+        return self._times[-1]
+
+    def append(self, positions: np.ndarray, t: float) -> None:
+        positions = np.asarray(positions, dtype=np.float32)
+        if positions.shape != self.motion.rest_vertices.shape:
+            raise ValueError(f"positions: expected {self.motion.rest_vertices.shape}, got {positions.shape}")
+        self._frames.append(positions.copy())
+        self._times.append(float(t))
+        if time.monotonic() - self._last_flush >= self.flush_seconds:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self._frames:
+            return
+        self.motion.positions = np.stack(self._frames)
+        self.motion.times = np.asarray(self._times, np.float64)
+        save_motion(self.path, self.motion)
+        self._last_flush = time.monotonic()
+
+    def close(self) -> None:
+        self.flush()
+
+    def __enter__(self) -> MotionWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -158,3 +158,45 @@ def load_asset(spec: str | os.PathLike) -> Asset:
         if not asset.file(key).is_file():
             raise InputError(f"{asset.file(key)}: file listed in asset.json is missing")
     return asset
+
+
+def save_asset(root, field, outer, inner, meta: dict) -> Path:
+    """Write an asset directory: ``field.safetensors``, the two shells as PLY and ``asset.json`` (last, so a
+    directory with an ``asset.json`` is complete). ``meta`` supplies everything but format/files/field."""
+    from safetensors.torch import save_file
+
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    files = {"field": "field.safetensors", "shell_outer": "shell_outer.ply", "shell_inner": "shell_inner.ply"}
+    state = {k: v.detach().contiguous().cpu() for k, v in field.state_dict().items()}
+    save_file(state, str(root / files["field"]))
+    outer.export(root / files["shell_outer"])
+    inner.export(root / files["shell_inner"])
+    full = {"format": FORMAT, "format_version": FORMAT_VERSION, **meta, "files": files,
+            "field": field.config_dict()}
+    tmp = root / "asset.json.tmp"
+    tmp.write_text(json.dumps(full, indent=1))
+    os.replace(tmp, root / "asset.json")
+    return root
+
+
+def load_field(asset: Asset, device: str = "cpu"):
+    """The asset's ``ShellField`` with its weights (safetensors; no code is executed)."""
+    from safetensors.torch import load_file
+
+    from .field import ShellField
+
+    path = asset.file("field")
+    try:
+        field = ShellField.from_config_dict(asset.meta["field"], center=tuple(asset.center), scale=asset.scale)
+    except (TypeError, ValueError, KeyError) as err:
+        raise InputError(f"{asset.root / 'asset.json'}: invalid field configuration ({err})") from None
+    try:
+        state = load_file(str(path))
+    except Exception as err:  # safetensors raises several error types for corrupt files
+        raise InputError(f"{path}: cannot read field weights ({err})") from None
+    try:
+        field.load_state_dict(state)
+    except RuntimeError as err:
+        raise InputError(f"{path}: weights do not match the field configuration in asset.json ({err})") from None
+    return field.to(device).eval()

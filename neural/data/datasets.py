@@ -1,0 +1,430 @@
+"""Posed-image datasets: NeRF-synthetic ``transforms_{train,val,test}.json`` and instant-ngp / nerfstudio
+``transforms.json``, loaded into one :class:`SceneData`.
+
+Both formats store per-frame ``transform_matrix`` camera-to-world in OpenGL axes (see
+:mod:`neural.data.cameras`) and a ``file_path`` relative to the JSON file (NeRF-synthetic omits the
+``.png`` extension). Intrinsics are read by one rule for both: keys of the frame override keys of the file;
+``fl_x`` (else ``0.5 w / tan(camera_angle_x / 2)``), ``fl_y`` (else from ``camera_angle_y``, else
+``fl_x``), ``cx = w / 2``, ``cy = h / 2``, ``k1 k2 p1 p2 = 0`` by default; ``w``, ``h`` default to the
+image's size.
+
+Normalisation into the field's unit cube ``u = (x - center) * scale``:
+
+- NeRF-synthetic: ``center = 0``, ``scale = 1 / bound`` with ``bound = 1.5`` (lego fits [-1.5, 1.5]^3);
+  up is +z.
+- instant-ngp: ``center`` is the point closest, in least squares, to every camera's optical axis (the
+  point the capture looks at); ``bound = NGP_CUBE_FRACTION * mean camera distance from center``.
+  This is instant-ngp's own object cube: colmap2nerf scales captures to a mean camera distance of 4, and
+  instant-ngp's default ``scale`` 0.33 makes its unit cube ``0.5 / 0.33 = 1.52`` units wide each side of
+  the centre, i.e. 0.38 of the camera distance. ``aabb_scale`` says how far the *background* reaches
+  beyond that cube (in multiples of it); an object-centred field does not model it, so it only sets
+  :attr:`SceneData.scene_radius`, the distance beyond which nothing is seen, for far planes and
+  background models. Up is the normalised mean of the cameras' up vectors.
+
+Either bound can be overridden (``bound=``, world units).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+
+from ..errors import InputError
+from .cameras import Cameras, Normalisation, scaled_size
+
+log = logging.getLogger(__name__)
+
+SYNTHETIC_SPLITS = ("train", "val", "test")
+SYNTHETIC_BOUND = 1.5
+NGP_CUBE_FRACTION = (0.5 / 0.33) / 4.0
+SUPPORTED_CAMERA_MODELS = ("OPENCV", "PINHOLE")
+
+
+@dataclass(eq=False)
+class SceneData:
+    """A loaded dataset: images, cameras, the train/test split and the world-to-unit-cube map.
+
+    Attributes:
+        images: (N, H, W, 3) float32 in [0, 1], composited on ``background`` where the images have alpha.
+        alphas: (N, H, W) float32 coverage, or None when no image has an alpha channel.
+        cameras: the N cameras at the loaded (downscaled) resolution.
+        train_idx, test_idx: int64 indices into the N views; every ``holdout_every``-th view
+            (0, 8, 16, ... by default) is held out for testing.
+        normalisation: world -> unit cube [-1, 1]^3 that the field covers.
+        up: (3,) float64 unit world up axis (gravity points along -up).
+        background: (3,) float32 RGB the alpha images were composited on.
+        source: the dataset directory.
+        format: ``"nerf-synthetic"`` or ``"instant-ngp"``.
+        scene_radius: world distance from ``normalisation.center`` within which the whole scene lies
+            (``bound`` for NeRF-synthetic; ``aabb_scale * bound`` for instant-ngp).
+    """
+
+    images: np.ndarray
+    alphas: np.ndarray | None
+    cameras: Cameras
+    train_idx: np.ndarray
+    test_idx: np.ndarray
+    normalisation: Normalisation
+    up: np.ndarray
+    background: np.ndarray
+    source: Path
+    format: str
+    scene_radius: float
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+
+@dataclass(eq=False)
+class _Frame:
+    json_path: Path
+    index: int  # position in the JSON's frames list
+    meta: dict  # the whole JSON (shared keys)
+    frame: dict
+    c2w: np.ndarray  # (4, 4)
+    image_path: Path | None  # None: a camera-file frame without file_path
+
+
+def load_dataset(
+    path: str | os.PathLike,
+    downscale: float = 1,
+    background=(1.0, 1.0, 1.0),
+    holdout_every: int = 8,
+    bound: float | None = None,
+) -> SceneData:
+    """Load a NeRF-synthetic or instant-ngp / nerfstudio dataset (format detected from the files).
+
+    Args:
+        path: the dataset directory, or one of its ``transforms*.json`` files.
+        downscale: images shrink by this factor with an area filter; intrinsics follow.
+        background: (3,) RGB in [0, 1] that RGBA images are composited on.
+        holdout_every: every k-th loaded view is a test view (indices 0, k, 2k, ...); 0 holds out none.
+        bound: half-width in world units of the cube around the scene centre the field covers;
+            default per format (see the module docstring).
+
+    Listed images that do not exist are skipped with one warning; none existing is an :class:`InputError`,
+    and so is malformed JSON or a frame missing a required key.
+    """
+    background = np.asarray(background, dtype=np.float32)
+    if background.shape != (3,) or np.any(background < 0) or np.any(background > 1):
+        raise ValueError(f"background: expected 3 values in [0, 1], got {background.tolist()}")
+    if not isinstance(holdout_every, int | np.integer) or holdout_every < 0 or holdout_every == 1:
+        raise ValueError(f"holdout_every: expected 0 (no hold-out) or an int >= 2, got {holdout_every!r}")
+    if bound is not None and not (np.isfinite(bound) and bound > 0):
+        raise ValueError(f"bound: expected a positive number, got {bound!r}")
+    scaled_size(1, downscale)  # validates downscale
+
+    root, fmt, json_paths = _locate(Path(path))
+    frames = [f for jp in json_paths for f in _read_frames(jp)]
+    if not frames:
+        raise InputError(f"{', '.join(map(str, json_paths))}: no frames listed")
+    present = [f for f in frames if f.image_path.is_file()]
+    missing = [f for f in frames if not f.image_path.is_file()]
+    if missing:
+        names = ", ".join(_relative(f.image_path, root) for f in missing)
+        log.warning(
+            "%s: %d of %d listed images are missing and skipped: %s", root, len(missing), len(frames), names
+        )
+    if not present:
+        raise InputError(
+            f"{root}: none of the {len(frames)} images listed in "
+            f"{', '.join(p.name for p in json_paths)} exist (first: {missing[0].image_path})"
+        )
+
+    with ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1)) as pool:
+        loaded = list(pool.map(lambda f: _load_image(f.image_path, downscale, background), present))
+    first = loaded[0][0].shape
+    for f, (rgb, _, _) in zip(present, loaded, strict=True):
+        if rgb.shape != first:
+            raise InputError(
+                f"{f.image_path}: image is {rgb.shape[1]}x{rgb.shape[0]} but {present[0].image_path} is "
+                f"{first[1]}x{first[0]} (after downscale); all images must share one size"
+            )
+    cameras = _cameras(present, [size for _, _, size in loaded]).scaled(downscale)
+    images = np.stack([rgb for rgb, _, _ in loaded])
+    alphas = None
+    if any(a is not None for _, a, _ in loaded):
+        alphas = np.stack([np.ones(rgb.shape[:2], np.float32) if a is None else a for rgb, a, _ in loaded])
+
+    n = len(present)
+    test_mask = np.zeros(n, bool)
+    if holdout_every:
+        test_mask[::holdout_every] = True
+    normalisation, up, scene_radius = _normalisation(
+        fmt, cameras, present[0].json_path, present[0].meta, bound
+    )
+    log.info(
+        "%s: %d views (%d train, %d test) %dx%d, %s, centre %s, bound %.3g",
+        root,
+        n,
+        n - test_mask.sum(),
+        test_mask.sum(),
+        images.shape[2],
+        images.shape[1],
+        fmt,
+        np.round(normalisation.center, 3).tolist(),
+        1.0 / normalisation.scale,
+    )
+    return SceneData(
+        images=images,
+        alphas=alphas,
+        cameras=cameras,
+        train_idx=np.flatnonzero(~test_mask),
+        test_idx=np.flatnonzero(test_mask),
+        normalisation=normalisation,
+        up=up,
+        background=background,
+        source=root,
+        format=fmt,
+        scene_radius=scene_radius,
+    )
+
+
+def load_camera_file(path: str | os.PathLike, width: int | None = None, height: int | None = None) -> Cameras:
+    """Cameras from a ``transforms*.json``-style file whose images may be absent (e.g. a render path).
+
+    The image size is ``width`` x ``height`` when given, else the file's ``w``/``h`` keys, else the size
+    of the first listed image that exists; otherwise an :class:`InputError`. Intrinsics given in pixels
+    (``fl_x``, ``cx``, ...) refer to the file's ``w``/``h`` and are rescaled to a requested size.
+    """
+    if (width is None) != (height is None):
+        raise ValueError(f"width, height: give both or neither, got {width!r}, {height!r}")
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: camera file not found")
+    frames = _read_frames(path, need_images=False)
+    if not frames:
+        raise InputError(f"{path}: no frames listed")
+    size = None  # used only by frames without 'w'/'h' keys
+    if any(_get(f, "w") is None or _get(f, "h") is None for f in frames):
+        if width is not None:
+            size = (width, height)
+        else:
+            image = next((f.image_path for f in frames if f.image_path and f.image_path.is_file()), None)
+            if image is None:
+                raise InputError(
+                    f"{path}: no image size: no 'w'/'h' keys, none of the listed images exists, and no "
+                    f"width/height was given"
+                )
+            size = _image_size(image)
+    cameras = _cameras(frames, [size] * len(frames), check_size=False)
+    return cameras if width is None else cameras.resized(width, height)
+
+
+def _normalisation(fmt: str, cameras: Cameras, json_path: Path, meta: dict, bound: float | None):
+    """(Normalisation, up (3,), scene radius) by the per-format rule of the module docstring."""
+    if fmt == "nerf-synthetic":
+        half = SYNTHETIC_BOUND if bound is None else float(bound)
+        return Normalisation(np.zeros(3), 1.0 / half), np.array([0.0, 0.0, 1.0]), half
+    center = _focus_point(cameras.c2w)
+    distance = float(np.mean(np.linalg.norm(cameras.c2w[:, :3, 3] - center, axis=1)))
+    half = NGP_CUBE_FRACTION * distance if bound is None else float(bound)
+    up = cameras.c2w[:, :3, 1].mean(axis=0)
+    aabb_scale = _number(json_path, "", "aabb_scale", meta.get("aabb_scale", 1))
+    return Normalisation(center, 1.0 / half), up / np.linalg.norm(up), half * max(1.0, aabb_scale)
+
+
+def _locate(path: Path) -> tuple[Path, str, list[Path]]:
+    """(dataset root, format, JSON files to read) for a directory or a transforms JSON."""
+    if path.is_file():
+        root = path.parent
+        fmt = "instant-ngp" if path.name == "transforms.json" else "nerf-synthetic"
+        return root, fmt, [path]
+    if not path.is_dir():
+        raise InputError(f"{path}: no such dataset directory or file")
+    synthetic = [path / f"transforms_{s}.json" for s in SYNTHETIC_SPLITS]
+    synthetic = [p for p in synthetic if p.is_file()]
+    if synthetic:
+        return path, "nerf-synthetic", synthetic
+    if (path / "transforms.json").is_file():
+        return path, "instant-ngp", [path / "transforms.json"]
+    raise InputError(
+        f"{path}: not a dataset: expected transforms_train.json (NeRF-synthetic) or transforms.json "
+        f"(instant-ngp / nerfstudio)"
+    )
+
+
+def _read_frames(json_path: Path, need_images: bool = True) -> list[_Frame]:
+    try:
+        meta = json.loads(json_path.read_text())
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"{json_path}: cannot read: {err}") from err
+    except json.JSONDecodeError as err:
+        raise InputError(f"{json_path}: malformed JSON: {err}") from err
+    if not isinstance(meta, dict):
+        raise InputError(f"{json_path}: expected a JSON object at the top level")
+    if not isinstance(meta.get("frames"), list):
+        raise InputError(f"{json_path}: no 'frames' list")
+    frames = []
+    for i, frame in enumerate(meta["frames"]):
+        if not isinstance(frame, dict):
+            raise InputError(f"{json_path}: frame {i} is not a JSON object")
+        for key in ("transform_matrix", "file_path") if need_images else ("transform_matrix",):
+            if key not in frame:
+                raise InputError(f"{json_path}: frame {i} has no {key!r}")
+        c2w = _matrix(json_path, i, frame["transform_matrix"])
+        image = _image_path(json_path, i, frame["file_path"]) if "file_path" in frame else None
+        frames.append(_Frame(json_path, i, meta, frame, c2w, image))
+    return frames
+
+
+def _matrix(json_path: Path, i: int, value) -> np.ndarray:
+    try:
+        m = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        m = None
+    if m is None or m.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(m)):
+        raise InputError(f"{json_path}: frame {i}: 'transform_matrix' must be a 4x4 or 3x4 matrix of numbers")
+    if m.shape == (3, 4):
+        m = np.vstack([m, [0.0, 0.0, 0.0, 1.0]])
+    return m
+
+
+def _image_path(json_path: Path, i: int, file_path) -> Path:
+    """The image of a frame: ``file_path`` relative to the JSON, ``.png`` appended when it has none."""
+    if not isinstance(file_path, str):
+        raise InputError(f"{json_path}: frame {i}: 'file_path' must be a string, got {file_path!r}")
+    image = json_path.parent / file_path
+    if image.suffix == "" or (not image.is_file() and image.with_name(image.name + ".png").is_file()):
+        image = image.with_name(image.name + ".png")
+    return image
+
+
+def _get(frame: _Frame, key: str):
+    """A per-frame key, falling back to the file-level one (None when neither has it)."""
+    return frame.frame[key] if key in frame.frame else frame.meta.get(key)
+
+
+def _number(json_path: Path, where: str, key: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise InputError(f"{json_path}:{where} {key!r} must be a number, got {value!r}")
+    return float(value)
+
+
+def _cameras(frames: list[_Frame], sizes: list, check_size: bool = True) -> Cameras:
+    """Cameras for ``frames`` with intrinsics as in the module doc.
+
+    ``sizes``: per frame the image's (W, H), the default for missing ``w``/``h`` keys (None: keys present).
+    ``check_size``: keys that disagree with ``sizes`` are an :class:`InputError`.
+    """
+    rows = []
+    for f, (img_w, img_h) in zip(frames, [s or (None, None) for s in sizes], strict=True):
+        where = f" frame {f.index}:"
+
+        def num(key, default=None, f=f, where=where):
+            value = _get(f, key)
+            return default if value is None else _number(f.json_path, where, key, value)
+
+        w, h = num("w", img_w), num("h", img_h)
+        if check_size and (round(w), round(h)) != (img_w, img_h):
+            raise InputError(
+                f"{f.json_path}:{where} 'w' x 'h' = {w:g}x{h:g} but {f.image_path} is {img_w}x{img_h}"
+            )
+        model = _get(f, "camera_model")
+        if model is not None and model not in SUPPORTED_CAMERA_MODELS:
+            raise InputError(
+                f"{f.json_path}:{where} camera_model {model!r} is not supported "
+                f"(only {', '.join(SUPPORTED_CAMERA_MODELS)})"
+            )
+        if _get(f, "is_fisheye") or num("k3", 0.0) or num("k4", 0.0):
+            raise InputError(
+                f"{f.json_path}:{where} fisheye / k3 k4 distortion is not supported (only k1 k2 p1 p2)"
+            )
+        fx = num("fl_x")
+        if fx is None:
+            angle = num("camera_angle_x")
+            if angle is None:
+                raise InputError(f"{f.json_path}:{where} no 'fl_x' or 'camera_angle_x' (focal length)")
+            fx = 0.5 * w / math.tan(0.5 * angle)
+        fy = num("fl_y")
+        if fy is None:
+            angle = num("camera_angle_y")
+            fy = fx if angle is None else 0.5 * h / math.tan(0.5 * angle)
+        dist = [num(k, 0.0) for k in ("k1", "k2", "p1", "p2")]
+        rows.append((f.c2w, fx, fy, num("cx", 0.5 * w), num("cy", 0.5 * h), round(w), round(h), dist))
+    c2w, fx, fy, cx, cy, width, height, dist = zip(*rows, strict=True)
+    return Cameras(
+        c2w=np.stack(c2w),
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        width=width,
+        height=height,
+        distortion=np.array(dist),
+        names=[f"frame_{f.index}" if f.image_path is None else f.image_path.stem for f in frames],
+    )
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except (OSError, UnidentifiedImageError) as err:
+        raise InputError(f"{path}: cannot read image: {err}") from err
+
+
+def _load_image(path: Path, downscale: float, background: np.ndarray):
+    """Decode, composite on ``background`` and area-downscale one image.
+
+    Returns rgb (h, w, 3) float32, alpha (h, w) float32 or None, and the full-resolution size (W, H).
+    """
+    try:
+        with Image.open(path) as im:
+            has_alpha = im.mode in ("RGBA", "LA", "PA", "RGBa") or "transparency" in im.info
+            pixels = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
+    except (OSError, UnidentifiedImageError) as err:
+        raise InputError(f"{path}: cannot read image: {err}") from err
+    full = (pixels.shape[1], pixels.shape[0])
+    planes = np.empty((pixels.shape[2], full[1], full[0]), np.float32)  # channels first: fast inner loops
+    np.multiply(pixels.transpose(2, 0, 1), np.float32(1 / 255), out=planes)
+    if has_alpha:  # straight (unassociated) alpha as PNG stores it: rgb a + bg (1 - a) = bg + a (rgb - bg)
+        bg = background[:, None, None]
+        planes[:3] -= bg
+        planes[:3] *= planes[3]
+        planes[:3] += bg
+    size = (int(scaled_size(full[0], downscale)), int(scaled_size(full[1], downscale)))
+    if size != full:  # the area filter commutes with compositing: both are linear in rgb and alpha
+        planes = _area_resize(planes, size)
+    rgb = np.ascontiguousarray(planes[:3].transpose(1, 2, 0))
+    return rgb, (planes[3] if has_alpha else None), full
+
+
+def _area_resize(planes: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(C, H, W) float32 -> (C, h, w) float32 with a box (area) filter; ``size`` is (w, h)."""
+    (w, h), (c, H, W) = size, planes.shape
+    if H % h == 0 and W % w == 0:  # integer factors: exact block means
+        rows = planes.reshape(c, h, H // h, W).sum(axis=2)
+        return rows.reshape(c, h, w, W // w).sum(axis=3) / np.float32((H // h) * (W // w))
+    resized = [np.asarray(Image.fromarray(p).resize(size, Image.Resampling.BOX)) for p in planes]
+    return np.stack(resized).astype(np.float32)
+
+
+def _focus_point(c2w: np.ndarray) -> np.ndarray:
+    """(3,) point minimising the summed squared distance to the optical axes of ``c2w`` (N, 4, 4).
+
+    Solves ``sum_i (I - d_i d_i^T) (c - o_i) = 0`` for camera centres ``o_i`` and view directions ``d_i``.
+    """
+    origins, dirs = c2w[:, :3, 3], -c2w[:, :3, 2]
+    dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    proj = np.eye(3) - dirs[:, :, None] * dirs[:, None, :]
+    a, b = proj.sum(axis=0), np.einsum("nij,nj->i", proj, origins)
+    center, _, rank, _ = np.linalg.lstsq(a, b, rcond=1e-9)
+    if rank < 3:
+        log.warning("camera axes are (nearly) parallel: the scene centre along them is undetermined")
+    return center
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return str(path.relative_to(root))
+    except ValueError:
+        return str(path)

@@ -1,0 +1,212 @@
+"""Warp kernels of the hash encoding (:mod:`neural.field.hashgrid`), forward and table backward.
+
+Not re-exported: use :class:`neural.field.HashGridEncoding`. Tensors are shared with Warp without copies
+(``wp.from_torch``); kernels run on the tensors' device (cpu or cuda, on the current torch stream).
+
+One launch covers ``(levels, points)``; a thread encodes one point at one level, and the backward pass
+scatters ``weight * grad`` into the level's rows of the table gradient with atomic adds. The gradient
+with respect to the input points is **not** computed (the field feeds ``x`` to its MLP directly, and the
+paper's normals and eikonal term use finite differences): autograd receives None for ``x``.
+
+Warp runs a CPU launch on one core. On the CPU, ``cpu_threads`` Python threads each launch a strided
+subset of the levels (Warp releases the GIL during a CPU launch), so several cores work; levels write
+disjoint parts of the output and of the table gradient, so the threads never race.
+"""
+
+# no ``from __future__ import annotations``: Warp reads the kernels' annotations, which name closure types
+import functools
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+
+import torch
+
+from .hashgrid import check_encode_inputs, is_dense
+
+
+def _warp():
+    """The initialised ``warp`` module (imported on first use, so importing this module stays cheap)."""
+    import warp as wp
+
+    wp.init()
+    return wp
+
+
+@functools.cache
+def _kernels(n_features: int):
+    """Forward and backward kernels for ``n_features`` floats per level (compiled once per value)."""
+    wp = _warp()
+
+    vecf = wp.types.vector(length=n_features, dtype=wp.float32)
+    prime_y = wp.constant(wp.uint32(2654435761))
+    prime_z = wp.constant(wp.uint32(805459861))
+
+    @wp.func
+    def row(cx: int, cy: int, cz: int, side: int, dense: int, mask: wp.uint32) -> int:
+        if dense != 0:
+            return cx + side * (cy + side * cz)
+        h = wp.uint32(cx) ^ (wp.uint32(cy) * prime_y) ^ (wp.uint32(cz) * prime_z)
+        return int(h & mask)
+
+    @wp.func
+    def cell(x: float, res: int):
+        p = wp.clamp(x, 0.0, 1.0) * float(res)
+        c = wp.min(int(p), res - 1)  # int() truncates, which is floor() for p >= 0
+        return c, p - float(c)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def encode_forward(
+        x: wp.array(dtype=wp.vec3),
+        table: wp.array(dtype=vecf),
+        level: int,
+        n_levels: int,
+        res: int,
+        dense: int,
+        table_size: int,
+        out: wp.array(dtype=vecf),
+    ):
+        i = wp.tid()
+        side = res + 1
+        mask = wp.uint32(table_size - 1)
+        base = level * table_size
+        p = x[i]
+        x0, fx = cell(p[0], res)
+        y0, fy = cell(p[1], res)
+        z0, fz = cell(p[2], res)
+        gx = 1.0 - fx
+        gy = 1.0 - fy
+        gz = 1.0 - fz
+        acc = table[base + row(x0, y0, z0, side, dense, mask)] * (gx * gy * gz)
+        acc += table[base + row(x0 + 1, y0, z0, side, dense, mask)] * (fx * gy * gz)
+        acc += table[base + row(x0, y0 + 1, z0, side, dense, mask)] * (gx * fy * gz)
+        acc += table[base + row(x0 + 1, y0 + 1, z0, side, dense, mask)] * (fx * fy * gz)
+        acc += table[base + row(x0, y0, z0 + 1, side, dense, mask)] * (gx * gy * fz)
+        acc += table[base + row(x0 + 1, y0, z0 + 1, side, dense, mask)] * (fx * gy * fz)
+        acc += table[base + row(x0, y0 + 1, z0 + 1, side, dense, mask)] * (gx * fy * fz)
+        acc += table[base + row(x0 + 1, y0 + 1, z0 + 1, side, dense, mask)] * (fx * fy * fz)
+        out[i * n_levels + level] = acc
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def encode_backward(
+        x: wp.array(dtype=wp.vec3),
+        grad_out: wp.array(dtype=vecf),
+        level: int,
+        n_levels: int,
+        res: int,
+        dense: int,
+        table_size: int,
+        grad_table: wp.array(dtype=vecf),
+    ):
+        i = wp.tid()
+        side = res + 1
+        mask = wp.uint32(table_size - 1)
+        base = level * table_size
+        g = grad_out[i * n_levels + level]
+        p = x[i]
+        x0, fx = cell(p[0], res)
+        y0, fy = cell(p[1], res)
+        z0, fz = cell(p[2], res)
+        gx = 1.0 - fx
+        gy = 1.0 - fy
+        gz = 1.0 - fz
+        wp.atomic_add(grad_table, base + row(x0, y0, z0, side, dense, mask), g * (gx * gy * gz))
+        wp.atomic_add(grad_table, base + row(x0 + 1, y0, z0, side, dense, mask), g * (fx * gy * gz))
+        wp.atomic_add(grad_table, base + row(x0, y0 + 1, z0, side, dense, mask), g * (gx * fy * gz))
+        wp.atomic_add(grad_table, base + row(x0 + 1, y0 + 1, z0, side, dense, mask), g * (fx * fy * gz))
+        wp.atomic_add(grad_table, base + row(x0, y0, z0 + 1, side, dense, mask), g * (gx * gy * fz))
+        wp.atomic_add(grad_table, base + row(x0 + 1, y0, z0 + 1, side, dense, mask), g * (fx * gy * fz))
+        wp.atomic_add(grad_table, base + row(x0, y0 + 1, z0 + 1, side, dense, mask), g * (gx * fy * fz))
+        wp.atomic_add(grad_table, base + row(x0 + 1, y0 + 1, z0 + 1, side, dense, mask), g * (fx * fy * fz))
+
+    return vecf, encode_forward, encode_backward
+
+
+@functools.cache
+def _pool(n_threads: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="hashgrid")
+
+
+def _launch(kernel, x, table_in, table_out, resolutions: Sequence[int], table_size: int, cpu_threads: int):
+    """Launch ``kernel`` once per level over the points of ``x``.
+
+    x (N,) vec3 Warp array; ``table_in`` the table (forward) or the output gradient (backward), and
+    ``table_out`` the output (forward) or the table gradient (backward), as flat Warp arrays of vectors.
+    """
+    wp = _warp()
+    n_levels = len(resolutions)
+    if x.shape[0] == 0:
+        return
+
+    def run(levels) -> None:
+        for level in levels:
+            res = int(resolutions[level])
+            dense = int(is_dense(res, table_size))
+            inputs = [x, table_in, level, n_levels, res, dense, table_size, table_out]
+            wp.launch(kernel, dim=x.shape[0], inputs=inputs, device=x.device, stream=stream)
+
+    if x.device.is_cuda or cpu_threads == 1 or n_levels == 1:
+        stream = wp.stream_from_torch(wp.device_to_torch(x.device)) if x.device.is_cuda else None
+        run(range(n_levels))
+        return
+    stream = None
+    wp.load_module(kernel.module, device=x.device)  # compile once, before the threads race to do it
+    n_threads = min(cpu_threads, n_levels)
+    futures = [_pool(n_threads).submit(run, range(k, n_levels, n_threads)) for k in range(n_threads)]
+    for future in futures:
+        future.result()
+
+
+class _HashEncode(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x, table, resolutions, cpu_threads):
+        wp = _warp()
+        n_levels, table_size, n_features = table.shape
+        vecf, forward_kernel, _ = _kernels(n_features)
+        x = x.detach().to(torch.float32).contiguous()
+        out = torch.empty((x.shape[0] * n_levels, n_features), dtype=torch.float32, device=x.device)
+        _launch(
+            forward_kernel,
+            wp.from_torch(x, dtype=wp.vec3, requires_grad=False),
+            wp.from_torch(table.detach().view(-1, n_features), dtype=vecf, requires_grad=False),
+            wp.from_torch(out, dtype=vecf, requires_grad=False),
+            resolutions,
+            table_size,
+            cpu_threads,
+        )
+        ctx.save_for_backward(x)
+        ctx.table_shape = table.shape
+        ctx.resolutions = resolutions
+        ctx.cpu_threads = cpu_threads
+        return out.view(x.shape[0], n_levels * n_features)
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        wp = _warp()
+        (x,) = ctx.saved_tensors
+        n_levels, table_size, n_features = ctx.table_shape
+        vecf, _, backward_kernel = _kernels(n_features)
+        grad_out = grad_out.to(torch.float32).contiguous().view(-1, n_features)
+        grad_table = torch.zeros(ctx.table_shape, dtype=torch.float32, device=x.device)
+        _launch(
+            backward_kernel,
+            wp.from_torch(x, dtype=wp.vec3, requires_grad=False),
+            wp.from_torch(grad_out, dtype=vecf, requires_grad=False),
+            wp.from_torch(grad_table.view(-1, n_features), dtype=vecf, requires_grad=False),
+            ctx.resolutions,
+            table_size,
+            ctx.cpu_threads,
+        )
+        return None, grad_table, None, None
+
+
+def hash_encode_warp(
+    x: torch.Tensor, table: torch.Tensor, resolutions: Sequence[int], cpu_threads: int = 2
+) -> torch.Tensor:
+    """Warp twin of :func:`neural.field.hashgrid.hash_encode_torch`, differentiable in ``table`` only.
+
+    x (N, 3) points in [0, 1]^3 (clamped), table (L, T, F) float32, resolutions L ints -> (N, L*F) float32.
+    ``cpu_threads`` threads share the levels of a CPU launch (ignored on CUDA).
+    """
+    check_encode_inputs(x, table, resolutions)
+    if table.dtype != torch.float32:
+        raise ValueError(f"table: the Warp backend needs float32, got {table.dtype}")
+    return _HashEncode.apply(x, table, tuple(int(r) for r in resolutions), int(cpu_threads))

@@ -1,0 +1,240 @@
+"""The paper's neural field (Sec. 4.1): ``(c, f, s) = NN(x, d)``, kernel size s varying in space (Sec. 3.2).
+
+Geometry network ``(f, 1/s, f_geo, n) = NN_geo([Psi(u), u])``, one hidden layer 31 -> 64 -> 31;
+radiance network ``c = NN_rad([SH(d), f_geo, n, u])``, 48 -> 64 -> 64 -> 3 with a sigmoid.
+
+Units: the field takes WORLD points ``x`` and works on ``u = (x - center) * scale``, whose domain is the cube
+``[-1, 1]^3`` (the hash grid sees ``(u + 1) / 2``). Its outputs are returned in world units:
+``sdf = f_unit / scale`` and ``s = s_unit / scale`` (``inv_s = inv_s_unit * scale``), so ``f / s`` (what NeuS
+renders with, Eq. 3) does not depend on the scale, and ``|grad_x sdf| = |grad_u f_unit|`` (the eikonal term,
+Eq. 10, has the same value in both frames). Directions are the same in both frames (the map is a
+uniform scaling).
+
+Kernel size: the network's raw output ``r`` gives ``inv_s_unit = exp(clamp(r + ln init_inv_s, ln inv_s_min,
+ln inv_s_max))``, positive, equal to ``init_inv_s`` at initialisation; outside the clamp range the gradient
+with respect to ``r`` is zero.
+
+The geometry network starts as a sphere (SAL / NeuS geometric initialisation): the hidden units see only
+``u`` through unit directions spread evenly over the sphere, so ``f_unit(u) ~= |u| - init_radius``, and the
+predicted normal starts as ``u / |u|``, the sphere's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..errors import InputError
+from .hashgrid import BACKENDS, HashGridConfig, HashGridEncoding
+from .sh import N_COEFFS, spherical_harmonics
+
+SOFTPLUS_BETA = 100.0  # NeuS's geometry activation: a smooth ReLU, so finite-difference normals are smooth
+
+
+@dataclass(frozen=True)
+class FieldConfig:
+    """Field settings; network sizes are the paper's (Sec. 4.1), lengths are in unit space."""
+
+    hashgrid: HashGridConfig = field(default_factory=HashGridConfig)
+    geo_hidden: int = 64
+    rad_hidden: int = 64
+    geo_feature_dim: int = 26
+    init_radius: float = 0.5
+    init_inv_s: float = 20.0
+    inv_s_min: float = 1.0
+    inv_s_max: float = 1e5
+    backend: str = "warp"
+    cpu_threads: int = 2
+
+    def __post_init__(self):
+        if not isinstance(self.hashgrid, HashGridConfig):
+            raise ValueError(f"FieldConfig.hashgrid: expected a HashGridConfig, got {type(self.hashgrid)}")
+        for name in ("geo_hidden", "rad_hidden", "geo_feature_dim", "cpu_threads"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"FieldConfig.{name}: expected a positive int, got {value!r}")
+        if not 0.0 < self.init_radius < 1.0:
+            raise ValueError(f"FieldConfig.init_radius: expected a value in (0, 1), got {self.init_radius!r}")
+        if not 0.0 < self.inv_s_min <= self.init_inv_s <= self.inv_s_max < math.inf:
+            raise ValueError(
+                "FieldConfig: expected 0 < inv_s_min <= init_inv_s <= inv_s_max < inf, got "
+                f"{self.inv_s_min!r}, {self.init_inv_s!r}, {self.inv_s_max!r}"
+            )
+        if self.backend not in BACKENDS:
+            raise ValueError(f"FieldConfig.backend: expected one of {BACKENDS}, got {self.backend!r}")
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready dict (the hash grid as a nested dict)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> FieldConfig:
+        """Inverse of :meth:`to_dict`; unknown or malformed entries raise :class:`InputError`."""
+        if not isinstance(data, dict):
+            raise InputError(f"field config: expected a JSON object, got {type(data).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise InputError(f"field config: unknown keys {unknown} (known: {sorted(known)})")
+        values = dict(data)
+        if "hashgrid" in values:
+            grid = values["hashgrid"]
+            grid_known = {f.name for f in fields(HashGridConfig)}
+            if not isinstance(grid, dict) or set(grid) - grid_known:
+                raise InputError(f"field config: hashgrid must be an object with keys {sorted(grid_known)}")
+        try:
+            if "hashgrid" in values:
+                values["hashgrid"] = HashGridConfig(**values["hashgrid"])
+            return cls(**values)
+        except (TypeError, ValueError) as err:
+            raise InputError(f"field config: {err}") from None
+
+
+class Geometry(NamedTuple):
+    """Geometry-network outputs at N points, in world units."""
+
+    sdf: torch.Tensor  # (N,) signed distance f
+    inv_s: torch.Tensor  # (N,) inverse kernel size 1/s > 0
+    feature: torch.Tensor  # (N, geo_feature_dim) latent f_geo
+    normal: torch.Tensor  # (N, 3) predicted unit normal n
+
+
+def fibonacci_sphere(n: int) -> torch.Tensor:
+    """(n, 3) float32 unit vectors spread evenly over the sphere (spherical Fibonacci lattice)."""
+    i = torch.arange(n, dtype=torch.float64) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = torch.sqrt(1.0 - z * z)
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * i
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=1).to(torch.float32)
+
+
+def _check_points(x: torch.Tensor, name: str = "x") -> None:
+    if not isinstance(x, torch.Tensor) or x.ndim != 2 or x.shape[1] != 3:
+        raise ValueError(f"{name}: expected a (N, 3) tensor, got {getattr(x, 'shape', type(x))}")
+
+
+class ShellField(nn.Module):
+    """NeuS-style SDF with a spatially varying kernel size and a view-dependent colour (paper Sec. 3.2, 4.1).
+
+    ``center`` (3,) and ``scale`` map world points into the unit cube, ``u = (x - center) * scale``; both are
+    buffers (saved with the weights, moved by ``.to()``).
+    """
+
+    def __init__(self, config: FieldConfig | None = None, center=(0.0, 0.0, 0.0), scale: float = 1.0):
+        super().__init__()
+        self.config = config or FieldConfig()
+        center = torch.as_tensor(center, dtype=torch.float32)
+        if center.shape != (3,) or not torch.isfinite(center).all():
+            raise ValueError(f"center: expected 3 finite numbers, got {center.tolist()}")
+        if not (math.isfinite(float(scale)) and float(scale) > 0):
+            raise ValueError(f"scale: expected a finite number > 0, got {scale!r}")
+        self.register_buffer("center", center)
+        self.register_buffer("scale", torch.tensor(float(scale), dtype=torch.float32))
+
+        cfg = self.config
+        self.encoding = HashGridEncoding(cfg.hashgrid, backend=cfg.backend, cpu_threads=cfg.cpu_threads)
+        self.geo_hidden = nn.Linear(self.encoding.out_dim + 3, cfg.geo_hidden)
+        self.geo_out = nn.Linear(cfg.geo_hidden, 2 + cfg.geo_feature_dim + 3)
+        self.rad = nn.Sequential(
+            nn.Linear(N_COEFFS + cfg.geo_feature_dim + 3 + 3, cfg.rad_hidden),
+            nn.ReLU(),
+            nn.Linear(cfg.rad_hidden, cfg.rad_hidden),
+            nn.ReLU(),
+            nn.Linear(cfg.rad_hidden, 3),
+        )
+        self._sphere_init()
+
+    @torch.no_grad()
+    def _sphere_init(self) -> None:
+        """f_unit(u) ~= |u| - init_radius and n(u) = u / |u| (SAL / NeuS geometric initialisation).
+
+        Hidden unit i computes softplus(w_i . u) with unit w_i evenly spread; the average of relu(w . u)
+        over the sphere is |u| / 4, hence the output weights 4 / H. The encoding's inputs start at zero
+        weight (Adam moves them on the first step), as in NeuS / instant-nsr-pl.
+        """
+        hidden = self.config.geo_hidden
+        directions = fibonacci_sphere(hidden)  # (H, 3)
+        enc_dim = self.encoding.out_dim
+        self.geo_hidden.weight.zero_()
+        self.geo_hidden.weight[:, enc_dim:] = directions
+        self.geo_hidden.bias.zero_()
+        n_feat = self.config.geo_feature_dim
+        self.geo_out.weight[:2].zero_()
+        self.geo_out.weight[0] = 4.0 / hidden
+        self.geo_out.bias[:2] = torch.tensor([-self.config.init_radius, 0.0])
+        self.geo_out.weight[2 + n_feat :] = directions.T * (4.0 / hidden)
+        self.geo_out.bias[2 + n_feat :] = 0.0
+
+    def to_unit(self, x: torch.Tensor) -> torch.Tensor:
+        """World points x (N, 3) -> unit-space points u (N, 3) float32."""
+        _check_points(x)
+        return (x.to(torch.float32) - self.center) * self.scale
+
+    def _hidden(self, u: torch.Tensor) -> torch.Tensor:
+        """(N, geo_hidden) activations of the geometry network at unit points u (N, 3)."""
+        psi = self.encoding(((u + 1.0) * 0.5).contiguous())
+        return F.softplus(self.geo_hidden(torch.cat([psi, u], dim=1)), beta=SOFTPLUS_BETA)
+
+    def geometry(self, x: torch.Tensor) -> Geometry:
+        """Geometry network at world points x (N, 3) -> :class:`Geometry` in world units."""
+        out = self.geo_out(self._hidden(self.to_unit(x)))
+        n_feat = self.config.geo_feature_dim
+        cfg = self.config
+        log_inv_s = torch.clamp(
+            out[:, 1] + math.log(cfg.init_inv_s), math.log(cfg.inv_s_min), math.log(cfg.inv_s_max)
+        )
+        return Geometry(
+            sdf=out[:, 0] / self.scale,
+            inv_s=torch.exp(log_inv_s) * self.scale,
+            feature=out[:, 2 : 2 + n_feat],
+            normal=F.normalize(out[:, 2 + n_feat :], dim=1, eps=1e-12),
+        )
+
+    def radiance(self, x: torch.Tensor, d: torch.Tensor, geo: Geometry) -> torch.Tensor:
+        """Colour (N, 3) in [0, 1] at world points x (N, 3) seen along directions d (N, 3) (any length)."""
+        u = self.to_unit(x)
+        _check_points(d, "d")
+        if d.shape[0] != u.shape[0] or geo.feature.shape[0] != u.shape[0]:
+            raise ValueError(
+                f"d: expected {u.shape[0]} directions matching x and geo, got d {tuple(d.shape)}, "
+                f"geo.feature {tuple(geo.feature.shape)}"
+            )
+        sh = spherical_harmonics(F.normalize(d.to(torch.float32), dim=1))
+        return torch.sigmoid(self.rad(torch.cat([sh, geo.feature, geo.normal, u], dim=1)))
+
+    def forward(self, x: torch.Tensor, d: torch.Tensor) -> tuple[Geometry, torch.Tensor]:
+        """World points x (N, 3), directions d (N, 3) -> (:class:`Geometry`, rgb (N, 3))."""
+        geo = self.geometry(x)
+        return geo, self.radiance(x, d, geo)
+
+    def sdf(self, x: torch.Tensor) -> torch.Tensor:
+        """Signed distance (N,) in world units at world points x (N, 3); only f's row of the output layer."""
+        h = self._hidden(self.to_unit(x))
+        return (h @ self.geo_out.weight[0] + self.geo_out.bias[0]) / self.scale
+
+    @torch.no_grad()
+    def sdf_and_kernel(self, x: torch.Tensor, chunk: int = 262144) -> tuple[torch.Tensor, torch.Tensor]:
+        """(sdf (N,), s (N,)) in world units at world points x (N, 3), ``chunk`` points at a time."""
+        _check_points(x)
+        if not isinstance(chunk, int) or chunk < 1:
+            raise ValueError(f"chunk: expected a positive int, got {chunk!r}")
+        sdf, s = [], []
+        for start in range(0, max(x.shape[0], 1), chunk):  # one (empty) chunk when N = 0
+            geo = self.geometry(x[start : start + chunk].to(self.center.device))
+            sdf.append(geo.sdf)
+            s.append(1.0 / geo.inv_s)
+        return torch.cat(sdf), torch.cat(s)
+
+    def config_dict(self) -> dict:
+        """The field's :class:`FieldConfig` as a JSON-ready dict (centre and scale are stored apart)."""
+        return self.config.to_dict()
+
+    @classmethod
+    def from_config_dict(cls, data: dict, center=(0.0, 0.0, 0.0), scale: float = 1.0) -> ShellField:
+        """Rebuild an (untrained) field from :meth:`config_dict` output and the scene normalisation."""
+        return cls(FieldConfig.from_dict(data), center=center, scale=scale)

@@ -1,0 +1,333 @@
+"""Training (paper Procedure 4): stage 1 full-ray NeuS with a spatially varying kernel (Eq. 8-12), stage 2
+narrow-band fine-tuning with the color loss only.
+
+Both stages draw random pixels from the training views, write a checkpoint every ``checkpoint_every``
+steps (safetensors, atomic) and resume from it, show a progress bar with loss and PSNR, and evaluate on
+held-out views every ``eval_every`` steps.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from .checkpoint import load_checkpoint, save_checkpoint
+from .data import SceneData, camera_rays, pixel_to_ray
+from .field import ShellField
+from .metrics import psnr, ssim
+from .render.fullray import render_rays
+from .render.occupancy import OccupancyGrid
+
+log = logging.getLogger(__name__)
+
+# Regular tetrahedron directions for finite-difference gradients (4 evaluations instead of 6).
+_TETRA = torch.tensor([[1.0, -1.0, -1.0], [-1.0, -1.0, 1.0], [-1.0, 1.0, -1.0], [1.0, 1.0, 1.0]])
+
+
+@dataclass
+class Stage1Config:
+    """Stage-1 settings. Loss weights are the paper's (Sec. 3.5); lengths are in the field's unit space."""
+
+    steps: int = 6000
+    target_samples: int = 65536  # samples per batch; the ray count adapts to it (Instant-NGP)
+    initial_rays: int = 2048
+    max_rays: int = 16384
+    lr_encoding: float = 1e-2
+    lr_network: float = 3e-3
+    warmup_steps: int = 100
+    final_lr_factor: float = 0.1
+    lambda_e: float = 0.1  # Eq. 10
+    lambda_n: float = 0.1  # Eq. 12
+    lambda_s: float = 0.01  # Eq. 11
+    reg_fraction: float = 0.25  # fraction of samples that the regularisers are evaluated on
+    fd_eps: float = 2.0 / 1024  # finite-difference step for grad f (unit space)
+    smooth_eps: float = 0.01  # std of the perturbation in Eq. 11 (unit space)
+    cos_anneal_steps: int = 500  # NeuS cosine annealing
+    step_size: float = 2.0 * math.sqrt(3.0) / 512  # ray-marching step (unit space)
+    max_samples_per_ray: int = 1024
+    occupancy_resolution: int = 128
+    occupancy_every: int = 16
+    eval_every: int = 1000
+    eval_views: int = 2
+    checkpoint_every: int = 250
+    seed: int = 0
+
+
+@dataclass
+class Stage2Config:
+    """Stage-2 narrow-band fine-tuning (Procedure 4 lines 8-13): color loss only."""
+
+    steps: int = 1000
+    rays: int = 8192
+    lr_encoding: float = 2e-3
+    lr_network: float = 5e-4
+    final_lr_factor: float = 0.3
+    eval_every: int = 500
+    eval_views: int = 2
+    checkpoint_every: int = 250
+    seed: int = 1
+
+
+def make_optimizer(field: ShellField, lr_encoding: float, lr_network: float) -> torch.optim.Adam:
+    """Adam with Instant-NGP's settings: one group for the hash tables, one for the MLPs."""
+    enc = [p for n, p in field.named_parameters() if n.startswith("encoding")]
+    net = [p for n, p in field.named_parameters() if not n.startswith("encoding")]
+    return torch.optim.Adam(
+        [{"params": enc, "lr": lr_encoding, "base_lr": lr_encoding},
+         {"params": net, "lr": lr_network, "base_lr": lr_network}],
+        betas=(0.9, 0.99), eps=1e-15,
+    )
+
+
+def set_learning_rate(optimizer: torch.optim.Optimizer, step: int, steps: int, warmup: int, final: float) -> None:
+    """Linear warm-up then exponential decay to ``final`` x the base rate at the last step."""
+    factor = min(1.0, (step + 1) / max(warmup, 1)) * final ** (step / max(steps, 1))
+    for group in optimizer.param_groups:
+        group["lr"] = group["base_lr"] * factor
+
+
+class PixelSampler:
+    """Random training pixels with their colours (uniform over all pixels of the training views)."""
+
+    def __init__(self, data: SceneData, device: str, seed: int):
+        self.data = data
+        self.cameras = data.cameras
+        idx = np.asarray(data.train_idx)
+        self.views = torch.as_tensor(idx, device=device)
+        self.images = torch.as_tensor(data.images[idx], device=device)  # (N, H, W, 3)
+        self.height, self.width = self.images.shape[1:3]
+        self.device = device
+        self.generator = torch.Generator(device="cpu").manual_seed(seed)
+
+    def sample(self, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """n random pixels -> origins (n, 3), dirs (n, 3), rgb (n, 3)."""
+        g = self.generator
+        k = torch.randint(0, len(self.views), (n,), generator=g).to(self.device)
+        py = torch.randint(0, self.height, (n,), generator=g).to(self.device)
+        px = torch.randint(0, self.width, (n,), generator=g).to(self.device)
+        origins, dirs = pixel_to_ray(self.cameras, self.views[k], px + 0.5, py + 0.5)
+        return origins, dirs, self.images[k, py, px]
+
+
+def finite_difference_gradient(field: ShellField, x: torch.Tensor, eps: float) -> torch.Tensor:
+    """(N, 3) world-space grad f at ``x`` (N, 3) by tetrahedral finite differences with step ``eps``."""
+    offsets = _TETRA.to(x) * eps
+    f = field.sdf((x[:, None, :] + offsets[None]).reshape(-1, 3)).reshape(-1, 4)
+    return (f[:, :, None] * offsets[None]).sum(1) / (4.0 * eps * eps)
+
+
+def regularisers(field: ShellField, points: torch.Tensor, normals: torch.Tensor, inv_s: torch.Tensor,
+                 config: Stage1Config, generator: torch.Generator) -> dict[str, torch.Tensor]:
+    """Eikonal (Eq. 10), normal (Eq. 12) and kernel-smoothness (Eq. 11) losses on a subset of samples.
+
+    points (N, 3) world positions (detached), normals (N, 3) predicted normals, inv_s (N,) at them.
+    Lengths in ``config`` are in unit space and converted with the field's scale.
+    """
+    scale = float(field.scale)
+    eps = config.fd_eps / scale
+    grad = finite_difference_gradient(field, points, eps)
+    grad_norm = grad.norm(dim=-1)
+    eikonal = ((grad_norm - 1.0) ** 2).mean()
+    target = (grad / grad_norm.clamp_min(1e-6)[:, None]).detach()
+    normal = (normals - target).norm(dim=-1).mean()
+    noise = torch.randn(points.shape, generator=generator).to(points) * (config.smooth_eps / scale)
+    inv_s_perturbed = field.geometry(points + noise).inv_s
+    smooth = (torch.log(inv_s) - torch.log(inv_s_perturbed)).abs().mean()
+    return {"eikonal": eikonal, "normal": normal, "smooth": smooth}
+
+
+@torch.no_grad()
+def render_image(field: ShellField, data: SceneData, view: int, sampler, background: torch.Tensor,
+                 chunk: int = 8192) -> tuple[np.ndarray, float]:
+    """Render view ``view`` of ``data.cameras`` with ``sampler(origins, dirs) -> RaySamples``.
+
+    Returns the image (H, W, 3) float32 and the mean number of samples per pixel.
+    """
+    device = background.device
+    origins, dirs = camera_rays(data.cameras, view)
+    origins, dirs = torch.as_tensor(origins, device=device), torch.as_tensor(dirs, device=device)
+    colors, n_samples = [], 0
+    for i in range(0, len(origins), chunk):
+        o, d = origins[i:i + chunk], dirs[i:i + chunk]
+        samples = sampler(o, d)
+        n_samples += len(samples.ray_indices)
+        colors.append(render_rays(field, o, d, samples, background)["color"])
+    h, w = int(data.cameras.height[view]), int(data.cameras.width[view])
+    return torch.cat(colors).clamp(0, 1).reshape(h, w, 3).cpu().numpy(), n_samples / len(origins)
+
+
+def evaluate(field: ShellField, data: SceneData, views, sampler, background: torch.Tensor) -> dict:
+    """PSNR/SSIM/samples per pixel/ms per frame over ``views`` (indices into the dataset)."""
+    psnrs, ssims, spps, times = [], [], [], []
+    for v in views:
+        start = time.perf_counter()
+        image, spp = render_image(field, data, int(v), sampler, background)
+        times.append(1000 * (time.perf_counter() - start))
+        psnrs.append(psnr(image, data.images[v]))
+        ssims.append(ssim(image, data.images[v]))
+        spps.append(spp)
+    return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)),
+            "samples_per_pixel": float(np.mean(spps)), "ms_per_frame": float(np.mean(times)),
+            "views": [int(v) for v in views]}
+
+
+def occupancy_sampler(grid: OccupancyGrid, config: Stage1Config, scale: float, perturb: bool):
+    """A ``sampler(origins, dirs) -> RaySamples`` marching the occupancy grid (Instant-NGP)."""
+    step = config.step_size / scale
+
+    def sample(origins, dirs):
+        return grid.sample(origins, dirs, step_size=step, max_samples_per_ray=config.max_samples_per_ray,
+                           perturb=perturb)
+
+    return sample
+
+
+def new_occupancy_grid(field: ShellField, resolution: int) -> OccupancyGrid:
+    """Occupancy grid over the field's domain, the unit cube mapped to world coordinates."""
+    center = field.center.detach().cpu().numpy().astype(np.float64)
+    half = 1.0 / float(field.scale)
+    return OccupancyGrid(center - half, center + half, resolution, device=field.center.device)
+
+
+def _sdf_kernel(field: ShellField):
+    def fn(x):
+        geo = field.geometry(x)
+        return geo.sdf, geo.inv_s
+
+    return fn
+
+
+def _progress(total: int, start: int, desc: str):
+    return tqdm(total=total, initial=start, desc=desc, dynamic_ncols=True, mininterval=1.0)
+
+
+def train_stage1(field: ShellField, data: SceneData, out_dir: Path, config: Stage1Config,
+                 device: str) -> dict:
+    """Stage 1 (Procedure 4 lines 1-5): full-ray volume rendering with Eq. 8. Resumes from
+    ``out_dir/checkpoints/stage1.safetensors``; returns the final held-out evaluation."""
+    torch.manual_seed(config.seed)
+    ckpt = Path(out_dir) / "checkpoints" / "stage1.safetensors"
+    optimizer = make_optimizer(field, config.lr_encoding, config.lr_network)
+    grid = new_occupancy_grid(field, config.occupancy_resolution)
+    background = torch.as_tensor(data.background, dtype=torch.float32, device=device)
+    start, n_rays, final = 0, config.initial_rays, None
+    if ckpt.is_file():
+        meta, extra = load_checkpoint(ckpt, field, optimizer)
+        grid.load_state(extra)
+        start, n_rays, final = int(meta["step"]), int(meta["n_rays"]), meta.get("final")
+        log.info("resuming stage 1 from %s at step %d", ckpt, start)
+    pixels = PixelSampler(data, device, config.seed + start)
+    reg_gen = torch.Generator().manual_seed(config.seed + 7 + start)
+    sampler = occupancy_sampler(grid, config, float(field.scale), perturb=True)
+    eval_sampler = occupancy_sampler(grid, config, float(field.scale), perturb=False)
+    eval_views = np.asarray(data.test_idx)[: config.eval_views]
+    scale = float(field.scale)
+    bar = _progress(config.steps, start, "stage 1")
+    history = []
+    for step in range(start, config.steps):
+        if step % config.occupancy_every == 0:
+            with torch.no_grad():
+                grid.update(_sdf_kernel(field), step)
+        set_learning_rate(optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor)
+        origins, dirs, target = pixels.sample(n_rays)
+        samples = sampler(origins, dirs)
+        n_samples = len(samples.ray_indices)
+        if n_samples == 0:
+            bar.update(1)
+            continue
+        anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
+        out = render_rays(field, origins, dirs, samples, background, cos_anneal=anneal)
+        loss_c = (out["color"] - target).abs().mean()  # Eq. 9
+        k = max(1, int(n_samples * config.reg_fraction))
+        pick = torch.randperm(n_samples, generator=reg_gen)[:k].to(origins.device)
+        reg = regularisers(field, out["points"][pick].detach(), out["normal"][pick], out["inv_s"][pick],
+                           config, reg_gen)
+        loss = (loss_c + config.lambda_e * reg["eikonal"] + config.lambda_n * reg["normal"]
+                + config.lambda_s * reg["smooth"])  # Eq. 8
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        n_rays = int(np.clip(n_rays * config.target_samples / n_samples, 256, config.max_rays))
+        with torch.no_grad():
+            batch_psnr = -10.0 * math.log10(max(float(((out["color"] - target) ** 2).mean()), 1e-10))
+        bar.set_postfix(loss=f"{float(loss):.4f}", psnr=f"{batch_psnr:.2f}", rays=n_rays,
+                        spp=f"{n_samples / len(origins):.1f}", s=f"{float(1 / out['inv_s'].mean()) * scale:.4f}")
+        bar.update(1)
+        done = step + 1
+        if done % config.eval_every == 0 or done == config.steps:
+            metrics = evaluate(field, data, eval_views, eval_sampler, background)
+            metrics["step"] = done
+            history.append(metrics)
+            bar.write(f"stage 1 step {done}: held-out PSNR {metrics['psnr']:.2f} dB, "
+                      f"SSIM {metrics['ssim']:.3f}, {metrics['samples_per_pixel']:.1f} samples/pixel")
+        if done % config.checkpoint_every == 0 or done == config.steps:
+            final = history[-1] if done == config.steps else None
+            save_checkpoint(ckpt, field, optimizer, grid.state(), {"step": done, "n_rays": n_rays, "final": final})
+    bar.close()
+    return {"history": history, "final": history[-1] if history else final, "occupancy": grid}
+
+
+def narrow_band_sampler(intersector, config):
+    """A ``sampler(origins, dirs) -> RaySamples`` casting rays against the shells (Procedure 3)."""
+    from .render.narrowband import narrow_band_samples
+
+    def sample(origins, dirs):
+        samples, _ = narrow_band_samples(intersector, origins, dirs, config)
+        return samples
+
+    return sample
+
+
+def train_stage2(field: ShellField, data: SceneData, outer, inner, out_dir: Path, config: Stage2Config,
+                 narrowband, device: str) -> dict:
+    """Stage 2 (Procedure 4 lines 8-13): fine-tune inside the shells M+ (``outer``) / M- (``inner``) with the
+    color loss (Eq. 9) only. Resumes from ``out_dir/checkpoints/stage2.safetensors``."""
+    from .render.narrowband import ShellIntersector
+
+    torch.manual_seed(config.seed)
+    ckpt = Path(out_dir) / "checkpoints" / "stage2.safetensors"
+    optimizer = make_optimizer(field, config.lr_encoding, config.lr_network)
+    background = torch.as_tensor(data.background, dtype=torch.float32, device=device)
+    start, final = 0, None
+    if ckpt.is_file():
+        meta, _ = load_checkpoint(ckpt, field, optimizer)
+        start, final = int(meta["step"]), meta.get("final")
+        log.info("resuming stage 2 from %s at step %d", ckpt, start)
+    sampler = narrow_band_sampler(ShellIntersector(outer, inner), narrowband)
+    pixels = PixelSampler(data, device, config.seed + start)
+    eval_views = np.asarray(data.test_idx)[: config.eval_views]
+    bar = _progress(config.steps, start, "stage 2")
+    history = []
+    for step in range(start, config.steps):
+        set_learning_rate(optimizer, step, config.steps, 1, config.final_lr_factor)
+        origins, dirs, target = pixels.sample(config.rays)
+        samples = sampler(origins, dirs)
+        out = render_rays(field, origins, dirs, samples, background)
+        loss = (out["color"] - target).abs().mean()  # Eq. 9 only: no regularisers in stage 2
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        with torch.no_grad():
+            batch_psnr = -10.0 * math.log10(max(float(((out["color"] - target) ** 2).mean()), 1e-10))
+        bar.set_postfix(loss=f"{float(loss):.4f}", psnr=f"{batch_psnr:.2f}",
+                        spp=f"{len(samples.ray_indices) / len(origins):.2f}")
+        bar.update(1)
+        done = step + 1
+        if done % config.eval_every == 0 or done == config.steps:
+            metrics = evaluate(field, data, eval_views, sampler, background)
+            metrics["step"] = done
+            history.append(metrics)
+            bar.write(f"stage 2 step {done}: held-out PSNR {metrics['psnr']:.2f} dB, "
+                      f"SSIM {metrics['ssim']:.3f}, {metrics['samples_per_pixel']:.2f} samples/pixel")
+        if done % config.checkpoint_every == 0 or done == config.steps:
+            final = history[-1] if done == config.steps else None
+            save_checkpoint(ckpt, field, optimizer, None, {"step": done, "final": final})
+    bar.close()
+    return {"history": history, "final": history[-1] if history else final}

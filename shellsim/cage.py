@@ -1,0 +1,442 @@
+"""The tetrahedral cage of an asset (paper Sec. 5, DESIGN.md step 5).
+
+"We first dilate and tetrahedralize the outer mesh M+ with Fast-TetWild to produce a tetrahedral mesh that
+encapsulates the scene [...] any deformation is transferred to M+ and M- via barycentric interpolation,
+using precomputed barycentric coordinates generated as a pre-process."
+
+:func:`build_cage`:
+
+1. **dilate** ``M+`` by ``margin`` (relative to its bounding-box diagonal): marching cubes of its signed
+   distance on a grid of cell ``margin / 2`` at the level ``+margin`` (``igl.offset_surface``), which is a
+   closed surface by construction, then quadric-error decimation to ``surface_faces`` triangles, since
+   fTetWild's time grows with its input;
+2. **tetrahedralize** it with fTetWild (``pytetwild``), steering the ideal edge length until the tet count
+   is within a factor ``tolerance`` of ``target_tets`` (at most ``max_attempts`` runs; the closest is kept).
+   fTetWild's envelope (how far its boundary may stray from the dilated surface) is ``envelope * margin``;
+3. **validate** (:func:`check_tet_mesh`): every tet positively oriented and not degenerate, and one solid
+   connected through shared faces. A shell whose parts lie farther apart than twice the margin gives a
+   cage in pieces, which is an :class:`~neural.errors.InputError` (raise the margin, or remove the floaters);
+4. **embed** every ``M+`` and ``M-`` vertex (:func:`shellsim.embed.embed_points`).
+
+``cage.npz`` (format version 1, no pickle): ``vertices`` (V, 3) float64, ``tets`` (T, 4) int64,
+``outer_tet`` (Vo,) int64, ``outer_bary`` (Vo, 4) float64, ``inner_tet`` (Vi,), ``inner_bary`` (Vi, 4),
+``shell_digest`` (sha256 of the shells' vertex and face arrays as loaded), ``config`` (JSON of
+:class:`CageConfig`), ``format``, ``format_version``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from neural.errors import InputError
+
+from .embed import BARY_TOL, TET_FACES, boundary_facets, embed_points, interpolate, outside_distance
+
+logger = logging.getLogger(__name__)
+
+FORMAT = "shellsim-cage"
+FORMAT_VERSION = 1
+ARRAY_KEYS = ("vertices", "tets", "outer_tet", "outer_bary", "inner_tet", "inner_bary")
+
+#: Tets with :func:`tet_quality` below this are degenerate (1 is a regular tet).
+DEGENERATE_QUALITY = 1e-6
+#: Cells of the dilation's signed-distance grid per margin, and the grid's limits along the longest side.
+GRID_CELLS_PER_MARGIN = 2
+GRID_MIN, GRID_MAX = 16, 160
+#: fTetWild's tet count at ideal edge length ``L`` is about ``TETS_PER_VOLUME * volume / L**3 +
+#: TETS_PER_AREA * area / L**2`` (least squares on a bumpy sphere, a box, a torus, a capsule and a plant-like
+#: shape at the default envelope; within -30%/+25% on them). Only the first guess of ``L`` depends on it.
+TETS_PER_VOLUME, TETS_PER_AREA = 4.8, 7.6
+
+
+@dataclass
+class CageConfig:
+    """Settings of :func:`build_cage`.
+
+    margin : dilation of ``M+`` before tetrahedralising, relative to its bounding-box diagonal
+    target_tets : the tet count to aim for; the result lies within a factor ``tolerance`` when fTetWild
+        can resolve the surface with that few (a thin, detailed shell needs more)
+    tolerance : accepted ratio between the tet count and ``target_tets``
+    max_attempts : fTetWild runs at most, steering the edge length between them
+    surface_faces : triangles of the dilated surface handed to fTetWild
+    envelope : fTetWild's envelope (largest distance of the cage boundary from the dilated surface),
+        as a fraction of the margin
+    """
+
+    margin: float = 0.02
+    target_tets: int = 5000
+    tolerance: float = 1.5
+    max_attempts: int = 3
+    surface_faces: int = 4000
+    envelope: float = 0.25
+
+    def __post_init__(self):
+        if not (math.isfinite(self.margin) and self.margin > 0):
+            raise ValueError(f"margin must be a positive number, got {self.margin}")
+        if self.target_tets < 10:
+            raise ValueError(f"target_tets must be at least 10, got {self.target_tets}")
+        if not self.tolerance > 1:
+            raise ValueError(f"tolerance must be > 1, got {self.tolerance}")
+        if self.max_attempts < 1:
+            raise ValueError(f"max_attempts must be >= 1, got {self.max_attempts}")
+        if self.surface_faces < 100:
+            raise ValueError(f"surface_faces must be >= 100, got {self.surface_faces}")
+        if not 0 < self.envelope < 1:
+            raise ValueError(f"envelope must lie in (0, 1), got {self.envelope}")
+
+
+@dataclass
+class Cage:
+    """A rest cage and the embedding of the shells' vertices in it.
+
+    vertices : (V, 3) float64, tets : (T, 4) int64 (positive volumes),
+    outer_tet : (Vo,) int64 and outer_bary : (Vo, 4) float64 for the vertices of ``M+``,
+    inner_tet : (Vi,) int64 and inner_bary : (Vi, 4) float64 for those of ``M-``,
+    shell_digest : :func:`shell_digest` of the shells embedded, config : the settings it was built with.
+    """
+
+    vertices: np.ndarray
+    tets: np.ndarray
+    outer_tet: np.ndarray
+    outer_bary: np.ndarray
+    inner_tet: np.ndarray
+    inner_bary: np.ndarray
+    shell_digest: str
+    config: CageConfig = field(default_factory=CageConfig)
+
+
+def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes ``det[v1 - v0, v2 - v0, v3 - v0] / 6``: vertices (V, 3), tets (T, 4) -> (T,) float64."""
+    p = np.asarray(vertices, dtype=np.float64)[np.asarray(tets)]  # (T, 4, 3)
+    e = p[:, 1:] - p[:, :1]
+    return np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
+
+
+def tet_quality(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Shape quality ``6 sqrt(2) volume / rms_edge**3``: 1 for a regular tet, 0 for a flat one, negative
+    for an inverted one. vertices (V, 3), tets (T, 4) -> (T,) float64."""
+    p = np.asarray(vertices, dtype=np.float64)[np.asarray(tets)]
+    pairs = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
+    rms = np.sqrt(np.mean([np.sum((p[:, i] - p[:, j]) ** 2, axis=1) for i, j in pairs], axis=0))
+    return 6.0 * math.sqrt(2.0) * tet_volumes(vertices, tets) / rms**3
+
+
+def boundary_faces(tets: np.ndarray) -> np.ndarray:
+    """Faces of exactly one tet: tets (T, 4) positively oriented -> (F, 3) int64, oriented outward."""
+    return boundary_facets(tets)[0]
+
+
+def connected_parts(tets: np.ndarray) -> np.ndarray:
+    """Label of the solid each tet belongs to, tets connecting through shared faces: (T, 4) -> (T,) int64."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    tets = np.asarray(tets, dtype=np.int64)
+    _, face_id = np.unique(np.sort(tets[:, TET_FACES].reshape(-1, 3), axis=1), axis=0, return_inverse=True)
+    n = len(tets)
+    rows = np.repeat(np.arange(n), 4)
+    graph = coo_matrix((np.ones(4 * n), (rows, n + face_id.ravel())), shape=(n + face_id.max() + 1,) * 2)
+    _, labels = connected_components(graph, directed=False)
+    return np.unique(labels[:n], return_inverse=True)[1].ravel().astype(np.int64)
+
+
+def check_tet_mesh(vertices: np.ndarray, tets: np.ndarray, what: str) -> None:
+    """Raise :class:`InputError` (``what: problem``) unless the tets form one solid of well-shaped,
+    positively oriented tets. vertices (V, 3), tets (T, 4)."""
+    if len(tets) == 0:
+        raise InputError(f"{what}: the cage has no tetrahedra")
+    if not np.isfinite(vertices).all():
+        raise InputError(f"{what}: cage vertices contain NaN or infinity")
+    quality = tet_quality(vertices, tets)
+    if (quality <= 0).any():
+        raise InputError(f"{what}: {int((quality <= 0).sum())} of {len(tets)} cage tets are inverted or flat")
+    if (quality < DEGENERATE_QUALITY).any():
+        raise InputError(
+            f"{what}: {int((quality < DEGENERATE_QUALITY).sum())} of {len(tets)} cage tets are "
+            f"degenerate (quality below {DEGENERATE_QUALITY:g})"
+        )
+    parts = connected_parts(tets)
+    n_parts = int(parts.max()) + 1
+    if n_parts > 1:
+        sizes = np.sort(np.bincount(parts))[::-1]
+        raise InputError(
+            f"{what}: the cage falls apart into {n_parts} separate solids ({', '.join(map(str, sizes[:5]))} "
+            "tets); parts of the outer shell lie farther apart than twice the margin. Raise --margin until "
+            "they merge, or remove the floating parts from the shell"
+        )
+
+
+def shell_digest(outer, inner) -> str:
+    """sha256 of the shells' vertex (float64) and face (int64) arrays: the cage is rebuilt when it changes."""
+    h = hashlib.sha256()
+    for mesh in (outer, inner):
+        for array in (np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)):
+            h.update(str(array.shape).encode())
+            h.update(np.ascontiguousarray(array).tobytes())
+    return h.hexdigest()
+
+
+def dilate_surface(
+    vertices: np.ndarray, faces: np.ndarray, offset: float, max_faces: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The closed surface at signed distance ``+offset`` outside a closed triangle mesh.
+
+    vertices (N, 3) float, faces (M, 3) int, offset > 0 in world units -> (N', 3) float64, (M', 3) int64 with
+    ``M' <= max_faces``: marching cubes on a signed-distance grid with cells ``offset / 2`` (fast winding
+    number sign), decimated by quadric-error edge collapse (which keeps ~90% of the offset at sharp corners,
+    where midpoint collapse cuts them).
+    """
+    import igl
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    longest = float(np.ptp(vertices, axis=0).max()) + 2 * offset
+    wanted = math.ceil(longest / offset * GRID_CELLS_PER_MARGIN)
+    cells = int(np.clip(wanted, GRID_MIN, GRID_MAX))
+    if wanted > GRID_MAX:
+        logger.warning(
+            "margin %.3g is small for a %d-cell dilation grid: the cage may not contain every shell "
+            "vertex (those outside get extrapolated coordinates)",
+            offset,
+            GRID_MAX,
+        )
+    out_v, out_f, *_ = igl.offset_surface(
+        vertices, faces, offset, cells, igl.SignedDistanceType.SIGNED_DISTANCE_TYPE_FAST_WINDING_NUMBER
+    )
+    logger.debug("dilated surface: %d triangles on a grid of %d cells", len(out_f), cells)
+    if len(out_f) > max_faces:
+        out_v, out_f, _, _ = igl.qslim(
+            np.asfortranarray(out_v), np.asfortranarray(out_f, dtype=np.int32), max_faces, False
+        )
+    return np.ascontiguousarray(out_v, dtype=np.float64), np.ascontiguousarray(out_f, dtype=np.int64)
+
+
+def _tetrahedralize(
+    vertices: np.ndarray, faces: np.ndarray, edge: float, epsilon: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One fTetWild run; unreferenced vertices dropped. -> (V, 3) float64, (T, 4) int64."""
+    import pytetwild
+
+    tet_v, tet_t = pytetwild.tetrahedralize(
+        vertices, faces.astype(np.int32), edge_length_abs=edge, epsilon=epsilon, vtk_ordering=True, quiet=True
+    )
+    used, tets = np.unique(np.asarray(tet_t, dtype=np.int64), return_inverse=True)
+    return np.asarray(tet_v, dtype=np.float64)[used], tets.reshape(-1, 4)
+
+
+def tetrahedralize_to_count(
+    vertices: np.ndarray, faces: np.ndarray, config: CageConfig, margin: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """fTetWild on a closed surface with about ``config.target_tets`` tets.
+
+    vertices (N, 3), faces (M, 3) of the dilated surface, margin in world units -> (V, 3) float64,
+    (T, 4) int64. The edge length starts from the model of :data:`TETS_PER_VOLUME` and :data:`TETS_PER_AREA`,
+    then follows a secant on log(count) against log(edge length), changing by a factor 2 at most per run.
+    """
+    import trimesh
+
+    surface = trimesh.Trimesh(vertices, faces, process=False)
+    diag = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    epsilon = config.envelope * margin / diag
+    target = config.target_tets
+    # positive root u = 1 / L of TETS_PER_VOLUME * volume * u^3 + TETS_PER_AREA * area * u^2 = target
+    roots = np.roots([TETS_PER_VOLUME * abs(surface.volume), TETS_PER_AREA * surface.area, 0.0, -target])
+    edge = 1.0 / float(max(r.real for r in roots if abs(r.imag) < 1e-9 * abs(r)))
+
+    def off(tets: np.ndarray) -> float:  # how far a tet count is from the target, as a log ratio
+        return abs(math.log(max(len(tets), 1) / target))
+
+    tried: list[tuple[float, np.ndarray, np.ndarray]] = []
+    for attempt in range(config.max_attempts):
+        start = time.perf_counter()
+        tet_v, tets = _tetrahedralize(vertices, faces, edge, epsilon)
+        logger.info(
+            "fTetWild run %d: edge %.4g -> %d tets (%.1f s)",
+            attempt + 1,
+            edge,
+            len(tets),
+            time.perf_counter() - start,
+        )
+        tried.append((edge, tet_v, tets))
+        if off(tets) <= math.log(config.tolerance):
+            break
+        slope = -3.0  # count ~ edge^-3 in the bulk, ~ edge^-2 near the surface
+        if len(tried) > 1 and tried[-2][0] != edge and len(tried[-2][2]) and len(tets):
+            slope = math.log(len(tets) / len(tried[-2][2])) / math.log(edge / tried[-2][0])
+            slope = float(np.clip(slope, -6.0, -0.5))
+        edge *= float(np.clip((max(len(tets), 1) / target) ** (-1 / slope), 0.5, 2.0))
+    _, tet_v, tets = min(tried, key=lambda t: off(t[2]))
+    if off(tets) > math.log(config.tolerance):
+        logger.warning(
+            "cage has %d tets, target %d: fTetWild could not get closer in %d runs",
+            len(tets),
+            target,
+            config.max_attempts,
+        )
+    return tet_v, tets
+
+
+def build_cage(outer, inner, config: CageConfig | None = None, what: str = "outer shell") -> Cage:
+    """Dilate, tetrahedralize, validate and embed (module docstring). ``outer`` (M+) and ``inner`` (M-) are
+    closed ``trimesh.Trimesh`` in world coordinates; ``what`` names the source in error messages."""
+    config = config or CageConfig()
+    for name, mesh in (("outer", outer), ("inner", inner)):
+        if not hasattr(mesh, "vertices") or not hasattr(mesh, "faces") or len(mesh.faces) == 0:
+            raise ValueError(f"{name}: expected a non-empty trimesh.Trimesh, got {type(mesh).__name__}")
+    start = time.perf_counter()
+    outer_v = np.asarray(outer.vertices, dtype=np.float64)
+    inner_v = np.asarray(inner.vertices, dtype=np.float64)
+    margin = config.margin * float(np.linalg.norm(np.ptp(outer_v, axis=0)))
+    surf_v, surf_f = dilate_surface(outer_v, outer.faces, margin, config.surface_faces)
+    logger.info("dilated M+ by %.4g: %d triangles (%.1f s)", margin, len(surf_f), time.perf_counter() - start)
+    vertices, tets = tetrahedralize_to_count(surf_v, surf_f, config, margin)
+    check_tet_mesh(vertices, tets, what)
+    outer_tet, outer_bary = embed_points(vertices, tets, outer_v)
+    inner_tet, inner_bary = embed_points(vertices, tets, inner_v)
+    logger.info("cage: %d vertices, %d tets (%.1f s)", len(vertices), len(tets), time.perf_counter() - start)
+    return Cage(
+        vertices, tets, outer_tet, outer_bary, inner_tet, inner_bary, shell_digest(outer, inner), config
+    )
+
+
+def cage_summary(cage: Cage) -> dict:
+    """Facts about a cage: sizes, volume, worst tet quality, and how many shell vertices lie outside it
+    (embedded with extrapolated coordinates) and how far."""
+    quality = tet_quality(cage.vertices, cage.tets)
+    outside = {}
+    for name in ("outer", "inner"):
+        tet_index, bary = getattr(cage, f"{name}_tet"), getattr(cage, f"{name}_bary")
+        out = np.nonzero(bary.min(axis=1, initial=0.0) < -BARY_TOL)[0]
+        points = interpolate(cage.vertices, cage.tets, tet_index[out], bary[out])
+        dist = outside_distance(cage.vertices, cage.tets, points)
+        outside[name] = (len(tet_index), len(out), float(dist.max(initial=0.0)))
+    return {
+        "vertices": len(cage.vertices),
+        "tets": len(cage.tets),
+        "volume": float(tet_volumes(cage.vertices, cage.tets).sum()),
+        "min_quality": float(quality.min()),
+        "median_quality": float(np.median(quality)),
+        "outer_vertices": outside["outer"][0],
+        "inner_vertices": outside["inner"][0],
+        "outside": outside["outer"][1] + outside["inner"][1],
+        "max_outside_distance": max(outside["outer"][2], outside["inner"][2]),
+    }
+
+
+def save_cage(path: str | os.PathLike, cage: Cage) -> None:
+    """Write ``cage`` to ``path`` (npz, no pickle) atomically: temporary file + rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(
+        tmp,
+        format=np.array(FORMAT),
+        format_version=np.array(FORMAT_VERSION),
+        vertices=np.asarray(cage.vertices, np.float64),
+        tets=np.asarray(cage.tets, np.int64),
+        outer_tet=np.asarray(cage.outer_tet, np.int64),
+        outer_bary=np.asarray(cage.outer_bary, np.float64),
+        inner_tet=np.asarray(cage.inner_tet, np.int64),
+        inner_bary=np.asarray(cage.inner_bary, np.float64),
+        shell_digest=np.array(cage.shell_digest),
+        config=np.array(json.dumps(dataclasses.asdict(cage.config))),
+    )
+    os.replace(tmp, path)
+
+
+def load_cage(path: str | os.PathLike) -> Cage:
+    """Read and validate a cage file; any problem is an :class:`InputError` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: cage file not found")
+    keys = ("format", "format_version", *ARRAY_KEYS, "shell_digest", "config")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in keys if k not in data.files]
+            if missing:
+                raise InputError(f"{path}: not a cage file, missing {', '.join(missing)}")
+            arrays = {k: data[k] for k in keys}
+    except InputError:
+        raise
+    except Exception as err:  # zip/npy format errors come in many types
+        raise InputError(f"{path}: cannot read cage file ({err})") from None
+    if (
+        str(arrays["format"]) != FORMAT
+        or arrays["format_version"].shape != ()
+        or int(arrays["format_version"]) != FORMAT_VERSION
+    ):
+        raise InputError(f"{path}: not a {FORMAT} file of format version {FORMAT_VERSION}")
+    try:
+        config = CageConfig(**json.loads(str(arrays["config"])))
+    except (json.JSONDecodeError, TypeError, ValueError) as err:
+        raise InputError(f"{path}: invalid config ({err})") from None
+    vertices, tets = arrays["vertices"], arrays["tets"]
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or not np.issubdtype(vertices.dtype, np.floating):
+        raise InputError(f"{path}: vertices must be (V, 3) floats, got {vertices.shape} {vertices.dtype}")
+    if tets.ndim != 2 or tets.shape[1] != 4 or not np.issubdtype(tets.dtype, np.integer):
+        raise InputError(f"{path}: tets must be (T, 4) integers, got {tets.shape} {tets.dtype}")
+    if tets.size and (tets.min() < 0 or tets.max() >= len(vertices)):
+        raise InputError(f"{path}: tets index vertices outside 0..{len(vertices) - 1}")
+    check_tet_mesh(vertices.astype(np.float64), tets.astype(np.int64), str(path))
+    for name in ("outer", "inner"):
+        tet_index, bary = arrays[f"{name}_tet"], arrays[f"{name}_bary"]
+        if (
+            tet_index.ndim != 1
+            or not np.issubdtype(tet_index.dtype, np.integer)
+            or bary.shape != (len(tet_index), 4)
+        ):
+            raise InputError(
+                f"{path}: {name}_tet (P,) integers and {name}_bary (P, 4) expected, got "
+                f"{tet_index.shape} {tet_index.dtype} and {bary.shape}"
+            )
+        if tet_index.size and (tet_index.min() < 0 or tet_index.max() >= len(tets)):
+            raise InputError(f"{path}: {name}_tet indexes tets outside 0..{len(tets) - 1}")
+        if not np.isfinite(bary).all() or not np.allclose(bary.sum(axis=1), 1.0, rtol=0, atol=1e-6):
+            raise InputError(f"{path}: {name}_bary rows must be finite and sum to 1")
+    return Cage(
+        vertices.astype(np.float64),
+        tets.astype(np.int64),
+        arrays["outer_tet"].astype(np.int64),
+        arrays["outer_bary"].astype(np.float64),
+        arrays["inner_tet"].astype(np.int64),
+        arrays["inner_bary"].astype(np.float64),
+        str(arrays["shell_digest"]),
+        config,
+    )
+
+
+def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = False) -> Cage:
+    """The cage of an asset, from ``asset.cage_path`` (``cage.npz``) when it matches, else built and saved.
+
+    The stored cage is used unless ``rebuild``, or it is unreadable, or it was built from other shells
+    (:func:`shell_digest`), or ``config`` is given and differs from its settings. ``config=None`` takes
+    the stored cage whatever its settings, or builds with the defaults.
+    """
+    outer, inner = asset.outer_mesh(), asset.inner_mesh()
+    digest = shell_digest(outer, inner)
+    path = asset.cage_path
+    if path.is_file() and not rebuild:
+        try:
+            cage = load_cage(path)
+        except InputError as err:
+            logger.warning("rebuilding the cage: %s", err)
+        else:
+            if cage.shell_digest != digest:
+                logger.info("rebuilding %s: the shells have changed", path)
+            elif config is not None and cage.config != config:
+                logger.info("rebuilding %s: other cage settings requested", path)
+            else:
+                return cage
+    cage = build_cage(outer, inner, config, what=str(asset.file("shell_outer")))
+    save_cage(path, cage)
+    return cage

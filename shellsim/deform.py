@@ -1,0 +1,440 @@
+"""Deformed space: transfer a cage deformation to the shells and map deformed points back to rest space.
+
+Paper Sec. 5: the cage's deformation is transferred to ``M+`` / ``M-`` by barycentric interpolation
+(:func:`deform_points`); to render, every sample ``x`` of a camera ray in deformed space is mapped back
+to the rest space of the field through its containing deformed tet, ``x_rest = Phi^-1(x)``
+(:meth:`InverseMap.map_points`), and the ray direction by finite differences,
+``d_rest ~ normalize(Phi^-1(x + eps d) - Phi^-1(x))`` (:meth:`InverseMap.map_directions`).
+
+``Phi^-1`` is piecewise affine: inside deformed tet ``t`` with vertices ``v0..v3`` (rest ``r0..r3``),
+``b = D_t^-1 (x - v0)`` with ``D_t = [v1 - v0, v2 - v0, v3 - v0]`` and ``x_rest = r0 + R_t b`` with
+``R_t = [r1 - r0, r2 - r0, r3 - r0]``. :class:`InverseMap` finds the tet with a Warp BVH over the deformed
+tets' bounding boxes, rebuilt for every frame, and runs the point-in-tet test in a Warp kernel (CPU or
+CUDA) in float64. :func:`map_points_reference` and :func:`map_directions_reference` are its brute-force
+numpy twins.
+
+Points in no deformed tet (outside the cage) get ``inside = False`` and ``x_rest = nan``; the cage
+contains all content, so a renderer drops those samples.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import warp as wp
+
+#: Barycentric tolerance of the point-in-tet test: a point whose smallest barycentric coordinate is
+#: at least ``-BARY_TOL`` is inside (points on shared and boundary faces are found).
+BARY_TOL = 1e-6
+#: Default finite-difference step of :meth:`InverseMap.map_directions`, relative to the cage's diagonal.
+EPS_REL = 1e-4
+#: Fewest points per CPU thread of a query.
+_MIN_CHUNK = 16384
+
+
+def _as_points(name: str, x) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (N, 3), got {x.shape}")
+    return x
+
+
+def _as_tets(tets, n_vertices: int) -> np.ndarray:
+    tets = np.asarray(tets)
+    if tets.ndim != 2 or tets.shape[1] != 4 or not np.issubdtype(tets.dtype, np.integer):
+        raise ValueError(f"tets: expected (T, 4) integers, got {tets.shape} {tets.dtype}")
+    if tets.size and (tets.min() < 0 or tets.max() >= n_vertices):
+        raise ValueError(f"tets: indices must lie in 0..{n_vertices - 1}")
+    return tets.astype(np.int64)
+
+
+def deform_points(cage_positions, tets, tet_index, bary) -> np.ndarray:
+    """Barycentric interpolation of deformed cage vertices: the deformed ``M+`` / ``M-`` vertices.
+
+    cage_positions : (V, 3) float, cage vertices of one frame
+    tets : (T, 4) int
+    tet_index : (P,) int, containing tet of each embedded point (from :mod:`shellsim.embed`)
+    bary : (P, 4) float, its barycentric coordinates in that tet
+    returns : (P, 3) float64, ``sum_k bary[p, k] * cage_positions[tets[tet_index[p], k]]``
+    """
+    cage_positions = _as_points("cage_positions", cage_positions)
+    tets = _as_tets(tets, len(cage_positions))
+    tet_index = np.asarray(tet_index)
+    bary = np.asarray(bary, dtype=np.float64)
+    if tet_index.ndim != 1 or bary.shape != (len(tet_index), 4):
+        raise ValueError(f"tet_index (P,) and bary (P, 4) expected, got {tet_index.shape} and {bary.shape}")
+    if tet_index.size and (tet_index.min() < 0 or tet_index.max() >= len(tets)):
+        raise ValueError(f"tet_index: indices must lie in 0..{len(tets) - 1}")
+    return np.einsum("pk,pkc->pc", bary, cage_positions[tets[tet_index]])
+
+
+# --------------------------------------------------------------------------- Warp kernels
+
+
+@wp.kernel
+def _prepare_tets(
+    deformed: wp.array(dtype=wp.vec3d),
+    rest: wp.array(dtype=wp.vec3d),
+    tets: wp.array2d(dtype=wp.int32),
+    pad: wp.float64,
+    min_det: wp.float64,
+    lowers: wp.array(dtype=wp.vec3),
+    uppers: wp.array(dtype=wp.vec3),
+    origin: wp.array(dtype=wp.vec3d),
+    to_bary: wp.array(dtype=wp.mat33d),
+    rest_origin: wp.array(dtype=wp.vec3d),
+    rest_edges: wp.array(dtype=wp.mat33d),
+    valid: wp.array(dtype=wp.int32),
+):
+    t = wp.tid()
+    v0 = deformed[tets[t, 0]]
+    v1 = deformed[tets[t, 1]]
+    v2 = deformed[tets[t, 2]]
+    v3 = deformed[tets[t, 3]]
+    lo = wp.min(wp.min(v0, v1), wp.min(v2, v3))
+    hi = wp.max(wp.max(v0, v1), wp.max(v2, v3))
+    lowers[t] = wp.vec3(wp.float32(lo[0] - pad), wp.float32(lo[1] - pad), wp.float32(lo[2] - pad))
+    uppers[t] = wp.vec3(wp.float32(hi[0] + pad), wp.float32(hi[1] + pad), wp.float32(hi[2] + pad))
+    d = wp.matrix_from_cols(v1 - v0, v2 - v0, v3 - v0)
+    origin[t] = v0
+    r0 = rest[tets[t, 0]]
+    rest_origin[t] = r0
+    rest_edges[t] = wp.matrix_from_cols(rest[tets[t, 1]] - r0, rest[tets[t, 2]] - r0, rest[tets[t, 3]] - r0)
+    if wp.abs(wp.determinant(d)) > min_det:
+        to_bary[t] = wp.inverse(d)
+        valid[t] = 1
+    else:
+        valid[t] = 0
+
+
+@wp.func
+def _locate(
+    bvh: wp.uint64,
+    p: wp.vec3d,
+    origin: wp.array(dtype=wp.vec3d),
+    to_bary: wp.array(dtype=wp.mat33d),
+    valid: wp.array(dtype=wp.int32),
+):
+    """The candidate tet whose smallest barycentric coordinate of ``p`` is largest (first one >= 0)."""
+    pf = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+    query = wp.bvh_query_aabb(bvh, pf, pf)
+    t = int(0)  # noqa: UP018 (a Warp dynamic variable, not a constant)
+    best = int(-1)  # noqa: UP018
+    best_min = wp.float64(-1.0e300)
+    best_b = wp.vec3d()
+    while wp.bvh_query_next(query, t):
+        if valid[t] == 1:
+            b = to_bary[t] * (p - origin[t])
+            m = wp.min(wp.min(b[0], b[1]), wp.min(b[2], wp.float64(1.0) - b[0] - b[1] - b[2]))
+            if m > best_min:
+                best = t
+                best_min = m
+                best_b = b
+                if m >= wp.float64(0.0):
+                    break
+    return best, best_min, best_b
+
+
+@wp.kernel
+def _map_kernel(
+    bvh: wp.uint64,
+    points: wp.array(dtype=wp.vec3d),
+    dirs: wp.array(dtype=wp.vec3d),
+    with_dirs: int,
+    eps: wp.float64,
+    tol: wp.float64,
+    origin: wp.array(dtype=wp.vec3d),
+    to_bary: wp.array(dtype=wp.mat33d),
+    rest_origin: wp.array(dtype=wp.vec3d),
+    rest_edges: wp.array(dtype=wp.mat33d),
+    valid: wp.array(dtype=wp.int32),
+    out_points: wp.array(dtype=wp.vec3d),
+    out_dirs: wp.array(dtype=wp.vec3d),
+    out_inside: wp.array(dtype=wp.bool),
+):
+    i = wp.tid()
+    nan = wp.float64(wp.nan)
+    p = points[i]
+    t, m, b = _locate(bvh, p, origin, to_bary, valid)
+    if t < 0 or m < -tol:
+        out_inside[i] = False
+        out_points[i] = wp.vec3d(nan, nan, nan)
+        if with_dirs == 1:
+            out_dirs[i] = wp.vec3d(nan, nan, nan)
+        return
+    x_rest = rest_origin[t] + rest_edges[t] * b
+    out_inside[i] = True
+    out_points[i] = x_rest
+    if with_dirs == 1:
+        d = dirs[i]
+        # forward difference; backward where x + eps d leaves the cage; the containing tet's Jacobian
+        # R_t D_t^-1 d (the eps -> 0 limit of both) where the cage is thinner than eps around x
+        t1, m1, b1 = _locate(bvh, p + eps * d, origin, to_bary, valid)
+        if t1 >= 0 and m1 >= -tol:
+            diff = rest_origin[t1] + rest_edges[t1] * b1 - x_rest
+        else:
+            t2, m2, b2 = _locate(bvh, p - eps * d, origin, to_bary, valid)
+            if t2 >= 0 and m2 >= -tol:
+                diff = x_rest - (rest_origin[t2] + rest_edges[t2] * b2)
+            else:
+                diff = rest_edges[t] * (to_bary[t] * d)
+        out_dirs[i] = wp.normalize(diff)
+
+
+# --------------------------------------------------------------------------- the inverse map
+
+
+def _is_torch(x) -> bool:
+    return type(x).__module__.split(".")[0] == "torch"
+
+
+class InverseMap:
+    """``Phi^-1`` of one frame: deformed space -> rest space through the deformed cage.
+
+    deformed_vertices : (V, 3) float, cage vertices of this frame
+    tets : (T, 4) int, cage tets (orientation not required; inverted tets are searched too, and where
+        deformed tets overlap a point maps through one of those containing it)
+    rest_vertices : (V, 3) float, the rest cage
+    device : Warp device ("cpu", "cuda:0"); None picks Warp's preferred device (CUDA when present)
+    tol : barycentric tolerance of the point-in-tet test
+    cpu_threads : threads sharing a query on the CPU (None: all cores)
+
+    Building costs one Warp kernel over the tets and one BVH build (a few ms for 10k tets on a CPU).
+    Queries accept numpy arrays (answered as float64 numpy) or torch tensors (answered as tensors of
+    the input's dtype and device).
+    """
+
+    def __init__(
+        self,
+        deformed_vertices,
+        tets,
+        rest_vertices,
+        device: str | None = None,
+        tol: float = BARY_TOL,
+        cpu_threads: int | None = None,
+    ):
+        deformed = _as_points("deformed_vertices", deformed_vertices)
+        rest = _as_points("rest_vertices", rest_vertices)
+        if rest.shape != deformed.shape:
+            raise ValueError(
+                f"rest_vertices: expected {deformed.shape} like deformed_vertices, got {rest.shape}"
+            )
+        tets = _as_tets(tets, len(deformed))
+        if len(tets) == 0:
+            raise ValueError("tets: the cage has no tets")
+        if not np.isfinite(deformed).all():
+            raise ValueError("deformed_vertices: contain NaN or infinity")
+        if not tol >= 0:
+            raise ValueError(f"tol: expected >= 0, got {tol}")
+        if cpu_threads is not None and not (isinstance(cpu_threads, int) and cpu_threads >= 1):
+            raise ValueError(f"cpu_threads: expected a positive int or None, got {cpu_threads!r}")
+        self.device = wp.get_device(device)
+        self.tol = float(tol)
+        self.cpu_threads = cpu_threads or os.cpu_count() or 1
+        lo, hi = deformed.min(0), deformed.max(0)
+        #: (float) diagonal of the deformed cage's bounding box
+        self.diagonal = float(np.linalg.norm(hi - lo))
+        # boxes padded for the float32 BVH and the barycentric tolerance; degenerate tets (|det D_t| below
+        # 1e-12 mean edge^3) are never entered
+        pad = 1e-5 * self.diagonal + 1e-6 * float(np.abs(deformed).max())
+        edge = np.linalg.norm(deformed[tets[:, 1]] - deformed[tets[:, 0]], axis=1).mean()
+        n = len(tets)
+        dev = self.device
+        lowers = wp.empty(n, dtype=wp.vec3, device=dev)
+        uppers = wp.empty(n, dtype=wp.vec3, device=dev)
+        self._origin = wp.empty(n, dtype=wp.vec3d, device=dev)
+        self._to_bary = wp.zeros(n, dtype=wp.mat33d, device=dev)
+        self._rest_origin = wp.empty(n, dtype=wp.vec3d, device=dev)
+        self._rest_edges = wp.empty(n, dtype=wp.mat33d, device=dev)
+        self._valid = wp.empty(n, dtype=wp.int32, device=dev)
+        wp.launch(
+            _prepare_tets,
+            dim=n,
+            inputs=[
+                wp.array(deformed, dtype=wp.vec3d, device=dev),
+                wp.array(rest, dtype=wp.vec3d, device=dev),
+                wp.array(tets.astype(np.int32), dtype=wp.int32, device=dev),
+                pad,
+                1e-12 * edge**3,
+            ],
+            outputs=[
+                lowers,
+                uppers,
+                self._origin,
+                self._to_bary,
+                self._rest_origin,
+                self._rest_edges,
+                self._valid,
+            ],
+            device=dev,
+        )
+        self._bvh = wp.Bvh(lowers, uppers)
+        if dev.is_cuda:  # queries on torch's stream must see the finished build
+            wp.synchronize_device(dev)
+
+    def map_points(self, x):
+        """``Phi^-1`` of deformed points.
+
+        x : (N, 3) deformed points, numpy or torch
+        returns : x_rest (N, 3) rest points (nan outside the cage), inside (N,) bool
+        """
+        x_rest, _, inside = self._run(x, None, None)
+        return x_rest, inside
+
+    def map_directions(self, x, d, eps: float | None = None):
+        """Rest-space directions of deformed rays by finite differences (paper Sec. 5).
+
+        x : (N, 3) deformed points; d : (N, 3) deformed unit directions (numpy or torch)
+        eps : step length; None uses ``EPS_REL`` times the deformed cage's diagonal
+        returns : d_rest (N, 3) unit vectors, ``normalize(Phi^-1(x + eps d) - Phi^-1(x))``; the backward
+            difference where ``x + eps d`` leaves the cage, the containing tet's Jacobian ``R_t D_t^-1 d``
+            where both steps leave it; nan where ``x`` is outside the cage
+        """
+        return self._run(x, d, eps)[1]
+
+    def map_samples(self, x, d, eps: float | None = None):
+        """:meth:`map_points` and :meth:`map_directions` in one pass (what a renderer wants).
+
+        returns : x_rest (N, 3), d_rest (N, 3), inside (N,)
+        """
+        return self._run(x, d, eps)
+
+    def _run(self, x, d, eps):
+        eps = EPS_REL * self.diagonal if eps is None else float(eps)
+        if not eps > 0:
+            raise ValueError(f"eps: expected > 0, got {eps}")
+        torch_in, with_dirs = _is_torch(x), d is not None
+        if with_dirs and _is_torch(d) != torch_in:
+            raise TypeError("x and d: pass both as numpy arrays or both as torch tensors")
+        # without directions the kernel never touches d and out_d: they alias x and out_x
+        if torch_in:
+            import torch
+
+            device = "cpu" if self.device.is_cpu else f"cuda:{self.device.ordinal}"
+            xs = _torch_points("x", x, device)
+            ds = _torch_points("d", d, device) if with_dirs else xs
+            out_x = torch.empty_like(xs)
+            out_d = torch.empty_like(xs) if with_dirs else out_x
+            out_in = torch.empty(len(xs), dtype=torch.bool, device=device)
+            arrays = [wp.from_torch(a, dtype=wp.vec3d) for a in (xs, ds, out_x, out_d)]
+            arrays.append(wp.from_torch(out_in, dtype=wp.bool))
+            stream = None if self.device.is_cpu else wp.stream_from_torch(device)
+        else:
+            xs = wp.array(_as_points("x", x), dtype=wp.vec3d, device=self.device)
+            ds = wp.array(_as_points("d", d), dtype=wp.vec3d, device=self.device) if with_dirs else xs
+            out_x = wp.empty(len(xs), dtype=wp.vec3d, device=self.device)
+            out_d = wp.empty(len(xs), dtype=wp.vec3d, device=self.device) if with_dirs else out_x
+            arrays = [xs, ds, out_x, out_d, wp.empty(len(xs), dtype=wp.bool, device=self.device)]
+            stream = None
+        if len(ds) != len(xs):
+            raise ValueError(f"d: expected shape ({len(xs)}, 3) like x, got {tuple(d.shape)}")
+        self._launch(arrays, int(with_dirs), eps, stream)
+        if torch_in:
+            dtype = x.dtype if x.is_floating_point() else None  # float64 for integer input
+            x_rest, d_rest = (a.to(device=x.device, dtype=dtype) for a in (out_x, out_d))
+            inside = out_in.to(x.device)
+        else:
+            x_rest, d_rest, inside = (a.numpy() for a in arrays[2:])
+        return x_rest, (d_rest if with_dirs else None), inside
+
+    def _launch(self, arrays: list, with_dirs: int, eps: float, stream) -> None:
+        """Run the map kernel on ``arrays`` = [x, d, out_x, out_d, out_inside]; on the CPU, split the points
+        into chunks over ``cpu_threads`` Python threads (Warp releases the GIL during a CPU launch; the
+        chunks write disjoint outputs)."""
+        n = arrays[0].shape[0]
+        tets = [self._origin, self._to_bary, self._rest_origin, self._rest_edges, self._valid]
+
+        def launch(lo: int, hi: int) -> None:
+            x, d, out_x, out_d, out_in = (a[lo:hi] for a in arrays)
+            inputs = [self._bvh.id, x, d, with_dirs, eps, self.tol, *tets]
+            wp.launch(
+                _map_kernel,
+                dim=hi - lo,
+                inputs=inputs,
+                outputs=[out_x, out_d, out_in],
+                device=self.device,
+                stream=stream,
+            )
+
+        threads = 1 if self.device.is_cuda else max(1, min(self.cpu_threads, n // _MIN_CHUNK))
+        if n == 0:
+            return
+        if threads == 1:
+            launch(0, n)
+            return
+        bounds = np.linspace(0, n, threads + 1).astype(np.int64)
+        with ThreadPoolExecutor(threads, thread_name_prefix="inverse-map") as pool:
+            futures = [pool.submit(launch, int(bounds[k]), int(bounds[k + 1])) for k in range(threads)]
+            for future in futures:
+                future.result()
+
+
+def _torch_points(name: str, a, device: str):
+    """(N, 3) tensor -> contiguous float64 tensor on ``device``."""
+    import torch
+
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (N, 3), got {tuple(a.shape)}")
+    return a.detach().to(device=device, dtype=torch.float64).contiguous()
+
+
+# --------------------------------------------------------------------------- slow reference twins
+
+
+def _barycentrics_all(deformed: np.ndarray, tets: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(N, T, 4) barycentric coordinates of every point in every tet (degenerate tets: -inf)."""
+    v = deformed[tets]  # (T, 4, 3)
+    edges = np.transpose(v[:, 1:] - v[:, :1], (0, 2, 1))  # (T, 3, 3), columns are edges
+    det = np.linalg.det(edges)
+    ok = np.abs(det) > 1e-12 * np.linalg.norm(v[:, 1] - v[:, 0], axis=1).mean() ** 3
+    inv = np.linalg.inv(np.where(ok[:, None, None], edges, np.eye(3)))
+    b = np.einsum("tij,ntj->nti", inv, x[:, None, :] - v[None, :, 0])  # (N, T, 3)
+    bary = np.concatenate([1.0 - b.sum(-1, keepdims=True), b], axis=-1)
+    bary[:, ~ok] = -np.inf
+    return bary
+
+
+def _locate_reference(deformed, tets, x, tol):
+    """Containing tet (N,), its barycentrics (N, 4) and inside (N,) by brute force."""
+    bary = _barycentrics_all(deformed, tets, x)
+    depth = bary.min(-1)  # (N, T)
+    best = depth.argmax(1)
+    rows = np.arange(len(x))
+    return best, bary[rows, best], depth[rows, best] >= -tol
+
+
+def map_points_reference(deformed_vertices, tets, rest_vertices, x, tol: float = BARY_TOL):
+    """Brute-force twin of :meth:`InverseMap.map_points`: every point against every tet (O(N T)).
+
+    returns : x_rest (N, 3) float64 (nan outside), inside (N,) bool
+    """
+    deformed = _as_points("deformed_vertices", deformed_vertices)
+    rest = _as_points("rest_vertices", rest_vertices)
+    tets = _as_tets(tets, len(deformed))
+    best, bary, inside = _locate_reference(deformed, tets, _as_points("x", x), tol)
+    x_rest = np.einsum("nk,nkc->nc", bary, rest[tets[best]])
+    x_rest[~inside] = np.nan
+    return x_rest, inside
+
+
+def map_directions_reference(deformed_vertices, tets, rest_vertices, x, d, eps: float, tol: float = BARY_TOL):
+    """Brute-force twin of :meth:`InverseMap.map_directions`: forward difference, else backward, else
+    the containing tet's Jacobian ``R_t D_t^-1 d``; nan outside. Returns (N, 3) float64."""
+    deformed = _as_points("deformed_vertices", deformed_vertices)
+    rest = _as_points("rest_vertices", rest_vertices)
+    tets = _as_tets(tets, len(deformed))
+    x = _as_points("x", x)
+    d = _as_points("d", d)
+    best, _, inside = _locate_reference(deformed, tets, x, tol)
+    x0, _ = map_points_reference(deformed, tets, rest, x, tol)
+    xf, inside_f = map_points_reference(deformed, tets, rest, x + eps * d, tol)
+    xb, inside_b = map_points_reference(deformed, tets, rest, x - eps * d, tol)
+    v, r = deformed[tets[best]], rest[tets[best]]
+    edges_def = np.transpose(v[:, 1:] - v[:, :1], (0, 2, 1))
+    edges_rest = np.transpose(r[:, 1:] - r[:, :1], (0, 2, 1))
+    jac = np.einsum("nij,nj->ni", edges_rest, np.linalg.solve(edges_def, d[..., None])[..., 0])
+    diff = np.where(inside_f[:, None], xf - x0, np.where(inside_b[:, None], x0 - xb, jac))
+    diff[~inside] = np.nan
+    return diff / np.linalg.norm(diff, axis=1, keepdims=True)

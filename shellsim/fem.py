@@ -1,0 +1,922 @@
+"""Implicit (backward Euler) hyperelastic FEM on linear tetrahedra, in Warp, on plain arrays (no torch).
+
+Each substep of length ``h`` minimises the incremental potential (Martin et al. 2011; Li et al. 2020)
+
+    E(x) = sum_t V_t [Psi(F_t) + (beta / h) D(A_t)] + sum_i E_i(x_i)
+
+over the vertex positions ``x`` (V, 3), then sets ``v = (x - x^n) / h``. The per-vertex terms ``E_i``
+(inertia, drag, penalty contact, lagged friction) are in :mod:`shellsim.contact`. Per tetrahedron, with
+rest volume ``V_t``, deformation gradient ``F = D_s D_m^-1`` and ``J = det F``:
+
+- **Stable Neo-Hookean** (Smith et al. 2018, in the form of Kim & Eberle 2022, Sec. 6.5)::
+
+      Psi(F) = mu/2 (|F|^2 - 3) - mu (J - 1) + lam/2 (J - 1)^2,      lam = lambda_Lame + mu,
+
+  rest-stable, defined for inverted elements, linearising to Lamé's ``mu``, ``lambda``. Its stress is
+  ``P = mu F + (lam (J - 1) - mu) dJ/dF`` and its 9x9 Hessian is projected to PSD through its analytic
+  eigensystem (Smith et al. 2019): with ``F = U diag(s) V^T`` (rotations U, V; ``J = s0 s1 s2``) and
+  ``k = lam (J - 1) - mu``, the twist and flip modes ``U t_m V^T``, ``U l_m V^T`` have eigenvalues
+  ``mu + k s_m`` and ``mu - k s_m``, and the three scaling modes ``U diag(q) V^T`` are the eigenvectors ``q``
+  of ``mu I + lam c c^T + k [[0, s2, s1], [s2, 0, s0], [s1, s0, 0]]``, ``c = (s1 s2, s0 s2, s0 s1)``;
+  negative eigenvalues are clamped to 0.
+- **Kelvin-Voigt damping** on the Green strain rate (Rayleigh dissipation, invariant to rigid motion):
+  ``A = F^n^T (F - F^n)`` (``F^n`` at the substep start), ``D(A) = mu |sym A|^2 + lambda/2 tr(A)^2``;
+  ``beta`` [s] is the ratio of viscosity to stiffness.
+
+Newton's method solves each substep: the PSD Hessian is assembled into a block-sparse (3x3) matrix with a
+fixed sparsity pattern, the step solves ``H d = -grad E`` by conjugate gradients with a block-Jacobi
+preconditioner (on CPU one Warp kernel runs the whole PCG loop, since Warp runs CPU kernels on one thread and
+per-launch overhead dominates; on CUDA :func:`warp.optim.linear.cg`), and a backtracking line search on ``E``
+keeps the energy decreasing and the tets uninverted. A frame whose state inverts a tet, turns non-finite or
+exceeds ``max_speed`` is redone with more substeps, then raises :class:`SimulationError`.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import warp as wp
+
+from neural.errors import InputError, ShellsimError
+
+from .contact import Box, Sphere, collider_arrays, lag_friction, vertex_terms
+from .materials import Material
+
+log = logging.getLogger(__name__)
+
+vec3 = wp.vec3d
+mat33 = wp.mat33d
+f64 = wp.float64
+
+wp.set_module_options({"enable_backward": False})
+vec9 = wp.types.vector(length=9, dtype=wp.float64)
+mat99 = wp.types.matrix(shape=(9, 9), dtype=wp.float64)
+
+
+SHIFT_LIMIT = 0.1  # largest Hessian shift (in units of mu) used instead of the eigen-projection
+
+
+class SimulationError(ShellsimError):
+    """The simulation left the physically valid regime (inverted tets, NaN, runaway speed)."""
+
+
+@dataclass
+class SimSettings:
+    """Settings of :class:`Simulator`, SI units. A frame lasts ``dt`` and is split into ``substeps``."""
+
+    dt: float = 1.0 / 30.0  # frame duration [s]
+    substeps: int = 8  # backward-Euler steps per frame
+    gravity: float = 9.81  # [m/s^2], along -up
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    ground: float | None = 0.0  # height of the ground plane along ``up`` [m]; None: no ground
+    spheres: tuple[Sphere, ...] = ()
+    boxes: tuple[Box, ...] = ()
+    contact_stiffness: float = 1.0e6  # penalty kappa per unit mass [1/s^2]
+    friction: float = 0.5  # Coulomb coefficient
+    friction_velocity: float = 1.0e-2  # sliding speed below which friction is smoothed [m/s]
+    damping: float = 0.0  # Kelvin-Voigt beta [s]
+    drag: float = 0.0  # velocity drag alpha [1/s]
+    newton_iterations: int = 10
+    newton_tol: float = 1.0e-2  # stop when max |dx| / h < newton_tol * (rest bounding-box diagonal) per s
+    cg_tol: float = 1.0e-3  # relative residual of the Newton system
+    cg_iterations: int = 500
+    max_speed: float = 100.0  # [m/s]; faster means the simulation exploded
+    retry_factors: tuple[int, ...] = (2, 4)  # substep multipliers tried after a failed frame
+    linear_solver: str = "auto"  # "serial" (one-kernel PCG, CPU), "cg" (warp.optim.linear.cg), "auto"
+
+    def __post_init__(self):
+        positive = ("dt", "contact_stiffness", "friction_velocity", "newton_tol", "cg_tol", "max_speed")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"SimSettings.{name} must be > 0, got {value}")
+        for name in ("gravity", "friction", "damping", "drag"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"SimSettings.{name} must be >= 0, got {value}")
+        for name in ("substeps", "newton_iterations", "cg_iterations"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"SimSettings.{name} must be >= 1, got {getattr(self, name)}")
+        up = np.asarray(self.up, dtype=np.float64)
+        if up.shape != (3,) or not np.isfinite(up).all() or np.linalg.norm(up) == 0:
+            raise ValueError(f"SimSettings.up must be a non-zero 3-vector, got {self.up!r}")
+        if self.ground is not None and not math.isfinite(self.ground):
+            raise ValueError(f"SimSettings.ground must be finite or None, got {self.ground}")
+        if any(int(f) < 2 for f in self.retry_factors):
+            raise ValueError(f"SimSettings.retry_factors must be integers >= 2, got {self.retry_factors}")
+        if self.linear_solver not in ("auto", "serial", "cg"):
+            raise ValueError(f"SimSettings.linear_solver must be auto, serial or cg, got {self.linear_solver!r}")
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class StepStats:
+    """What one :meth:`Simulator.step` (one frame) took."""
+
+    substeps: int = 0  # substeps of the successful attempt
+    retries: int = 0  # failed attempts before it
+    newton_iterations: int = 0  # over all substeps of the successful attempt
+    max_newton_iterations: int = 0  # in one substep
+    unconverged_substeps: int = 0  # substeps that hit newton_iterations or stalled in the line search
+    cg_iterations: int = 0
+    min_volume_ratio: float = 1.0  # min det F at the end of the frame
+    max_speed: float = 0.0  # [m/s] at the end of the frame
+    seconds: float = 0.0  # wall time
+    energy: float = 0.0  # incremental potential of the last substep's solution
+    notes: list[str] = field(default_factory=list)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Stable Neo-Hookean element
+# ----------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def snh_energy(F: mat33, mu: f64, lam: f64) -> f64:
+    """Psi(F) = mu/2 (|F|^2 - 3) - mu (J - 1) + lam/2 (J - 1)^2."""
+    J = wp.determinant(F)
+    return f64(0.5) * mu * (wp.ddot(F, F) - f64(3.0)) - mu * (J - f64(1.0)) + f64(0.5) * lam * (J - f64(1.0)) * (
+        J - f64(1.0)
+    )
+
+
+@wp.func
+def det_gradient(F: mat33) -> mat33:
+    """dJ/dF = cofactor of F: columns f1 x f2, f2 x f0, f0 x f1."""
+    Ft = wp.transpose(F)
+    return wp.matrix_from_cols(wp.cross(Ft[1], Ft[2]), wp.cross(Ft[2], Ft[0]), wp.cross(Ft[0], Ft[1]))
+
+
+@wp.func
+def snh_stress(F: mat33, mu: f64, lam: f64) -> mat33:
+    """First Piola-Kirchhoff stress P = dPsi/dF = mu F + (lam (J - 1) - mu) dJ/dF."""
+    J = wp.determinant(F)
+    return mu * F + (lam * (J - f64(1.0)) - mu) * det_gradient(F)
+
+
+@wp.func
+def flat(M: mat33) -> vec9:
+    """vec(M), row-major: index 3 i + j holds M[i, j]."""
+    return vec9(M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2], M[2, 0], M[2, 1], M[2, 2])
+
+
+@wp.func
+def snh_hessian_psd(F: mat33, mu: f64, lam: f64) -> mat99:
+    """d2Psi/dF2 (row-major vec(F)) with negative eigenvalues clamped, from the analytic eigensystem."""
+    U = mat33()
+    s = vec3()
+    V = mat33()
+    wp.svd3(F, U, s, V)
+    if wp.determinant(U) * wp.determinant(V) < f64(0.0):
+        U = U * wp.diag(vec3(f64(1.0), f64(1.0), f64(-1.0)))
+        s[2] = -s[2]
+    Ut = wp.transpose(U)
+    Vt = wp.transpose(V)
+    k = lam * (s[0] * s[1] * s[2] - f64(1.0)) - mu
+    r = f64(0.7071067811865476)
+    H = mat99()
+    for m in range(3):
+        i = wp.where(m == 0, 1, 0)
+        j = wp.where(m == 2, 1, 2)
+        a = wp.outer(Ut[j], Vt[i])
+        b = wp.outer(Ut[i], Vt[j])
+        twist = flat(r * (a - b))
+        flip = flat(r * (a + b))
+        H += wp.max(mu + k * s[m], f64(0.0)) * wp.outer(twist, twist)
+        H += wp.max(mu - k * s[m], f64(0.0)) * wp.outer(flip, flip)
+    c = vec3(s[1] * s[2], s[0] * s[2], s[0] * s[1])
+    zero = f64(0.0)
+    A = mu * wp.identity(n=3, dtype=f64) + lam * wp.outer(c, c) + k * mat33(
+        zero, s[2], s[1], s[2], zero, s[0], s[1], s[0], zero
+    )
+    Q = mat33()
+    d = vec3()
+    wp.eig3(A, Q, d)
+    Qt = wp.transpose(Q)
+    for m in range(3):
+        q = Qt[m]
+        mode = flat(q[0] * wp.outer(Ut[0], Vt[0]) + q[1] * wp.outer(Ut[1], Vt[1]) + q[2] * wp.outer(Ut[2], Vt[2]))
+        H += wp.max(d[m], f64(0.0)) * wp.outer(mode, mode)
+    return H
+
+
+@wp.func
+def sym_eigenvalues(A: mat33) -> vec3:
+    """Eigenvalues of a symmetric 3x3 matrix, descending, in closed form (trigonometric method)."""
+    q = wp.trace(A) / f64(3.0)
+    off = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
+    diag = (A[0, 0] - q) * (A[0, 0] - q) + (A[1, 1] - q) * (A[1, 1] - q) + (A[2, 2] - q) * (A[2, 2] - q)
+    p = wp.sqrt((diag + f64(2.0) * off) / f64(6.0))
+    if p <= f64(1.0e-300):
+        return vec3(q, q, q)
+    B = (A - q * wp.identity(n=3, dtype=f64)) / p
+    r = wp.clamp(wp.determinant(B) / f64(2.0), f64(-1.0), f64(1.0))
+    phi = wp.acos(r) / f64(3.0)
+    e0 = q + f64(2.0) * p * wp.cos(phi)
+    e2 = q + f64(2.0) * p * wp.cos(phi + f64(2.0943951023931957))
+    return vec3(e0, f64(3.0) * q - e0 - e2, e2)
+
+
+@wp.func
+def snh_min_eigenvalue(F: mat33, mu: f64, lam: f64) -> f64:
+    """Smallest eigenvalue of d2Psi/dF2 from the singular values alone (Smith et al. 2019 eigenvalues)."""
+    e = sym_eigenvalues(wp.transpose(F) * F)
+    J = wp.determinant(F)
+    s = vec3(wp.sqrt(wp.max(e[0], f64(0.0))), wp.sqrt(wp.max(e[1], f64(0.0))), wp.sqrt(wp.max(e[2], f64(0.0))))
+    if J < f64(0.0):
+        s[2] = -s[2]
+    k = lam * (J - f64(1.0)) - mu
+    twist_flip = mu - wp.abs(k) * s[0]
+    c = vec3(s[1] * s[2], s[0] * s[2], s[0] * s[1])
+    zero = f64(0.0)
+    A = mu * wp.identity(n=3, dtype=f64) + lam * wp.outer(c, c) + k * mat33(
+        zero, s[2], s[1], s[2], zero, s[0], s[1], s[0], zero
+    )
+    return wp.min(twist_flip, sym_eigenvalues(A)[2])
+
+
+@wp.func
+def snh_block(F: mat33, cof: mat33, mu: f64, lam: f64, k: f64, ga: vec3, gb: vec3) -> mat33:
+    """Exact Hessian block d2Psi/dx_a dx_b = mu (ga.gb) I + lam (cof ga)(cof gb)^T + k d2J/dx_a dx_b,
+    with d2J/dx_a dx_b [i, k] = eps_ikm (F (ga x gb))_m."""
+    return mu * wp.dot(ga, gb) * wp.identity(n=3, dtype=f64) + lam * wp.outer(cof * ga, cof * gb) - k * wp.skew(
+        F * wp.cross(ga, gb)
+    )
+
+
+@wp.func
+def contract(H: mat99, ga: vec3, gb: vec3) -> mat33:
+    """3x3 block of B^T H B for vertices a, b: out[i, k] = sum_jl H[3i+j, 3k+l] ga[j] gb[l]."""
+    out = mat33()
+    for i in range(3):
+        for k in range(3):
+            acc = f64(0.0)
+            for j in range(3):
+                for l in range(3):
+                    acc += H[3 * i + j, 3 * k + l] * ga[j] * gb[l]
+            out[i, k] = acc
+    return out
+
+
+@wp.func
+def shape_gradient(dm_inv: mat33, a: int) -> vec3:
+    """Gradient of linear shape function ``a`` in rest space: F = sum_a x_a g_a^T."""
+    if a == 0:
+        return -(dm_inv[0] + dm_inv[1] + dm_inv[2])
+    return dm_inv[a - 1]
+
+
+@wp.func
+def deformation_gradient(x: wp.array(dtype=vec3), tet: wp.array2d(dtype=wp.int32), t: int, dm_inv: mat33):
+    x0 = x[tet[t, 0]]
+    Ds = wp.matrix_from_cols(x[tet[t, 1]] - x0, x[tet[t, 2]] - x0, x[tet[t, 3]] - x0)
+    return Ds * dm_inv
+
+
+@wp.kernel
+def tet_terms(
+    x: wp.array(dtype=vec3),
+    tets: wp.array2d(dtype=wp.int32),
+    dm_inv: wp.array(dtype=mat33),
+    rest_volume: wp.array(dtype=f64),
+    f_prev: wp.array(dtype=mat33),
+    mu: f64,
+    lam: f64,
+    damp_mu: f64,
+    damp_lam: f64,
+    shift_limit: f64,
+    pinned: wp.array(dtype=wp.int32),
+    block_index: wp.array2d(dtype=wp.int32),
+    with_derivatives: int,
+    energy: wp.array(dtype=f64),
+    min_det: wp.array(dtype=f64),
+    force: wp.array(dtype=vec3),
+    values: wp.array(dtype=mat33),
+):
+    """Tet ``t``: V (Psi(F) + D(A)) (``damp_* = beta/h * Lamé``), min det F; with derivatives the forces
+    ``-V P g_a`` and the 16 Hessian blocks ``V g_a^T H g_b`` (+ damping blocks) of its free vertices."""
+    t = wp.tid()
+    Dinv = dm_inv[t]
+    F = deformation_gradient(x, tets, t, Dinv)
+    vol = rest_volume[t]
+    Fp = f_prev[t]
+    A = wp.transpose(Fp) * (F - Fp)
+    symA = f64(0.5) * (A + wp.transpose(A))
+    trA = wp.trace(A)
+    e = snh_energy(F, mu, lam) + damp_mu * wp.ddot(symA, symA) + f64(0.5) * damp_lam * trA * trA
+    wp.atomic_add(energy, 0, vol * e)
+    wp.atomic_min(min_det, 0, wp.determinant(F))
+    if with_derivatives == 0:
+        return
+    S = f64(2.0) * damp_mu * symA + damp_lam * trA * wp.identity(n=3, dtype=f64)
+    P = vol * (snh_stress(F, mu, lam) + Fp * S)
+    # Definiteness: where the smallest eigenvalue of d2Psi/dF2 is >= -shift_limit mu, the exact blocks plus
+    # a shift of (-eigenvalue) mu-like identity (PSD, cheap); beyond, the eigen-projected Hessian (SVD).
+    shift = wp.max(-snh_min_eigenvalue(F, mu, lam), f64(0.0))
+    exact = shift <= shift_limit * mu
+    H = mat99()
+    if not exact:
+        H = vol * snh_hessian_psd(F, mu, lam)
+    cof = det_gradient(F)
+    k = lam * (wp.determinant(F) - f64(1.0)) - mu
+    for a in range(4):
+        ia = tets[t, a]
+        if pinned[ia] != 0:
+            continue
+        ga = shape_gradient(Dinv, a)
+        wp.atomic_sub(force, ia, P * ga)
+        for b in range(4):
+            if pinned[tets[t, b]] != 0:
+                continue
+            gb = shape_gradient(Dinv, b)
+            block = mat33()
+            if exact:
+                block = vol * snh_block(F, cof, mu + shift, lam, k, ga, gb)
+            else:
+                block = contract(H, ga, gb)
+            if damp_mu > f64(0.0) or damp_lam > f64(0.0):
+                Ky = damp_mu * (wp.dot(ga, gb) * wp.identity(n=3, dtype=f64) + wp.outer(gb, ga))
+                Ky += damp_lam * wp.outer(ga, gb)
+                block += vol * (Fp * Ky * wp.transpose(Fp))
+            wp.atomic_add(values, block_index[t, 4 * a + b], block)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Substep bookkeeping and the linear solver
+# ----------------------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def begin_substep(
+    x: wp.array(dtype=vec3),
+    v: wp.array(dtype=vec3),
+    pinned: wp.array(dtype=wp.int32),
+    h: f64,
+    gravity: vec3,
+    x_prev: wp.array(dtype=vec3),
+    x_tilde: wp.array(dtype=vec3),
+):
+    """x^n = x; inertial prediction x~ = x + h v + h^2 g (pinned vertices stay)."""
+    i = wp.tid()
+    x_prev[i] = x[i]
+    if pinned[i] != 0:
+        x_tilde[i] = x[i]
+    else:
+        x_tilde[i] = x[i] + h * v[i] + h * h * gravity
+
+
+@wp.kernel
+def store_deformation(
+    x: wp.array(dtype=vec3), tets: wp.array2d(dtype=wp.int32), dm_inv: wp.array(dtype=mat33),
+    f_prev: wp.array(dtype=mat33),
+):
+    t = wp.tid()
+    f_prev[t] = deformation_gradient(x, tets, t, dm_inv[t])
+
+
+@wp.kernel
+def step_positions(x: wp.array(dtype=vec3), d: wp.array(dtype=vec3), alpha: f64, out: wp.array(dtype=vec3)):
+    i = wp.tid()
+    out[i] = x[i] + alpha * d[i]
+
+
+@wp.kernel
+def end_substep(
+    x: wp.array(dtype=vec3), x_prev: wp.array(dtype=vec3), x_tilde: wp.array(dtype=vec3), inv_h: f64,
+    v: wp.array(dtype=vec3), correction: wp.array(dtype=vec3), max_speed: wp.array(dtype=f64),
+):
+    """v = (x - x^n) / h; keep x - x~ as the next substep's first Newton guess; max |v|."""
+    i = wp.tid()
+    vi = (x[i] - x_prev[i]) * inv_h
+    v[i] = vi
+    correction[i] = x[i] - x_tilde[i]
+    wp.atomic_max(max_speed, 0, wp.length(vi))
+
+
+@wp.kernel
+def max_length(d: wp.array(dtype=vec3), out: wp.array(dtype=f64)):
+    wp.atomic_max(out, 0, wp.length(d[wp.tid()]))
+
+
+@wp.kernel
+def pcg_serial(
+    offsets: wp.array(dtype=wp.int32),
+    columns: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=mat33),
+    inv_diag: wp.array(dtype=mat33),
+    b: wp.array(dtype=vec3),
+    tol: f64,
+    atol: f64,
+    max_iter: int,
+    x: wp.array(dtype=vec3),
+    r: wp.array(dtype=vec3),
+    z: wp.array(dtype=vec3),
+    p: wp.array(dtype=vec3),
+    q: wp.array(dtype=vec3),
+    result: wp.array(dtype=f64),
+):
+    """Block-Jacobi preconditioned CG for ``A x = b`` from the guess in ``x``, the whole loop in one thread.
+
+    Stops when ``|r| <= max(tol |b|, atol)``; ``result`` = (iterations, |r| / |b|)."""
+    n = b.shape[0]
+    bb = f64(0.0)
+    rr = f64(0.0)
+    rz = f64(0.0)
+    for i in range(n):
+        acc = b[i]
+        for k in range(offsets[i], offsets[i + 1]):
+            acc -= values[k] * x[columns[k]]
+        r[i] = acc
+        z[i] = inv_diag[i] * acc
+        p[i] = z[i]
+        bb += wp.dot(b[i], b[i])
+        rr += wp.dot(acc, acc)
+        rz += wp.dot(acc, z[i])
+    threshold = wp.max(tol * tol * bb, atol * atol)
+    it = int(0)
+    while it < max_iter and rr > threshold:
+        pq = f64(0.0)
+        for i in range(n):
+            acc = vec3(f64(0.0), f64(0.0), f64(0.0))
+            for k in range(offsets[i], offsets[i + 1]):
+                acc += values[k] * p[columns[k]]
+            q[i] = acc
+            pq += wp.dot(p[i], acc)
+        if pq <= f64(0.0):
+            break
+        alpha = rz / pq
+        rr = f64(0.0)
+        rz_new = f64(0.0)
+        for i in range(n):
+            x[i] = x[i] + alpha * p[i]
+            r[i] = r[i] - alpha * q[i]
+            z[i] = inv_diag[i] * r[i]
+            rr += wp.dot(r[i], r[i])
+            rz_new += wp.dot(r[i], z[i])
+        beta = rz_new / rz
+        rz = rz_new
+        for i in range(n):
+            p[i] = z[i] + beta * p[i]
+        it += 1
+    result[0] = f64(it)
+    result[1] = wp.sqrt(rr / wp.max(bb, f64(1.0e-300)))
+
+
+@wp.kernel
+def apply_block_jacobi(
+    inv_diag: wp.array(dtype=mat33), x: wp.array(dtype=vec3), y: wp.array(dtype=vec3),
+    z: wp.array(dtype=vec3), alpha: f64, beta: f64,
+):
+    """z = alpha blockdiag^-1 x + beta y (the preconditioner of :func:`warp.optim.linear.cg`)."""
+    i = wp.tid()
+    z[i] = alpha * (inv_diag[i] * x[i]) + beta * y[i]
+
+
+def block_topology(tets: np.ndarray, n_vertices: int):
+    """Sparsity of the stiffness matrix: CSR ``offsets`` (V+1,), block ``columns`` (nnz,), the block slot of
+    every (tet, a, b) pair ``block_index`` (T, 16) and of every diagonal block ``diag_index`` (V,)."""
+    rows = np.repeat(tets, 4, axis=1)  # (T, 16): a repeated
+    cols = np.tile(tets, (1, 4))  # (T, 16): b cycling
+    keys = rows.astype(np.int64) * n_vertices + cols
+    unique, inverse = np.unique(keys.ravel(), return_inverse=True)
+    urows, ucols = np.divmod(unique, n_vertices)
+    offsets = np.zeros(n_vertices + 1, np.int64)
+    np.cumsum(np.bincount(urows, minlength=n_vertices), out=offsets[1:])
+    diag_index = np.searchsorted(unique, np.arange(n_vertices, dtype=np.int64) * (n_vertices + 1))
+    return (offsets.astype(np.int32), ucols.astype(np.int32), inverse.reshape(-1, 16).astype(np.int32),
+            diag_index.astype(np.int32))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Simulator
+# ----------------------------------------------------------------------------------------------------------
+
+
+def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """(T,) signed volumes det[x1-x0, x2-x0, x3-x0] / 6 (positive for positively oriented tets)."""
+    x = np.asarray(vertices, np.float64)[np.asarray(tets)]
+    return np.linalg.det(np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)) / 6.0
+
+
+def snh_energy_reference(F: np.ndarray, mu: float, lam: float) -> np.ndarray:
+    """NumPy twin of the stable Neo-Hookean energy density: F (..., 3, 3) -> Psi (...)."""
+    J = np.linalg.det(F)
+    return 0.5 * mu * (np.sum(F * F, axis=(-2, -1)) - 3.0) - mu * (J - 1.0) + 0.5 * lam * (J - 1.0) ** 2
+
+
+def elastic_energy(rest_vertices, tets, positions, material: Material, device=None,
+                   shift_limit: float = SHIFT_LIMIT):
+    """Stable Neo-Hookean energy of a tet mesh, its gradient and its definiteness-fixed Hessian.
+
+    rest_vertices, positions : (V, 3) [m]; tets : (T, 4). Returns ``(energy [J], gradient (V, 3) [N],
+    hessian (3V, 3V) scipy.sparse.bsr_matrix [N/m])``. ``shift_limit`` (in units of mu) chooses per tet
+    between the shifted exact Hessian and the eigen-projected one; 0 projects every tet.
+    """
+    import scipy.sparse
+
+    rest = np.asarray(rest_vertices, np.float64)
+    tets = np.asarray(tets)
+    x = rest[tets]
+    dm = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)
+    offsets, columns, block_index, _ = block_topology(tets, len(rest))
+    n = len(rest)
+    dev = wp.get_device(device)
+    scalars = wp.array([0.0, 1.0e300], dtype=f64, device=dev)
+    force = wp.zeros(n, dtype=vec3, device=dev)
+    values = wp.zeros(len(columns), dtype=mat33, device=dev)
+    wp.launch(tet_terms, len(tets), [
+        wp.array(positions, dtype=vec3, device=dev), wp.array(tets.astype(np.int32), dtype=wp.int32, device=dev),
+        wp.array(np.linalg.inv(dm), dtype=mat33, device=dev),
+        wp.array(tet_volumes(rest, tets), dtype=f64, device=dev),
+        wp.array(np.broadcast_to(np.eye(3), (len(tets), 3, 3)), dtype=mat33, device=dev),
+        material.mu, material.lam + material.mu, 0.0, 0.0, shift_limit, wp.zeros(n, dtype=wp.int32, device=dev),
+        wp.array(block_index, dtype=wp.int32, device=dev), 1, scalars[0:1], scalars[1:2], force, values,
+    ], device=dev)
+    hessian = scipy.sparse.bsr_matrix((values.numpy(), columns, offsets), shape=(3 * n, 3 * n))
+    return float(scalars.numpy()[0]), -force.numpy(), hessian
+
+
+class Simulator:
+    """Backward-Euler FEM of one elastic body.
+
+    vertices : (V, 3) rest positions [m]; tets : (T, 4) positively oriented; material : :class:`Material`;
+    pinned : (V,) bool, vertices held in place; device : Warp device (None: Warp's default).
+    Running state: ``positions``, ``velocities`` (V, 3) [m, m/s], ``time`` [s].
+    """
+
+    def __init__(self, vertices, tets, material: Material, settings: SimSettings | None = None, *,
+                 pinned=None, device=None):
+        rest = np.asarray(vertices, dtype=np.float64)
+        tets = np.asarray(tets)
+        if rest.ndim != 2 or rest.shape[1] != 3 or len(rest) < 4 or not np.isfinite(rest).all():
+            raise ValueError(f"vertices: expected finite (V >= 4, 3), got {rest.shape}")
+        if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) == 0 or not np.issubdtype(tets.dtype, np.integer):
+            raise ValueError(f"tets: expected (T >= 1, 4) integers, got {tets.shape} {tets.dtype}")
+        if tets.min() < 0 or tets.max() >= len(rest):
+            raise ValueError(f"tets: indices must lie in 0..{len(rest) - 1}")
+        volumes = tet_volumes(rest, tets)
+        if (volumes <= 0).any():
+            raise ValueError(f"tets: {(volumes <= 0).sum()} of {len(tets)} have volume <= 0 (need positive orientation)")
+        used = np.zeros(len(rest), bool)
+        used[tets.ravel()] = True
+        if not used.all():
+            raise ValueError(f"vertices: {(~used).sum()} vertices belong to no tet")
+        pinned = np.zeros(len(rest), bool) if pinned is None else np.asarray(pinned, dtype=bool)
+        if pinned.shape != (len(rest),):
+            raise ValueError(f"pinned: expected ({len(rest)},) bool, got {pinned.shape}")
+
+        self.settings = settings or SimSettings()
+        self.material = material
+        self.device = wp.get_device(device)
+        self.n_vertices, self.n_tets = len(rest), len(tets)
+        self.rest_vertices = rest
+        self.tets = tets.astype(np.int64)
+        self.pinned = pinned
+        x = rest[tets]
+        dm = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)
+        self.masses = np.bincount(tets.ravel(), np.repeat(material.density * volumes / 4.0, 4),
+                                  minlength=len(rest))
+        self.size = float(np.linalg.norm(rest.max(0) - rest.min(0)))
+        self._min_free_mass = float(self.masses[~pinned].min()) if (~pinned).any() else 1.0
+        offsets, columns, block_index, diag_index = block_topology(tets, len(rest))
+        self.nnz_blocks = len(columns)
+
+        dev = self.device
+        self.time = 0.0
+
+        def arr(a, dtype):
+            return wp.array(a, dtype=dtype, device=dev)
+
+        self._x = arr(rest, vec3)
+        self._v = wp.zeros(len(rest), dtype=vec3, device=dev)
+        self._tets = arr(tets.astype(np.int32), wp.int32)
+        self._dm_inv = arr(np.linalg.inv(dm), mat33)
+        self._volume = arr(volumes, f64)
+        self._mass = arr(self.masses, f64)
+        self._pinned = arr(pinned.astype(np.int32), wp.int32)
+        self._offsets = arr(offsets, wp.int32)
+        self._columns = arr(columns, wp.int32)
+        self._block_index = arr(block_index, wp.int32)
+        self._diag_index = arr(diag_index, wp.int32)
+        self._values = wp.zeros(len(columns), dtype=mat33, device=dev)
+        self._inv_diag = wp.zeros(len(rest), dtype=mat33, device=dev)
+        self._spheres, self._box_c, self._box_h = collider_arrays(self.settings.spheres, self.settings.boxes, dev)
+        vecs = ("_x_prev", "_x_tilde", "_x_trial", "_force", "_d", "_correction", "_fn_normal", "_x0", "_v0",
+                "_r", "_z", "_p", "_q")
+        for name in vecs:
+            setattr(self, name, wp.zeros(len(rest), dtype=vec3, device=dev))
+        self._fn = wp.zeros(len(rest), dtype=f64, device=dev)
+        self._f_prev = wp.zeros(len(tets), dtype=mat33, device=dev)
+        self._scalars = wp.zeros(3, dtype=f64, device=dev)  # energy, min det F, |force|^2; or a max norm
+        self._scalars_init = wp.array([0.0, 1.0e300, 0.0], dtype=f64, device=dev)
+        self._cg_result = wp.zeros(2, dtype=f64, device=dev)
+        self._solve = self._make_solver(offsets, columns)
+
+    # -- state ---------------------------------------------------------------------------------------------
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(V, 3) float64 current positions [m] (a copy)."""
+        return self._x.numpy().copy()
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(V, 3) float64 current velocities [m/s] (a copy)."""
+        return self._v.numpy().copy()
+
+    def set_state(self, positions=None, velocities=None, time: float | None = None) -> None:
+        """Replace positions (V, 3), velocities (V, 3) and/or the clock; pinned vertices keep zero velocity."""
+        for name, value, target in (("positions", positions, self._x), ("velocities", velocities, self._v)):
+            if value is None:
+                continue
+            value = np.asarray(value, dtype=np.float64)
+            if value.shape != (self.n_vertices, 3) or not np.isfinite(value).all():
+                raise ValueError(f"{name}: expected finite ({self.n_vertices}, 3), got {value.shape}")
+            if name == "velocities":
+                value = np.where(self.pinned[:, None], 0.0, value)
+            target.assign(wp.array(value, dtype=vec3, device=self.device))
+        if time is not None:
+            self.time = float(time)
+
+    def set_rigid_velocity(self, linear=(0.0, 0.0, 0.0), angular=(0.0, 0.0, 0.0)) -> None:
+        """Velocities of a rigid motion: ``v = linear + angular x (x - centre of mass)`` [m/s, rad/s]."""
+        x = self.positions
+        com = self.masses @ x / self.masses.sum()
+        v = np.asarray(linear, np.float64) + np.cross(np.asarray(angular, np.float64), x - com)
+        self.set_state(velocities=v)
+
+    # -- stepping ------------------------------------------------------------------------------------------
+
+    def step(self) -> StepStats:
+        """Advance one frame (``settings.dt``); redo it with more substeps if the state turns invalid."""
+        s = self.settings
+        start = time.perf_counter()
+        wp.copy(self._x0, self._x)
+        wp.copy(self._v0, self._v)
+        t0 = self.time
+        failures = []
+        for attempt, factor in enumerate((1, *s.retry_factors)):
+            if attempt:
+                wp.copy(self._x, self._x0)
+                wp.copy(self._v, self._v0)
+                self.time = t0
+            stats = StepStats(substeps=s.substeps * factor, retries=attempt)
+            problem = self._run_frame(stats)
+            if problem is None:
+                stats.seconds = time.perf_counter() - start
+                stats.notes = failures
+                return stats
+            failures.append(f"{stats.substeps} substeps: {problem}")
+            log.debug("frame at t=%.4f s failed with %d substeps: %s", t0, stats.substeps, problem)
+        wp.copy(self._x, self._x0)
+        wp.copy(self._v, self._v0)
+        self.time = t0
+        raise SimulationError(
+            f"simulation became invalid at t={t0:.3f} s ({'; '.join(failures)}); try more --substeps, a lower "
+            "--drop-height or a stiffer material"
+        )
+
+    def _run_frame(self, stats: StepStats) -> str | None:
+        """Run ``stats.substeps`` substeps; return why the state is invalid, or None."""
+        h = self.settings.dt / stats.substeps
+        for _ in range(stats.substeps):
+            problem = self._substep(h, stats)
+            self.time += h
+            if problem is not None:
+                return problem
+        return None
+
+    def _substep(self, h: float, stats: StepStats) -> str | None:
+        s = self.settings
+        dev = self.device
+        n, nt = self.n_vertices, self.n_tets
+        up = np.asarray(s.up, np.float64) / np.linalg.norm(s.up)
+        gravity = vec3(*(-s.gravity * up))
+        wp.launch(begin_substep, n, [self._x, self._v, self._pinned, h, gravity, self._x_prev, self._x_tilde],
+                  device=dev)
+        wp.launch(store_deformation, nt, [self._x, self._tets, self._dm_inv, self._f_prev], device=dev)
+        contact = (vec3(*up), f64(s.ground or 0.0), int(s.ground is not None), self._spheres, self._box_c,
+                   self._box_h)
+        wp.launch(lag_friction, n, [self._x, self._mass, *contact, f64(s.contact_stiffness), self._fn,
+                                    self._fn_normal], device=dev)
+        terms = dict(h=h, contact=contact)
+
+        # start from the inertial prediction unless it inverts a tet
+        wp.copy(self._x_trial, self._x_tilde)
+        energy, min_det, _ = self._evaluate(self._x_trial, terms, derivatives=False)
+        if min_det > 0 and math.isfinite(energy):
+            wp.copy(self._x, self._x_trial)
+        # Newton stops once the step is below tol; H >= M / h^2 bounds |d| <= |force| h^2 / m_min
+        tol = s.newton_tol * self.size * h
+        force_tol = tol * self._min_free_mass / (h * h)
+        converged = False
+        iterations = 0
+        for iterations in range(1, s.newton_iterations + 1):
+            energy, min_det, force_norm = self._evaluate(self._x, terms, derivatives=True)
+            if not math.isfinite(energy):
+                return "the energy became non-finite"
+            if force_norm <= force_tol:
+                converged = True
+                break
+            if iterations == 1:
+                wp.copy(self._d, self._correction)
+            else:
+                self._d.zero_()
+            stats.cg_iterations += self._solve(0.1 * force_tol)
+            self._scalars.zero_()
+            wp.launch(max_length, n, [self._d, self._scalars], device=dev)
+            if float(self._scalars.numpy()[0]) <= tol:
+                converged = True
+                break
+            if not self._line_search(energy, min_det, terms):
+                break
+        stats.newton_iterations += iterations
+        stats.max_newton_iterations = max(stats.max_newton_iterations, iterations)
+        stats.unconverged_substeps += not converged
+        stats.energy = energy
+
+        self._scalars.zero_()
+        wp.launch(end_substep, n, [self._x, self._x_prev, self._x_tilde, 1.0 / h, self._v, self._correction,
+                                   self._scalars], device=dev)
+        speed = float(self._scalars.numpy()[0])
+        energy, min_det, _ = self._evaluate(self._x, terms, derivatives=False)
+        stats.min_volume_ratio, stats.max_speed = min_det, speed
+        if not (math.isfinite(energy) and math.isfinite(speed)):
+            return "positions became non-finite"
+        if min_det <= 0:
+            return f"a tet inverted (min det F = {min_det:.3g})"
+        if speed > s.max_speed:
+            return f"speed {speed:.3g} m/s exceeds max_speed {s.max_speed:g} m/s"
+        return None
+
+    def _line_search(self, energy: float, min_det: float, terms: dict) -> bool:
+        """Backtrack x + alpha d until E decreases (and no tet inverts that was not); False if none does."""
+        alpha = 1.0
+        for _ in range(12):
+            wp.launch(step_positions, self.n_vertices, [self._x, self._d, alpha, self._x_trial], device=self.device)
+            trial, trial_det, _ = self._evaluate(self._x_trial, terms, derivatives=False)
+            if trial <= energy and (trial_det > 0 or min_det <= 0):
+                wp.copy(self._x, self._x_trial)
+                return True
+            alpha *= 0.5
+        return False
+
+    def _evaluate(self, x: wp.array, terms: dict, derivatives: bool) -> tuple[float, float, float]:
+        """Incremental potential at ``x``, min det F and (with derivatives) |force|; with derivatives also
+        fills the force, the Hessian blocks and the block-Jacobi preconditioner."""
+        s, m = self.settings, self.material
+        h = terms["h"]
+        dev = self.device
+        wp.copy(self._scalars, self._scalars_init)
+        if derivatives:
+            self._force.zero_()
+            self._values.zero_()
+        lam_snh = m.lam + m.mu
+        damp = s.damping / h
+        wp.launch(tet_terms, self.n_tets, [
+            x, self._tets, self._dm_inv, self._volume, self._f_prev, m.mu, lam_snh, damp * m.mu, damp * m.lam,
+            SHIFT_LIMIT, self._pinned, self._block_index, int(derivatives), self._scalars[0:1], self._scalars[1:2],
+            self._force, self._values], device=dev)
+        wp.launch(vertex_terms, self.n_vertices, [
+            x, self._x_tilde, self._x_prev, self._mass, self._pinned, 1.0 / (h * h), s.drag / h,
+            *terms["contact"], f64(s.contact_stiffness), f64(s.friction), self._fn, self._fn_normal,
+            f64(s.friction_velocity * h), int(derivatives), self._scalars[0:1], self._scalars[2:3], self._force,
+            self._values, self._diag_index, self._inv_diag], device=dev)
+        energy, min_det, force_sq = self._scalars.numpy()
+        return float(energy), float(min_det), math.sqrt(float(force_sq))
+
+    def _make_solver(self, offsets: np.ndarray, columns: np.ndarray):
+        """The Newton-step solver ``H d = force`` from the guess in ``d``: ``solve(atol) -> CG iterations``."""
+        s = self.settings
+        kind = s.linear_solver
+        if kind == "auto":
+            kind = "serial" if self.device.is_cpu else "cg"
+        if kind == "serial":
+            def solve(atol: float) -> int:
+                wp.launch(pcg_serial, 1, [self._offsets, self._columns, self._values, self._inv_diag, self._force,
+                                          f64(s.cg_tol), f64(atol), s.cg_iterations, self._d, self._r, self._z,
+                                          self._p, self._q, self._cg_result], device=self.device)
+                return int(self._cg_result.numpy()[0])
+            return solve
+
+        import warp.optim.linear as wpl
+        import warp.sparse as wps
+
+        n = self.n_vertices
+        rows = np.repeat(np.arange(n, dtype=np.int32), np.diff(offsets))
+        matrix = wps.bsr_zeros(n, n, block_type=mat33, device=self.device)
+        wps.bsr_set_from_triplets(matrix, wp.array(rows, dtype=wp.int32, device=self.device), self._columns,
+                                  wp.zeros(len(columns), dtype=mat33, device=self.device),
+                                  prune_numerical_zeros=False)
+        if not (np.array_equal(matrix.offsets.numpy()[: n + 1], offsets)
+                and np.array_equal(matrix.columns.numpy()[: len(columns)], columns)):
+            raise RuntimeError("warp.sparse reordered the stiffness pattern; block_topology must match it")
+        self._values = matrix.values
+
+        def precondition(x, y, z, alpha, beta):
+            wp.launch(apply_block_jacobi, n, [self._inv_diag, x, y, z, f64(alpha), f64(beta)], device=self.device)
+
+        jacobi = wpl.LinearOperator((3 * n, 3 * n), mat33, self.device, precondition)
+        state = wpl.cg(matrix, self._force, self._d, tol=s.cg_tol, maxiter=s.cg_iterations, M=jacobi,
+                       use_cuda_graph=False, run=False)
+
+        def solve(atol: float) -> int:  # the tolerance is relative only: the state fixes atol at creation
+            iterations, _, _ = state()
+            return int(iterations)
+        return solve
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Driving frames into a motion file
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WorldMap:
+    """World frame <-> simulation metres: ``x_sim = (x_world - origin) * scale`` (scale: metres per unit)."""
+
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    scale: float = 1.0
+
+    @classmethod
+    def fit(cls, vertices: np.ndarray, size: float) -> WorldMap:
+        """Centre the bounding box of ``vertices`` (N, 3) and map its largest extent to ``size`` metres."""
+        vertices = np.asarray(vertices, np.float64)
+        lo, hi = vertices.min(0), vertices.max(0)
+        extent = float((hi - lo).max())
+        if not (size > 0 and math.isfinite(size)):
+            raise InputError(f"--size must be a positive length in metres, got {size}")
+        if extent <= 0:
+            raise InputError("the cage has zero extent; cannot scale it to a physical size")
+        return cls(tuple(float(c) for c in (lo + hi) / 2), size / extent)
+
+    def to_sim(self, x: np.ndarray) -> np.ndarray:
+        return (np.asarray(x, np.float64) - np.asarray(self.origin)) * self.scale
+
+    def to_world(self, x: np.ndarray) -> np.ndarray:
+        return np.asarray(x, np.float64) / self.scale + np.asarray(self.origin)
+
+
+def encode_velocities(v: np.ndarray) -> str:
+    """(V, 3) velocities -> base64 of little-endian float32, for the motion's ``meta['state']``."""
+    return base64.b64encode(np.asarray(v, "<f4").tobytes()).decode("ascii")
+
+
+def decode_velocities(text: str, n_vertices: int) -> np.ndarray:
+    """Inverse of :func:`encode_velocities`; a malformed string is an :class:`InputError`."""
+    try:
+        v = np.frombuffer(base64.b64decode(text, validate=True), dtype="<f4")
+    except (ValueError, TypeError) as err:
+        raise InputError(f"motion meta state: velocities are not valid base64 ({err})") from None
+    if v.size != 3 * n_vertices or not np.isfinite(v).all():
+        raise InputError(f"motion meta state: expected {n_vertices} finite velocities, got {v.size / 3:g}")
+    return v.reshape(n_vertices, 3).astype(np.float64)
+
+
+def simulate(sim: Simulator, frames: int, writer, world: WorldMap = WorldMap(), progress: bool = True):
+    """Step ``sim`` ``frames`` times, appending each frame (world coordinates) to ``writer``.
+
+    An empty ``writer`` first gets the current state as frame 0. Before each append ``writer.motion.meta``
+    gets ``state`` (frame velocities in world units per second, :func:`encode_velocities`, so ``--resume``
+    can continue exactly) and ``stats``. The writer is flushed on every exit, so a
+    :class:`SimulationError` or an interrupt keeps every frame made. Returns the list of :class:`StepStats`.
+    """
+    from tqdm.auto import tqdm
+
+    meta = writer.motion.meta
+
+    def record(stats: StepStats | None):
+        meta["state"] = {"frame": writer.n_frames, "time": sim.time,
+                         "velocities": encode_velocities(sim.velocities / world.scale)}
+        if stats is not None:
+            total = meta.setdefault("stats", {"frames": 0, "substeps": 0, "newton_iterations": 0,
+                                              "cg_iterations": 0, "retries": 0, "seconds": 0.0})
+            total["frames"] += 1
+            total["substeps"] += stats.substeps
+            total["newton_iterations"] += stats.newton_iterations
+            total["cg_iterations"] += stats.cg_iterations
+            total["retries"] += stats.retries
+            total["seconds"] += stats.seconds
+        writer.append(world.to_world(sim.positions), sim.time)
+
+    history = []
+    try:
+        if writer.n_frames == 0:
+            record(None)
+        with tqdm(total=frames, disable=not progress, unit="frame", desc="simulate") as bar:
+            for _ in range(frames):
+                stats = sim.step()
+                history.append(stats)
+                record(stats)
+                bar.set_postfix(newton=stats.newton_iterations, cg=stats.cg_iterations, retries=stats.retries)
+                bar.update()
+    finally:
+        writer.flush()
+    return history

@@ -1,0 +1,255 @@
+"""Physics tests of the implicit FEM (:mod:`shellsim.fem`) against closed forms and invariants."""
+
+import numpy as np
+import pytest
+
+wp = pytest.importorskip("warp")
+
+from shellsim.contact import Box, Sphere  # noqa: E402
+from shellsim.fem import (  # noqa: E402
+    SimSettings,
+    SimulationError,
+    Simulator,
+    elastic_energy,
+    simulate,
+    snh_energy_reference,
+    tet_volumes,
+)
+from shellsim.materials import Material, get_material  # noqa: E402
+from shellsim.motion import MotionWriter, load_motion  # noqa: E402
+
+G = 9.81
+
+
+def box_tets(cells=(2, 2, 2), size=(0.1, 0.1, 0.1), origin=(0.0, 0.0, 0.0)):
+    """A box split into cubes, each cut into the 6 tets around its main diagonal (conforming, oriented)."""
+    axes = [np.linspace(0.0, size[i], cells[i] + 1) + origin[i] for i in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    ny, nz = cells[1] + 1, cells[2] + 1
+    tets = []
+    for i in range(cells[0]):
+        for j in range(cells[1]):
+            for k in range(cells[2]):
+                c = [((i + a) * ny + j + b) * nz + k + d for a in (0, 1) for b in (0, 1) for d in (0, 1)]
+                for p, q in ((4, 6), (4, 5), (2, 6), (2, 3), (1, 5), (1, 3)):
+                    tets.append([c[0], c[p], c[q], c[7]])
+    tets = np.array(tets)
+    flip = tet_volumes(grid, tets) < 0
+    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
+    return grid, tets
+
+
+def com(sim):
+    return sim.masses @ sim.positions / sim.masses.sum()
+
+
+def settings(**kw):
+    base = dict(ground=None, gravity=0.0, newton_tol=1e-6, cg_tol=1e-10, cg_iterations=2000)
+    base.update(kw)
+    return SimSettings(**base)
+
+
+RUBBER = get_material("rubber")
+SOFT = Material("soft", 1.0e4, 0.3, 1000.0)
+
+
+def test_rest_mesh_is_consistent():
+    v, t = box_tets((2, 3, 2), (0.2, 0.3, 0.1))
+    assert np.isclose(tet_volumes(v, t).sum(), 0.2 * 0.3 * 0.1)
+    sim = Simulator(v, t, RUBBER, settings(), device="cpu")
+    assert np.isclose(sim.masses.sum(), RUBBER.density * 0.2 * 0.3 * 0.1)
+
+
+@pytest.mark.parametrize("shift_limit", [0.1, 0.0])
+def test_energy_gradient_hessian_match_finite_differences(rng, shift_limit):
+    v, t = box_tets((1, 1, 2), (1.0, 1.0, 2.0))
+    mat = Material("m", 3.0, 0.3, 1.0)
+    x = 1.15 * v + 0.03 * rng.normal(size=v.shape)  # stretched: every element Hessian is positive definite
+    energy, grad, hess = elastic_energy(v, t, x, mat, device="cpu", shift_limit=shift_limit)
+    # energy against the NumPy twin
+    dm = np.stack([v[t][:, i] - v[t][:, 0] for i in (1, 2, 3)], axis=2)
+    ds = np.stack([x[t][:, i] - x[t][:, 0] for i in (1, 2, 3)], axis=2)
+    ref = (tet_volumes(v, t) * snh_energy_reference(ds @ np.linalg.inv(dm), mat.mu, mat.lam + mat.mu)).sum()
+    assert energy == pytest.approx(ref, rel=1e-12)
+    # gradient: central differences of the energy; Hessian: central differences of the gradient
+    eps = 1e-6
+    fd_grad = np.zeros(x.size)
+    fd_hess = np.zeros((x.size, x.size))
+    for k in range(x.size):
+        dx = np.zeros(x.size)
+        dx[k] = eps
+        ep, gp, _ = elastic_energy(v, t, x + dx.reshape(-1, 3), mat, device="cpu")
+        em, gm, _ = elastic_energy(v, t, x - dx.reshape(-1, 3), mat, device="cpu")
+        fd_grad[k] = (ep - em) / (2 * eps)
+        fd_hess[:, k] = (gp - gm).ravel() / (2 * eps)
+    np.testing.assert_allclose(grad.ravel(), fd_grad, atol=1e-7 * np.abs(fd_grad).max())
+    np.testing.assert_allclose(hess.toarray(), fd_hess, atol=1e-6 * np.abs(fd_hess).max())
+
+
+@pytest.mark.parametrize("shift_limit", [0.1, 0.0])
+def test_hessian_is_positive_semidefinite_under_large_deformation(rng, shift_limit):
+    v, t = box_tets((1, 1, 1), (1.0, 1.0, 1.0))
+    mat = Material("m", 1.0, 0.45, 1.0)
+    for scale in (0.3, 0.6, 1.0):  # up to inverted elements
+        x = v + scale * rng.normal(size=v.shape)
+        _, _, hess = elastic_energy(v, t, x, mat, device="cpu", shift_limit=shift_limit)
+        dense = hess.toarray()
+        np.testing.assert_allclose(dense, dense.T, atol=1e-12 * np.abs(dense).max())
+        assert np.linalg.eigvalsh(dense)[0] >= -1e-10 * np.abs(dense).max()
+
+
+def test_free_fall_matches_the_discrete_and_continuous_solutions():
+    v, t = box_tets((2, 2, 2))
+    s = settings(gravity=G, up=(0.0, 1.0, 0.0), dt=1 / 30, substeps=4)
+    sim = Simulator(v, t, RUBBER, s, device="cpu")
+    c0 = com(sim)
+    frames = 6
+    for _ in range(frames):
+        sim.step()
+    n, h = frames * s.substeps, s.dt / s.substeps
+    drop = c0[1] - com(sim)[1]
+    # backward Euler: v_k = -g h k, x_n = x_0 - g h^2 n (n + 1) / 2, exactly
+    assert drop == pytest.approx(G * h * h * n * (n + 1) / 2, rel=1e-9)
+    assert drop == pytest.approx(G * (n * h) ** 2 / 2, rel=1.5 / n)
+    np.testing.assert_allclose(com(sim)[[0, 2]], c0[[0, 2]], atol=1e-12)
+    # no deformation in free fall
+    np.testing.assert_allclose(sim.positions - sim.positions.mean(0), v - v.mean(0), atol=1e-9)
+
+
+def test_rigid_motion_keeps_shape_and_linear_momentum():
+    v, t = box_tets((2, 2, 2))
+    sim = Simulator(v, t, RUBBER, settings(dt=1 / 60, substeps=4), device="cpu")
+    sim.set_rigid_velocity(linear=(0.3, -0.2, 0.1), angular=(2.0, 1.0, -3.0))
+    p0 = sim.masses @ sim.velocities
+    for _ in range(10):
+        sim.step()
+    x = sim.positions
+    dist = np.linalg.norm(x[:, None] - x[None], axis=-1)
+    dist0 = np.linalg.norm(v[:, None] - v[None], axis=-1)
+    np.testing.assert_allclose(dist, dist0, atol=2e-4 * dist0.max())
+    np.testing.assert_allclose(sim.masses @ sim.velocities, p0, atol=1e-9)
+    # the centre of mass moves uniformly
+    np.testing.assert_allclose(com(sim), v.mean(0) + np.array([0.3, -0.2, 0.1]) * sim.time, atol=1e-9)
+
+
+def test_stretched_bar_relaxes_toward_rest():
+    v, t = box_tets((4, 1, 1), (0.4, 0.1, 0.1))
+    sim = Simulator(v, t, SOFT, settings(damping=0.05, newton_tol=1e-4, cg_tol=1e-6), device="cpu")
+    stretched = v * np.array([1.2, 1.0, 1.0])
+    sim.set_state(positions=stretched)
+    e0, _, _ = elastic_energy(v, t, stretched, SOFT, device="cpu")
+    for _ in range(30):
+        sim.step()
+    e1, _, _ = elastic_energy(v, t, sim.positions, SOFT, device="cpu")
+    length = np.ptp(sim.positions[:, 0])
+    assert length == pytest.approx(0.4, rel=0.02)
+    assert e1 < 0.01 * e0
+
+
+def _total_energy(sim, mat, ground):
+    x, vel = sim.positions, sim.velocities
+    kinetic = 0.5 * sim.masses @ np.sum(vel * vel, axis=1)
+    potential = G * sim.masses @ x[:, 2]
+    elastic, _, _ = elastic_energy(sim.rest_vertices, sim.tets, x, mat, device="cpu")
+    pen = np.maximum(ground - x[:, 2], 0.0)
+    contact = 0.5 * sim.settings.contact_stiffness * sim.masses @ pen**2
+    return kinetic + potential + elastic + contact
+
+
+def test_body_resting_on_the_ground_settles_without_drift():
+    v, t = box_tets((3, 3, 2), (0.1, 0.1, 0.05))
+    mat = get_material("rubber")
+    s = SimSettings(ground=0.0, dt=1 / 30, substeps=4, newton_tol=1e-5, cg_tol=1e-6)
+    sim = Simulator(v, t, mat, s, device="cpu")
+    energies = [_total_energy(sim, mat, 0.0)]
+    for frame in range(20):
+        sim.step()
+        energies.append(_total_energy(sim, mat, 0.0))
+        if frame == 9:
+            settled = sim.positions
+    x = sim.positions
+    # it settles a little (penalty depth + elastic sag; the sides bulge and the diagonal cut of the cubes shears
+    # by micrometres), nothing passes the ground, and then it stays: no drift, no creep
+    np.testing.assert_allclose(com(sim)[:2], v.mean(0)[:2], atol=1e-5)
+    np.testing.assert_allclose(x[:, :2], v[:, :2], atol=5e-5)
+    np.testing.assert_allclose(x, settled, atol=2e-8)
+    assert 0 < v[:, 2].mean() - x[:, 2].mean() < 1e-3
+    assert x[:, 2].min() > -1e-3
+    # the incremental potential only dissipates: the energy never grows
+    assert np.all(np.diff(energies) <= 1e-9 * abs(energies[0]) + 1e-12)
+    assert np.abs(sim.velocities).max() < 1e-6
+
+
+def test_pinned_vertices_hold_and_the_free_end_sags():
+    v, t = box_tets((4, 1, 1), (0.4, 0.05, 0.05))
+    pinned = v[:, 0] < 1e-9
+    sim = Simulator(v, t, SOFT, SimSettings(ground=None, damping=0.02), pinned=pinned, device="cpu")
+    for _ in range(10):
+        sim.step()
+    x = sim.positions
+    np.testing.assert_array_equal(x[pinned], v[pinned])
+    tip = v[:, 0] > 0.4 - 1e-9
+    assert (x[tip, 2] < v[tip, 2] - 1e-3).all()
+
+
+@pytest.mark.parametrize("obstacle", ["sphere", "box"])
+def test_obstacles_stop_a_falling_body(obstacle):
+    v, t = box_tets((2, 2, 2), (0.06, 0.06, 0.06), origin=(-0.03, -0.03, 0.02))
+    collider = (dict(spheres=(Sphere((0.0, 0.0, -0.2), 0.2),)) if obstacle == "sphere"
+                else dict(boxes=(Box((0.0, 0.0, -0.1), (0.2, 0.2, 0.1)),)))
+    sim = Simulator(v, t, RUBBER, SimSettings(ground=None, **collider), device="cpu")
+    for _ in range(15):
+        sim.step()
+    x = sim.positions
+    if obstacle == "sphere":  # it lands on the top and starts to roll off: nothing sinks in
+        depth = 0.2 - np.linalg.norm(x - np.array([0.0, 0.0, -0.2]), axis=1)
+    else:  # it lands on the top face z = 0
+        depth = -x[:, 2]
+    assert depth.max() < 1e-3
+    assert x[:, 2].min() < 0.02 - 0.01  # it did fall
+
+
+def test_runaway_simulation_is_retried_then_raises_keeping_the_frames(tmp_path):
+    v, t = box_tets((2, 2, 2), (0.1, 0.1, 0.1))
+    # an absurd gravity (40 g) accelerates past max_speed after about 7 frames; more substeps cannot help
+    s = SimSettings(ground=None, gravity=400.0, substeps=2, retry_factors=(2, 4), max_speed=100.0)
+    sim = Simulator(v, t, RUBBER, s, device="cpu")
+    path = tmp_path / "motion.npz"
+    writer = MotionWriter(path, v, t, {"producer": "test"}, flush_seconds=1e9)
+    with pytest.raises(SimulationError, match="max_speed") as err:
+        simulate(sim, 60, writer, progress=False)
+    assert "2 substeps" in str(err.value) and "8 substeps" in str(err.value)  # it was retried
+    motion = load_motion(path)
+    assert motion.n_frames == 8  # frame 0 and the 7 frames below max_speed
+    np.testing.assert_allclose(motion.positions[0], v, atol=1e-6)
+    speed = np.linalg.norm(motion.positions[-1] - motion.positions[-2], axis=1).max() * 30
+    assert 50 < speed <= 100
+    assert motion.meta["state"]["frame"] == motion.n_frames - 1
+    # the simulator is left at the last good frame
+    np.testing.assert_allclose(sim.positions, motion.positions[-1], atol=1e-5)
+
+
+def test_settings_and_inputs_are_validated():
+    with pytest.raises(ValueError, match="dt"):
+        SimSettings(dt=0.0)
+    with pytest.raises(ValueError, match="linear_solver"):
+        SimSettings(linear_solver="magic")
+    v, t = box_tets((1, 1, 1))
+    with pytest.raises(ValueError, match="orientation"):
+        Simulator(v, t[:, [1, 0, 2, 3]], RUBBER, device="cpu")
+    with pytest.raises(ValueError, match="tets"):
+        Simulator(v, t + 100, RUBBER, device="cpu")
+
+
+def test_serial_pcg_matches_warp_optim_cg():
+    """The one-kernel CPU solver against the CUDA path (warp.optim.linear.cg), here run on the CPU."""
+    v, t = box_tets((2, 2, 2), (0.1, 0.1, 0.1), origin=(0.0, 0.0, 0.002))
+    results = []
+    for solver in ("serial", "cg"):
+        s = SimSettings(ground=0.0, substeps=2, cg_tol=1e-8, newton_tol=1e-5, linear_solver=solver)
+        sim = Simulator(v, t, RUBBER, s, device="cpu")
+        sim.set_rigid_velocity(linear=(0.2, 0.0, 0.0), angular=(0.0, 0.0, 2.0))
+        sim.step()
+        results.append(sim.positions)
+    assert results[0][:, 2].min() < 0  # in contact with the ground
+    np.testing.assert_allclose(results[0], results[1], atol=1e-8)

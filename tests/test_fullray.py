@@ -1,0 +1,326 @@
+"""Full-ray samplers: ray/box slabs against brute force, uniform / stepped / importance sampling, and the
+occupancy grid (closed-form cell marking on a sphere, loop twin, subset of the dense sampler, same render)."""
+
+import math
+from dataclasses import dataclass
+
+import pytest
+import torch
+
+from neural.render.fullray import (
+    _neus_weights,
+    importance_samples,
+    ray_aabb,
+    render_rays,
+    sample_pdf,
+    stepped_samples,
+    uniform_samples,
+)
+from neural.render.occupancy import OccupancyConfig, OccupancyGrid
+
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+LO, HI = torch.tensor([-1.0, -1.2, -0.9]), torch.tensor([1.1, 0.8, 1.3])
+
+
+@dataclass
+class Geometry:
+    sdf: torch.Tensor
+    inv_s: torch.Tensor
+    normal: torch.Tensor
+
+
+class SphereField:
+    """Exact SDF ``|x| - R`` of a sphere at the origin, a constant kernel, a position-dependent colour."""
+
+    def __init__(self, radius, inv_s):
+        self.radius, self.inv_s = radius, inv_s
+
+    def geometry(self, x):
+        dist = x.norm(dim=1)
+        return Geometry(dist - self.radius, torch.full_like(dist, self.inv_s), x / dist[:, None])
+
+    def radiance(self, x, d, geo):
+        return torch.sigmoid(torch.stack([x[:, 0] + d[:, 2], x[:, 1], x[:, 2] * 2.0], dim=1))
+
+
+def random_rays(n, seed, distance=3.0, spread=1.0, device="cpu"):
+    g = torch.Generator().manual_seed(seed)
+    origins = torch.randn(n, 3, generator=g)
+    origins = distance * origins / origins.norm(dim=1, keepdim=True)
+    target = spread * (torch.rand(n, 3, generator=g) * 2 - 1)
+    dirs = torch.nn.functional.normalize(target - origins, dim=1)
+    return origins.to(device), dirs.to(device)
+
+
+def inside(x, lo, hi, tol=0.0):
+    return ((x >= lo - tol) & (x <= hi + tol)).all(dim=-1)
+
+
+def sphere_sdf(radius, center=(0.0, 0.0, 0.0)):
+    c = torch.tensor(center)
+
+    def fn(x):
+        return (x - c.to(x)).norm(dim=1) - radius
+
+    return fn
+
+
+# ---------------------------------------------------------------- ray / box
+
+
+def test_ray_aabb_against_brute_force():
+    origins, dirs = random_rays(300, 0, distance=2.5, spread=2.0)
+    origins[:20] = torch.rand(20, 3) * 0.5  # some rays start inside the box
+    dirs[20:30, 1] = 0.0  # and some have zero direction components
+    dirs[30:35, 0] = 0.0
+    dirs[30:35, 2] = 0.0
+    dirs = torch.nn.functional.normalize(dirs, dim=1)
+    o, d, lo, hi = origins.double(), dirs.double(), LO.double(), HI.double()
+    near, far = ray_aabb(o, d, lo, hi)
+    hit = far > near
+    t = torch.linspace(0.0, 8.0, 4001, dtype=torch.float64)
+    ins = inside(o[:, None, :] + t[None, :, None] * d[:, None, :], lo, hi)
+    assert not ins[~hit].any()  # misses stay outside
+    assert hit.sum() > 150 and torch.equal(hit[ins.any(dim=1)], torch.ones_like(hit[ins.any(dim=1)]))
+
+    def at(tt):
+        return inside(o + tt[:, None] * d, lo, hi)
+
+    eps = 1e-9
+    assert at(near + eps)[hit].all() and at(far - eps)[hit].all()
+    assert not at(far + eps)[hit].any()
+    outside_start = hit & (near > 0)
+    assert not at(near - eps)[outside_start].any()
+    assert (near[:20] == 0).all() and hit[:20].all()  # origin inside: enter at the near plane
+    assert (near[~hit] == far[~hit]).all()
+
+
+def test_ray_aabb_rejects_bad_shapes():
+    with pytest.raises(ValueError, match="origins and dirs"):
+        ray_aabb(torch.zeros(4, 3), torch.zeros(4, 2), LO, HI)
+
+
+# ---------------------------------------------------------------- uniform and stepped
+
+
+@pytest.mark.parametrize("perturb", [False, True])
+def test_uniform_samples_fixed_count_contiguous(perturb):
+    near = torch.tensor([1.0, 2.0, 0.5, 3.0])
+    far = torch.tensor([3.0, 2.0, 4.0, 1.0])  # rays 1 and 3 miss
+    s = uniform_samples(near, far, 16, perturb=perturb, generator=torch.Generator().manual_seed(0))
+    assert s.counts().tolist() == [16, 0, 16, 0]
+    starts, ends = s.t_starts.reshape(2, 16), s.t_ends.reshape(2, 16)
+    step = ((far - near)[[0, 2]] / 16)[:, None]
+    assert torch.allclose(ends - starts, step.expand(2, 16))
+    assert torch.allclose(starts[:, 1:], ends[:, :-1])
+    shift = starts[:, :1] - near[[0, 2], None]
+    if perturb:
+        assert ((shift >= 0) & (shift < step)).all() and (shift > 0).any()
+    else:
+        assert torch.allclose(starts[:, 0], near[[0, 2]]) and torch.allclose(ends[:, -1], far[[0, 2]])
+
+
+def test_stepped_samples_count_and_cap():
+    near = torch.tensor([0.0, 1.0, 2.0])
+    far = torch.tensor([1.05, 1.0, 9.0])
+    s = stepped_samples(near, far, 0.1, max_samples=40)
+    assert s.counts().tolist() == [11, 0, 40]  # ceil(1.05 / 0.1) = 11; the third is capped
+    assert torch.allclose(s.deltas, torch.full_like(s.deltas, 0.1))
+    assert (s.t_starts < far[s.ray_indices]).all()
+
+
+# ---------------------------------------------------------------- importance sampling
+
+
+def test_sample_pdf_inverts_the_piecewise_linear_cdf():
+    g = torch.Generator().manual_seed(2)
+    bins = torch.sort(torch.rand(5, 9, generator=g, dtype=torch.float64) * 3, dim=1).values
+    weights = torch.rand(5, 8, generator=g, dtype=torch.float64)
+    weights[0, 2:6] = 0.0  # empty bins get (almost) no samples
+    n = 200
+    t = sample_pdf(bins, weights, n)
+    u = (torch.arange(n, dtype=torch.float64) + 0.5) / n
+    w = weights + 1e-5
+    cdf = torch.cat([torch.zeros(5, 1, dtype=torch.float64), torch.cumsum(w, 1) / w.sum(1, keepdim=True)], 1)
+    for r in range(5):  # closed form: CDF at the samples, by linear interpolation within each bin
+        k = torch.clamp(torch.searchsorted(bins[r], t[r], right=True), 1, 8)
+        frac = (t[r] - bins[r, k - 1]) / (bins[r, k] - bins[r, k - 1])
+        assert torch.allclose(cdf[r, k - 1] + frac * (cdf[r, k] - cdf[r, k - 1]), u, atol=1e-9)
+    assert (t[:, 1:] >= t[:, :-1]).all()
+    assert ((t[0] > bins[0, 2]) & (t[0] < bins[0, 6])).sum() <= 1
+
+
+def test_neus_weights_peak_at_the_surface():
+    z = torch.linspace(0.0, 4.0, 81)[None]
+    sdf = 2.0 - z  # surface at z = 2
+    w = _neus_weights(z, sdf, inv_s=64.0)
+    mid = 0.5 * (z[0, 1:] + z[0, :-1])
+    assert abs(float(mid[w[0].argmax()]) - 2.0) <= 0.05
+    assert abs(float(w.sum()) - 1.0) < 1e-3
+
+
+def test_importance_samples_concentrate_at_the_surface_and_render_accurately():
+    radius = 0.7
+    field = SphereField(radius, inv_s=400.0)
+    origins, dirs = random_rays(128, 4, spread=0.35)  # every ray hits the sphere
+    near, far = ray_aabb(origins, dirs, -torch.ones(3), torch.ones(3))
+    s = importance_samples(sphere_sdf(radius), origins, dirs, near, far, n_coarse=32, n_fine=32, n_rounds=4)
+    assert s.counts().tolist() == [63] * 128
+    starts = s.t_starts.reshape(128, 63)
+    assert torch.allclose(starts[:, 1:], s.t_ends.reshape(128, 63)[:, :-1])
+    assert (starts[:, 0] >= near - 1e-6).all() and (s.t_ends.reshape(128, 63)[:, -1] <= far + 1e-6).all()
+    b = (origins * dirs).sum(1)
+    t_hit = -b - torch.sqrt(b * b - (origins * origins).sum(1) + radius**2)
+    near_surface = (s.t_mid - t_hit[s.ray_indices]).abs() < 0.05
+    assert near_surface.float().mean() > 0.3  # vs 0.1 / 2.6 ~ 4% for uniform samples
+    out = render_rays(field, origins, dirs, s)
+    assert torch.allclose(out["opacity"], torch.ones(128), atol=1e-3)
+    assert (out["depth"] - t_hit).abs().max() < 0.01
+    uniform = render_rays(field, origins, dirs, uniform_samples(near, far, 63))
+    assert (uniform["depth"] - t_hit).abs().max() > (out["depth"] - t_hit).abs().max()
+
+
+def test_importance_samples_skip_missing_rays():
+    origins = torch.tensor([[0.0, 0.0, -3.0], [5.0, 5.0, -3.0]])
+    dirs = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    near, far = ray_aabb(origins, dirs, -torch.ones(3), torch.ones(3))
+    s = importance_samples(sphere_sdf(0.5), origins, dirs, near, far, n_coarse=8, n_fine=8, n_rounds=2)
+    assert s.counts().tolist() == [15, 0] and s.n_rays == 2
+
+
+# ---------------------------------------------------------------- occupancy grid
+
+
+def cell_boxes(grid):
+    res = grid.resolution
+    i, j, k = torch.meshgrid(*[torch.arange(res)] * 3, indexing="ij")
+    ijk = torch.stack([i, j, k], -1).reshape(-1, 3).float()
+    lo = grid.aabb_min.cpu() + ijk * grid.cell_size.cpu()
+    return lo, lo + grid.cell_size.cpu()
+
+
+@pytest.mark.parametrize("jitter", [False, True])
+def test_occupancy_marks_exactly_a_band_around_the_sphere(jitter):
+    radius, inv_s, res = 0.6, 200.0, 24
+    config = OccupancyConfig(jitter=jitter)
+    grid = OccupancyGrid(LO, HI, res, config)
+    sdf = sphere_sdf(radius)
+    grid.update(lambda x: (sdf(x), torch.full((x.shape[0],), inv_s)), step=0)
+    lo, hi = cell_boxes(grid)
+    nearest = torch.maximum(torch.minimum(torch.zeros(3), hi), lo).norm(dim=1)  # closest point to the centre
+    farthest = torch.maximum(lo.abs(), hi.abs()).norm(dim=1)
+    crosses = (nearest <= radius) & (farthest >= radius)
+    occ = grid.occupied.cpu()
+    assert occ[crosses].all()  # every cell the surface passes through
+    # and only cells within band_widths kernel sizes of the surface, plus the probe's reach in the cell
+    dist_to_surface = torch.where(
+        crosses, 0.0, torch.minimum((nearest - radius).abs(), (farthest - radius).abs())
+    )
+    reach = config.band_widths / inv_s + grid.cell_size.norm() * (1.0 if jitter else 0.5)
+    assert (dist_to_surface[occ] <= reach + 1e-5).all()
+    assert occ.float().mean() < 0.5
+
+
+def test_occupancy_scores_decay_like_instant_ngp():
+    """Geometry leaves: a cell first scored s0 stays occupied while s0 decay^m > exp(-band_widths)."""
+    config = OccupancyConfig(jitter=False, warmup_steps=10**6)
+    grid = OccupancyGrid(-torch.ones(3), torch.ones(3), 8, config)
+    inv_s = 50.0
+
+    def far_away(x):
+        return torch.full((x.shape[0],), 100.0), torch.full((x.shape[0],), inv_s)
+
+    def near_centre(x):
+        return x.norm(dim=1) - 0.3, torch.full((x.shape[0],), inv_s)
+
+    grid.update(near_centre, 0)
+    lo, hi = cell_boxes(grid)
+    half_diag = float(grid.cell_size.norm()) / 2
+    s0 = torch.exp(-inv_s * torch.relu(((0.5 * (lo + hi)).norm(dim=1) - 0.3).abs() - half_diag))
+    log_thr, log_decay = -config.band_widths, math.log(config.ema_decay)
+    lifetime = torch.ceil((log_thr - torch.log(s0)) / log_decay)  # first m with s0 decay^m <= threshold
+    assert (lifetime == math.ceil(config.band_widths / -log_decay)).sum() > 0  # cells on the surface: s0 = 1
+    for m in range(1, int(lifetime.max()) + 2):
+        grid.update(far_away, m)
+        assert torch.equal(grid.occupied, m < lifetime), m
+
+
+def test_occupancy_partial_updates_and_state_round_trip():
+    config = OccupancyConfig(warmup_steps=4, update_fraction=0.1)
+    grid = OccupancyGrid(LO, HI, 16, config)
+
+    def fn(x):
+        return sphere_sdf(0.5)(x), torch.full((x.shape[0],), 100.0)
+
+    assert grid.occupied.all()  # never probed: dense
+    grid.update(fn, step=100)  # unprobed cells force a full update even after warm-up
+    assert (grid.scores >= 0).all()
+    scores = grid.scores.clone()
+    grid.update(fn, step=101, generator=torch.Generator().manual_seed(0))
+    changed = (grid.scores != scores).float().mean()
+    assert 0 < changed < 0.3
+    other = OccupancyGrid(LO, HI, 16, config)
+    other.load_state(grid.state())
+    assert torch.equal(other.occupied, grid.occupied)
+    with pytest.raises(ValueError, match="occupancy_scores"):
+        OccupancyGrid(LO, HI, 8).load_state(grid.state())
+
+
+def sphere_grid(radius, inv_s, res=32, device="cpu"):
+    grid = OccupancyGrid(LO.to(device), HI.to(device), res, OccupancyConfig(jitter=False))
+    sdf = sphere_sdf(radius)
+    grid.update(lambda x: (sdf(x), torch.full((x.shape[0],), inv_s, device=x.device)), step=0)
+    return grid
+
+
+def test_occupancy_sample_matches_loop_twin():
+    grid = sphere_grid(0.6, 100.0, res=16)
+    origins, dirs = random_rays(24, 5, spread=1.2)
+    fast = grid.sample(origins, dirs, 0.05, 256)
+    slow = grid.sample_reference(origins, dirs, 0.05, 256)
+    assert torch.equal(fast.ray_indices, slow.ray_indices)
+    assert torch.allclose(fast.t_starts, slow.t_starts) and torch.allclose(fast.t_ends, slow.t_ends)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_occupancy_sampling_renders_like_dense_sampling(device):
+    radius, inv_s, step = 0.6, 300.0, 0.01
+    field = SphereField(radius, inv_s)
+    grid = sphere_grid(radius, inv_s, device=device)
+    origins, dirs = random_rays(256, 6, spread=0.9, device=device)
+    near, far = ray_aabb(origins, dirs, LO.to(device), HI.to(device))
+    dense = stepped_samples(near, far, step, 1024)
+    sparse = grid.sample(origins, dirs, step, 1024)
+
+    # a subset of the dense sections, ray by ray
+    def key(s):
+        return set(zip(s.ray_indices.tolist(), torch.round(s.t_starts * 1e5).long().tolist(), strict=True))
+
+    assert key(sparse) <= key(dense)
+    assert sparse.t_starts.numel() < 0.3 * dense.t_starts.numel()
+    bg = torch.tensor([0.2, 0.9, 0.4], device=device)
+    a = render_rays(field, origins, dirs, dense, bg)
+    b = render_rays(field, origins, dirs, sparse, bg)
+    hits = (a["opacity"] > 0.5).sum()
+    assert 50 < hits < 250  # both hits and misses are exercised
+    for key in ("opacity", "color", "depth"):  # skipped cells could add at most ~exp(-band_widths) = 3e-4
+        assert (a[key] - b[key]).abs().max() < 1e-4, key
+
+
+def test_occupancy_perturbed_samples_lie_in_occupied_cells():
+    grid = sphere_grid(0.6, 100.0, res=16)
+    origins, dirs = random_rays(64, 8, spread=1.0)
+    s = grid.sample(origins, dirs, 0.03, 512, perturb=True, generator=torch.Generator().manual_seed(1))
+    assert grid.query(s.points(origins, dirs)).all()
+    near, _ = ray_aabb(origins, dirs, LO, HI)
+    offset = torch.remainder(s.t_starts - near[s.ray_indices], 0.03)
+    assert not torch.allclose(offset, torch.zeros_like(offset), atol=1e-4)
+
+
+def test_empty_occupancy_grid_gives_no_samples():
+    grid = OccupancyGrid(LO, HI, 8, OccupancyConfig(jitter=False))
+    grid.update(lambda x: (torch.full((x.shape[0],), 10.0), torch.full((x.shape[0],), 50.0)), step=0)
+    assert not grid.occupied.any()
+    origins, dirs = random_rays(16, 9)
+    s = grid.sample(origins, dirs, 0.01, 512)
+    assert s.t_starts.numel() == 0 and s.n_rays == 16

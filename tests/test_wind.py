@@ -1,0 +1,322 @@
+"""shellsim.wind: invariants (zero wind, fixed anchor, monotone bending), the cantilever closed form, the
+inextensible-rod drop, the anchor parser, the motion file and the CLI."""
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+
+from neural.errors import InputError
+from shellsim.motion import MotionWriter, load_motion
+from shellsim.wind import (
+    WindSettings,
+    animate_wind,
+    beam_profile,
+    heights,
+    parse_anchor,
+    wind_displacement,
+    wind_meta,
+)
+
+
+def column(n_xy: int = 2, n_z: int = 8, width: float = 0.2, height: float = 1.0):
+    """A box column [0, width]^2 x [0, height] split into Kuhn tets: vertices (V, 3), tets (T, 4)."""
+    shape = (n_xy + 1, n_xy + 1, n_z + 1)
+    axes = [np.linspace(0, width, n_xy + 1)] * 2 + [np.linspace(0, height, n_z + 1)]
+    verts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    idx = np.arange(verts.shape[0]).reshape(shape)
+    tets = []
+    for cell in itertools.product(range(n_xy), range(n_xy), range(n_z)):
+        for perm in itertools.permutations(range(3)):
+            corner = list(cell)
+            tet = [idx[tuple(corner)]]
+            for axis in perm:
+                corner[axis] += 1
+                tet.append(idx[tuple(corner)])
+            tets.append(tet)
+    tets = np.array(tets, dtype=np.int64)
+    e = verts[tets[:, 1:]] - verts[tets[:, :1]]
+    flip = np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2])) < 0
+    tets[flip] = tets[flip][:, [1, 0, 2, 3]]
+    return verts, tets
+
+
+def rod(rng, radius, n: int = 6000):
+    """Points on a vertical surface of revolution z in [-0.05, 1] with radius(z)."""
+    z = rng.uniform(-0.05, 1.0, n)
+    theta = rng.uniform(0.0, 2 * np.pi, n)
+    r = radius(z)
+    return np.stack([r * np.cos(theta), r * np.sin(theta), z], 1)
+
+
+def test_zero_strength_moves_nothing_exactly(rng):
+    verts, _ = column()
+    settings = WindSettings(strength=0.0, gust=0.0, turbulence=0.7)
+    for t in (0.0, 0.3, 7.1):
+        assert np.array_equal(wind_displacement(verts, t, settings), np.zeros_like(verts))
+
+
+def test_frame_zero_is_rest():
+    verts, _ = column()
+    assert np.array_equal(wind_displacement(verts, 0.0, WindSettings(strength=0.3)), np.zeros_like(verts))
+
+
+@pytest.mark.parametrize("anchor", [None, "z<0.26", "z>0.74", "x<0.05"])
+def test_anchored_vertices_never_move(anchor):
+    verts, _ = column()
+    settings = WindSettings(strength=0.2, gust=0.8, turbulence=0.5, anchor=anchor, direction=(0.3, 1.0, 0.0))
+    fixed = heights(verts, settings) <= 0
+    if anchor is not None:
+        a = parse_anchor(anchor)
+        np.testing.assert_array_equal(fixed, a.sign * (verts[:, a.axis] - a.value) < 0)
+    assert 0 < fixed.sum() < len(verts)
+    for t in np.linspace(0.0, 5.0, 11):
+        u = wind_displacement(verts, t, settings)
+        assert np.array_equal(u[fixed], np.zeros_like(u[fixed]))
+        assert np.abs(u[~fixed]).max() > 0 or t == 0
+
+
+@pytest.mark.parametrize(
+    "radius", [lambda z: 0.1 + 0 * z, lambda z: 0.02 + 0.2 * z, lambda z: 0.2 - 0.15 * z]
+)
+def test_displacement_grows_with_height(rng, radius):
+    verts = rod(rng, radius)
+    settings = WindSettings(strength=0.1, gust=0.4, turbulence=0.0, anchor="z<0.05")
+    h = heights(verts, settings)
+    order = np.argsort(h)
+    for t in (0.7, 1.9):
+        u = wind_displacement(verts, t, settings)
+        assert np.all(np.diff(np.linalg.norm(u[order], axis=1)) >= -1e-12)
+
+
+def test_uniform_rod_follows_the_cantilever_closed_form(rng):
+    """EI constant, uniform load: w(h) = (h^4 - 4 L h^3 + 6 L^2 h^2) / (3 L^4) with w(L) = 1."""
+    grid, w, drop, length = beam_profile(rod(rng, lambda z: 0.1 + 0 * z), WindSettings(anchor="z<0"))
+    xi = grid / length
+    np.testing.assert_allclose(w, (xi**4 - 4 * xi**3 + 6 * xi**2) / 3, atol=2e-3)
+    # drop(L) = int_0^L w'^2 / 2 dh with w' = 4 xi (xi^2 - 3 xi + 3) / (3 L): 4 / (7 L)
+    np.testing.assert_allclose(drop[-1] * length, 4 / 7, rtol=5e-3)
+
+
+def test_thin_sections_bend_more(rng):
+    """A rod half as wide in its lower half (EI 16 times lower with k = 4) against the beam equation
+    w'' = M / EI integrated finely by scipy; it carries more of its deflection low than a uniform rod."""
+    from scipy.integrate import cumulative_trapezoid
+
+    settings = WindSettings(anchor="z<0", thinness=4.0)
+    grid, w_thin, _, length = beam_profile(rod(rng, lambda z: np.where(z < 0.5, 0.05, 0.1)), settings)
+    h = np.linspace(0.0, length, 4001)
+    curvature = 0.5 * (length - h) ** 2 / np.where(h < 0.5, 1 / 16, 1.0)
+    w = cumulative_trapezoid(cumulative_trapezoid(curvature, h, initial=0), h, initial=0)
+    np.testing.assert_allclose(w_thin, np.interp(grid, h, w / w[-1]), atol=5e-3)
+    _, w_uniform, _, _ = beam_profile(rod(rng, lambda z: 0.1 + 0 * z), settings)
+    assert w_thin[len(grid) // 2] > w_uniform[len(grid) // 2] + 0.015
+
+
+def test_bending_keeps_the_axis_length(rng):
+    """The vertical drop makes a bent rod inextensible to second order in the deflection."""
+    line = np.stack([np.zeros(201), np.zeros(201), np.linspace(0.0, 1.0, 201)], 1)
+    verts = np.concatenate([rod(rng, lambda z: 0.1 + 0 * z), line])
+    settings = WindSettings(strength=0.15, gust=0.0, turbulence=0.0, anchor="z<0", direction=(1.0, 0.0, 0.5))
+    u = wind_displacement(verts, 10.0, settings)
+    bent = line + u[-201:]
+    no_drop = line + u[-201:] * [1.0, 1.0, 0.0]
+    length = np.linalg.norm(np.diff(bent, axis=0), axis=1).sum()
+    stretched = np.linalg.norm(np.diff(no_drop, axis=0), axis=1).sum()
+    assert abs(length - 1.0) < 5e-4 < stretched - 1.0
+    # without turbulence the lateral displacement is exactly along the horizontal wind direction
+    np.testing.assert_allclose(u[:, 1], 0.0, atol=1e-15)
+    np.testing.assert_allclose(bent[-1, 0], 0.15, rtol=1e-9)
+
+
+def test_turbulence_is_frozen_and_travels_with_the_wind(rng):
+    """Taylor's hypothesis: without gusts, u(x, t + tau) = u(x - c tau w_hat, t), c = wavelength L f."""
+    probes = rng.uniform([-0.1, -0.1, 0.1], [0.1, 0.1, 1.0], (50, 3))
+    settings = WindSettings(
+        gust=0.0,
+        turbulence=0.6,
+        ramp_seconds=0.0,
+        frequency=0.7,
+        wavelength=0.5,
+        anchor="z<0",
+        direction=(1.0, 1.0, 0.3),
+    )
+    w_hat = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)
+    tau, length = 0.3, 1.0
+    shift = settings.wavelength * length * settings.frequency * tau * w_hat
+    verts = np.concatenate([rod(rng, lambda z: 0.1 + 0 * z), probes, probes - shift, [[0.0, 0.0, length]]])
+    assert heights(verts, settings).max() == length
+    n = len(probes)
+    later = wind_displacement(verts, 2.0 + tau, settings)[-2 * n - 1 : -n - 1]
+    earlier = wind_displacement(verts, 2.0, settings)[-n - 1 : -1]
+    np.testing.assert_allclose(later, earlier, atol=1e-12)
+    assert np.abs(later - wind_displacement(verts, 2.0, settings)[-2 * n - 1 : -n - 1]).max() > 1e-3
+
+
+@pytest.mark.parametrize(
+    "spec, expected",
+    [
+        ("z<0.05", (2, 1.0, 0.05)),
+        (" X > -1e-3 ", (0, -1.0, -1e-3)),
+        ("y<.5", (1, 1.0, 0.5)),
+        ("z<3", (2, 1.0, 3.0)),
+    ],
+)
+def test_anchor_parser_accepts(spec, expected):
+    a = parse_anchor(spec)
+    assert (a.axis, a.sign, a.value) == expected
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [
+        "",
+        "z",
+        "z<",
+        "<1",
+        "w<1",
+        "z<=1",
+        "z<1<2",
+        "z<nan",
+        "z<inf",
+        "z<1e999",
+        "z<0.1; import os",
+        "__import__('os').system('true')",
+        "z < 1 + 1",
+        None,
+        3,
+    ],
+)
+def test_anchor_parser_rejects_junk(spec):
+    with pytest.raises(InputError, match="anchor"):
+        parse_anchor(spec)
+
+
+def test_settings_are_validated():
+    with pytest.raises(InputError, match="strength"):
+        WindSettings(strength=-1.0)
+    with pytest.raises(InputError, match="direction"):
+        WindSettings(direction=(0.0, 0.0, 0.0))
+    with pytest.raises(InputError, match="along the object's axis"):
+        WindSettings(direction=(0.0, 0.0, 2.0))
+    with pytest.raises(InputError, match="anchor"):
+        WindSettings(anchor="z<<1")
+    verts, _ = column()
+    with pytest.raises(InputError, match="selects no cage vertex"):
+        heights(verts, WindSettings(anchor="z<-1"))
+    with pytest.raises(InputError, match="selects every cage vertex"):
+        heights(verts, WindSettings(anchor="z<5"))
+
+
+def test_animate_wind_writes_a_motion_file(tmp_path):
+    verts, tets = column()
+    settings = WindSettings(strength=0.1)
+    path = tmp_path / "wind.npz"
+    with MotionWriter(path, verts, tets, wind_meta(settings, 24.0)) as writer:
+        animate_wind(verts, tets, settings, 10, 24.0, writer, progress=False)
+    motion = load_motion(path)
+    assert motion.positions.shape == (10, len(verts), 3)
+    np.testing.assert_array_equal(motion.tets, tets)
+    np.testing.assert_allclose(motion.times, np.arange(10) / 24.0)
+    np.testing.assert_array_equal(motion.positions[0], verts.astype(np.float32))
+    np.testing.assert_allclose(
+        motion.positions[7], verts + wind_displacement(verts, 7 / 24.0, settings), atol=1e-6
+    )
+    assert motion.meta["made_by"] == "shellsim.wind"
+    assert motion.meta["settings"]["strength"] == 0.1 and motion.meta["fps"] == 24.0
+    assert 0 < motion.meta["stats"]["min_volume_ratio"] < 1
+    json.dumps(motion.meta)
+
+    # resuming continues where the file stops and gives the same frames as one run
+    short = tmp_path / "short.npz"
+    with MotionWriter(short, verts, tets, wind_meta(settings, 24.0)) as writer:
+        animate_wind(verts, tets, settings, 4, 24.0, writer, progress=False)
+    with MotionWriter.resume(short) as writer:
+        animate_wind(verts, tets, settings, 10, 24.0, writer, progress=False)
+    resumed = load_motion(short)
+    np.testing.assert_array_equal(resumed.positions, motion.positions)
+    np.testing.assert_array_equal(resumed.times, motion.times)
+    with MotionWriter.resume(short) as writer, pytest.raises(InputError, match="other wind settings"):
+        animate_wind(verts, tets, WindSettings(strength=0.2), 12, 24.0, writer, progress=False)
+    assert load_motion(short).n_frames == 10
+
+
+def _write_asset(root):
+    """A minimal asset: asset.json, a placeholder field file and closed cylinder shells (z up)."""
+    import trimesh
+
+    root.mkdir()
+    outer = trimesh.creation.cylinder(radius=0.15, height=1.0, sections=24)
+    outer.apply_translation([0.0, 0.0, 0.5])
+    inner = trimesh.creation.cylinder(radius=0.1, height=0.9, sections=24)
+    inner.apply_translation([0.0, 0.0, 0.5])
+    outer.export(root / "shell_outer.ply")
+    inner.export(root / "shell_inner.ply")
+    (root / "field.safetensors").write_bytes(b"placeholder")
+    meta = {
+        "format": "shellsim-asset",
+        "format_version": 1,
+        "name": "rod",
+        "normalisation": {"center": [0, 0, 0.5], "scale": 1.0},
+        "up": [0, 0, 1],
+        "files": {
+            "field": "field.safetensors",
+            "shell_outer": "shell_outer.ply",
+            "shell_inner": "shell_inner.ply",
+        },
+        "field": {},
+    }
+    (root / "asset.json").write_text(json.dumps(meta))
+    return root
+
+
+def test_cli_rejects_a_junk_anchor(tmp_path, capsys):
+    from shellsim.cli import main
+
+    asset = _write_asset(tmp_path / "rod")
+    assert main(["wind", "--asset", str(asset), "--anchor", "z<__import__('os')"]) == 2
+    assert "anchor" in capsys.readouterr().err
+    assert main(["wind", "--asset", str(asset), "--direction", "1,0"]) == 2
+    assert "--direction" in capsys.readouterr().err
+
+
+def test_cli_writes_and_resumes(tmp_path):
+    """The CLI on an asset whose cage.npz is a box of Kuhn tets around the shells (no fTetWild run)."""
+    cage_module = pytest.importorskip("shellsim.cage", reason="shellsim.cage is not in this tree yet")
+    from neural.asset import load_asset
+    from shellsim.cli import main
+    from shellsim.embed import embed_points
+
+    asset = load_asset(_write_asset(tmp_path / "rod"))
+    outer, inner = asset.outer_mesh(), asset.inner_mesh()
+    verts, tets = column(n_xy=2, n_z=6, width=0.4, height=1.1)
+    verts -= [0.2, 0.2, 0.05]
+    cage = cage_module.Cage(
+        verts,
+        tets,
+        *embed_points(verts, tets, outer.vertices),
+        *embed_points(verts, tets, inner.vertices),
+        cage_module.shell_digest(outer, inner),
+    )
+    cage_module.save_cage(asset.cage_path, cage)
+    out = tmp_path / "wind.npz"
+    args = ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
+    assert main([*args, "--frames", "3"]) == 0
+    assert main([*args, "--frames", "5", "--resume"]) == 0
+    motion = load_motion(out)
+    assert motion.n_frames == 5 and motion.meta["asset"] == "rod"
+    np.testing.assert_allclose(motion.rest_vertices, verts)
+    np.testing.assert_allclose(motion.times, np.arange(5) / 10)
+    assert np.array_equal(motion.positions[0], verts.astype(np.float32))
+    assert np.abs(motion.positions[4] - verts).max() > 1e-3
+    assert main([*args, "--frames", "6", "--resume", "--strength", "0.2"]) == 2  # other settings
+    assert load_motion(out).n_frames == 5
+
+
+def test_wind_does_not_import_torch():
+    import subprocess
+    import sys
+
+    code = "import sys, shellsim.wind; sys.exit('torch' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0

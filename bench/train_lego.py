@@ -23,7 +23,8 @@ from neural.data import load_dataset
 from neural.device import pick_device
 from neural.field import FieldConfig
 from neural.pipeline import build_field
-from neural.train import Stage1Config, evaluate, occupancy_sampler, train_stage1
+from neural.render.view import occupancy_sampler
+from neural.train import Stage1Config, evaluate, train_stage1
 
 
 def main() -> None:
@@ -46,7 +47,7 @@ def main() -> None:
     result = train_stage1(field, data, Path(args.out), config, device)
     minutes = (time.perf_counter() - start) / 60.0
     background = torch.as_tensor(data.background, dtype=torch.float32, device=device)
-    sampler = occupancy_sampler(result["occupancy"], config, float(field.scale), perturb=False)
+    sampler = occupancy_sampler(result["occupancy"], field, config.step_size, config.max_samples_per_ray)
     heldout = evaluate(field, data, np.asarray(data.test_idx), sampler, background)
     peak_gib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     figures = {

@@ -174,9 +174,7 @@ def save_asset(root, field, outer, inner, meta: dict) -> Path:
     inner.export(root / files["shell_inner"])
     full = {"format": FORMAT, "format_version": FORMAT_VERSION, **meta, "files": files,
             "field": field.config_dict()}
-    tmp = root / "asset.json.tmp"
-    tmp.write_text(json.dumps(full, indent=1))
-    os.replace(tmp, root / "asset.json")
+    write_meta(root, full)
     return root
 
 
@@ -200,3 +198,21 @@ def load_field(asset: Asset, device: str = "cpu"):
     except RuntimeError as err:
         raise InputError(f"{path}: weights do not match the field configuration in asset.json ({err})") from None
     return field.to(device).eval()
+
+
+def replace_shells(asset: Asset, outer, inner, shell_meta: dict) -> None:
+    """Swap in new shells (written to temporary files, then renamed) and record their settings."""
+    for key, mesh in (("shell_outer", outer), ("shell_inner", inner)):
+        target = asset.file(key)
+        tmp = target.with_name(target.stem + ".tmp.ply")
+        mesh.export(tmp)
+        os.replace(tmp, target)
+    asset.meta["shell"] = shell_meta
+    write_meta(asset.root, asset.meta)
+
+
+def write_meta(root: Path, meta: dict) -> None:
+    """Write ``asset.json`` atomically."""
+    tmp = Path(root) / "asset.json.tmp"
+    tmp.write_text(json.dumps(meta, indent=1))
+    os.replace(tmp, Path(root) / "asset.json")

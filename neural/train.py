@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,11 +18,12 @@ import torch
 from tqdm import tqdm
 
 from .checkpoint import load_checkpoint, save_checkpoint
-from .data import SceneData, camera_rays, pixel_to_ray
+from .data import SceneData, pixel_to_ray
 from .field import ShellField
 from .metrics import psnr, ssim
 from .render.fullray import render_rays
 from .render.occupancy import OccupancyGrid
+from .render.view import field_box, narrow_band_sampler, occupancy_sampler, render_camera
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,7 @@ class Stage1Config:
     lambda_e: float = 0.1  # Eq. 10
     lambda_n: float = 0.1  # Eq. 12
     lambda_s: float = 0.01  # Eq. 11
-    reg_fraction: float = 0.25  # fraction of samples that the regularisers are evaluated on
+    reg_fraction: float = 0.125  # fraction of samples that the regularisers are evaluated on
     fd_eps: float = 2.0 / 1024  # finite-difference step for grad f (unit space)
     smooth_eps: float = 0.01  # std of the perturbation in Eq. 11 (unit space)
     cos_anneal_steps: int = 500  # NeuS cosine annealing
@@ -82,7 +82,7 @@ def make_optimizer(field: ShellField, lr_encoding: float, lr_network: float) -> 
     return torch.optim.Adam(
         [{"params": enc, "lr": lr_encoding, "base_lr": lr_encoding},
          {"params": net, "lr": lr_network, "base_lr": lr_network}],
-        betas=(0.9, 0.99), eps=1e-15,
+        betas=(0.9, 0.99), eps=1e-15, fused=True,  # fused: about 6x faster than foreach on a CPU
     )
 
 
@@ -143,57 +143,24 @@ def regularisers(field: ShellField, points: torch.Tensor, normals: torch.Tensor,
     return {"eikonal": eikonal, "normal": normal, "smooth": smooth}
 
 
-@torch.no_grad()
-def render_image(field: ShellField, data: SceneData, view: int, sampler, background: torch.Tensor,
-                 chunk: int = 8192) -> tuple[np.ndarray, float]:
-    """Render view ``view`` of ``data.cameras`` with ``sampler(origins, dirs) -> RaySamples``.
-
-    Returns the image (H, W, 3) float32 and the mean number of samples per pixel.
-    """
-    device = background.device
-    origins, dirs = camera_rays(data.cameras, view)
-    origins, dirs = torch.as_tensor(origins, device=device), torch.as_tensor(dirs, device=device)
-    colors, n_samples = [], 0
-    for i in range(0, len(origins), chunk):
-        o, d = origins[i:i + chunk], dirs[i:i + chunk]
-        samples = sampler(o, d)
-        n_samples += len(samples.ray_indices)
-        colors.append(render_rays(field, o, d, samples, background)["color"])
-    h, w = int(data.cameras.height[view]), int(data.cameras.width[view])
-    return torch.cat(colors).clamp(0, 1).reshape(h, w, 3).cpu().numpy(), n_samples / len(origins)
-
-
 def evaluate(field: ShellField, data: SceneData, views, sampler, background: torch.Tensor) -> dict:
-    """PSNR/SSIM/samples per pixel/ms per frame over ``views`` (indices into the dataset)."""
+    """Mean PSNR, SSIM, samples per pixel and ms per frame over dataset ``views`` with ``sampler``."""
     psnrs, ssims, spps, times = [], [], [], []
     for v in views:
-        start = time.perf_counter()
-        image, spp = render_image(field, data, int(v), sampler, background)
-        times.append(1000 * (time.perf_counter() - start))
+        image, stats = render_camera(field, data.cameras, int(v), sampler, background)
         psnrs.append(psnr(image, data.images[v]))
         ssims.append(ssim(image, data.images[v]))
-        spps.append(spp)
+        spps.append(stats["samples_per_pixel"])
+        times.append(stats["ms"])
     return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)),
             "samples_per_pixel": float(np.mean(spps)), "ms_per_frame": float(np.mean(times)),
             "views": [int(v) for v in views]}
 
 
-def occupancy_sampler(grid: OccupancyGrid, config: Stage1Config, scale: float, perturb: bool):
-    """A ``sampler(origins, dirs) -> RaySamples`` marching the occupancy grid (Instant-NGP)."""
-    step = config.step_size / scale
-
-    def sample(origins, dirs):
-        return grid.sample(origins, dirs, step_size=step, max_samples_per_ray=config.max_samples_per_ray,
-                           perturb=perturb)
-
-    return sample
-
-
 def new_occupancy_grid(field: ShellField, resolution: int) -> OccupancyGrid:
-    """Occupancy grid over the field's domain, the unit cube mapped to world coordinates."""
-    center = field.center.detach().cpu().numpy().astype(np.float64)
-    half = 1.0 / float(field.scale)
-    return OccupancyGrid(center - half, center + half, resolution, device=field.center.device)
+    """Occupancy grid over the field's domain (the unit cube in world coordinates), not yet probed."""
+    lo, hi = field_box(field)
+    return OccupancyGrid(lo, hi, resolution, device=lo.device)
 
 
 def _sdf_kernel(field: ShellField):
@@ -225,8 +192,8 @@ def train_stage1(field: ShellField, data: SceneData, out_dir: Path, config: Stag
         log.info("resuming stage 1 from %s at step %d", ckpt, start)
     pixels = PixelSampler(data, device, config.seed + start)
     reg_gen = torch.Generator().manual_seed(config.seed + 7 + start)
-    sampler = occupancy_sampler(grid, config, float(field.scale), perturb=True)
-    eval_sampler = occupancy_sampler(grid, config, float(field.scale), perturb=False)
+    sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray, perturb=True)
+    eval_sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray)
     eval_views = np.asarray(data.test_idx)[: config.eval_views]
     scale = float(field.scale)
     bar = _progress(config.steps, start, "stage 1")
@@ -257,7 +224,7 @@ def train_stage1(field: ShellField, data: SceneData, out_dir: Path, config: Stag
         n_rays = int(np.clip(n_rays * config.target_samples / n_samples, 256, config.max_rays))
         with torch.no_grad():
             batch_psnr = -10.0 * math.log10(max(float(((out["color"] - target) ** 2).mean()), 1e-10))
-        bar.set_postfix(loss=f"{float(loss):.4f}", psnr=f"{batch_psnr:.2f}", rays=n_rays,
+        bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{batch_psnr:.2f}", rays=n_rays,
                         spp=f"{n_samples / len(origins):.1f}", s=f"{float(1 / out['inv_s'].mean()) * scale:.4f}")
         bar.update(1)
         done = step + 1
@@ -272,17 +239,6 @@ def train_stage1(field: ShellField, data: SceneData, out_dir: Path, config: Stag
             save_checkpoint(ckpt, field, optimizer, grid.state(), {"step": done, "n_rays": n_rays, "final": final})
     bar.close()
     return {"history": history, "final": history[-1] if history else final, "occupancy": grid}
-
-
-def narrow_band_sampler(intersector, config):
-    """A ``sampler(origins, dirs) -> RaySamples`` casting rays against the shells (Procedure 3)."""
-    from .render.narrowband import narrow_band_samples
-
-    def sample(origins, dirs):
-        samples, _ = narrow_band_samples(intersector, origins, dirs, config)
-        return samples
-
-    return sample
 
 
 def train_stage2(field: ShellField, data: SceneData, outer, inner, out_dir: Path, config: Stage2Config,
@@ -316,7 +272,7 @@ def train_stage2(field: ShellField, data: SceneData, outer, inner, out_dir: Path
         optimizer.step()
         with torch.no_grad():
             batch_psnr = -10.0 * math.log10(max(float(((out["color"] - target) ** 2).mean()), 1e-10))
-        bar.set_postfix(loss=f"{float(loss):.4f}", psnr=f"{batch_psnr:.2f}",
+        bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{batch_psnr:.2f}",
                         spp=f"{len(samples.ray_indices) / len(origins):.2f}")
         bar.update(1)
         done = step + 1

@@ -74,8 +74,11 @@ def collider_arrays(spheres, boxes, device) -> tuple[wp.array, wp.array, wp.arra
     sph = np.array([[*s.center, s.radius] for s in spheres], np.float64).reshape(-1, 4)
     box_c = np.array([b.center for b in boxes], np.float64).reshape(-1, 3)
     box_h = np.array([b.half_extents for b in boxes], np.float64).reshape(-1, 3)
-    return (wp.array(sph, dtype=wp.vec4d, device=device), wp.array(box_c, dtype=vec3, device=device),
-            wp.array(box_h, dtype=vec3, device=device))
+    return (
+        wp.array(sph, dtype=wp.vec4d, device=device),
+        wp.array(box_c, dtype=vec3, device=device),
+        wp.array(box_h, dtype=vec3, device=device),
+    )
 
 
 @wp.func
@@ -94,7 +97,7 @@ def box_contact(x: vec3, center: vec3, half: vec3):
     """Penetration depth into an axis-aligned box (distance to the nearest face) and that face's normal."""
     p = x - center
     q = vec3(wp.abs(p[0]) - half[0], wp.abs(p[1]) - half[1], wp.abs(p[2]) - half[2])
-    k = int(0)
+    k = int(0)  # noqa: UP018 (a mutable Warp variable, not a constant)
     if q[1] > q[k]:
         k = 1
     if q[2] > q[k]:
@@ -183,7 +186,7 @@ def vertex_terms(
     normal_force: wp.array(dtype=f64),
     normal: wp.array(dtype=vec3),
     eps_u: f64,
-    with_derivatives: int,
+    order: int,
     energy: wp.array(dtype=f64),
     force_sq: wp.array(dtype=f64),
     force: wp.array(dtype=vec3),
@@ -191,15 +194,16 @@ def vertex_terms(
     diag_index: wp.array(dtype=wp.int32),
     inv_diag: wp.array(dtype=mat33),
 ):
-    """Energy of vertex ``i`` (module docstring); with derivatives also its force ``-dE/dx_i`` (added to
-    ``force``, whose squared norm is summed in ``force_sq``), its Hessian block (added to the diagonal block
-    ``values[diag_index[i]]``) and the inverse of that completed diagonal block (block-Jacobi
-    preconditioner). Pinned vertices get an identity row and no force."""
+    """Energy of vertex ``i`` (module docstring); for ``order`` >= 1 also its force ``-dE/dx_i`` (added to
+    ``force``, whose squared norm is summed in ``force_sq``); for ``order`` 2 also its Hessian block (added
+    to the diagonal block ``values[diag_index[i]]``) and the inverse of that completed diagonal block
+    (block-Jacobi preconditioner). Pinned vertices get an identity row and no force."""
     i = wp.tid()
     zero3 = vec3(f64(0.0), f64(0.0), f64(0.0))
     if pinned[i] != 0:
-        if with_derivatives != 0:
+        if order >= 1:
             force[i] = zero3
+        if order == 2:
             values[diag_index[i]] = wp.identity(n=3, dtype=f64)
             inv_diag[i] = wp.identity(n=3, dtype=f64)
         return
@@ -240,10 +244,11 @@ def vertex_terms(
             h += lam / y * (tangent - wp.outer(uhat, uhat))
 
     wp.atomic_add(energy, 0, e)
-    if with_derivatives != 0:
+    if order >= 1:
         total = force[i] + f
         force[i] = total
         wp.atomic_add(force_sq, 0, wp.dot(total, total))
+    if order == 2:
         block = values[diag_index[i]] + h
         values[diag_index[i]] = block
         inv_diag[i] = wp.inverse(block)

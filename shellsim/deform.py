@@ -4,7 +4,9 @@ Paper Sec. 5: the cage's deformation is transferred to ``M+`` / ``M-`` by baryce
 (:func:`deform_points`); to render, every sample ``x`` of a camera ray in deformed space is mapped back
 to the rest space of the field through its containing deformed tet, ``x_rest = Phi^-1(x)``
 (:meth:`InverseMap.map_points`), and the ray direction by finite differences,
-``d_rest ~ normalize(Phi^-1(x + eps d) - Phi^-1(x))`` (:meth:`InverseMap.map_directions`).
+``d_rest ~ normalize(Phi^-1(x + eps d) - Phi^-1(x))`` (:meth:`InverseMap.map_directions`); the length of
+that difference over ``eps`` is the local stretch that turns a deformed ray section's length into its
+rest-space length (:meth:`InverseMap.map_rays`).
 
 ``Phi^-1`` is piecewise affine: inside deformed tet ``t`` with vertices ``v0..v3`` (rest ``r0..r3``),
 ``b = D_t^-1 (x - v0)`` with ``D_t = [v1 - v0, v2 - v0, v3 - v0]`` and ``x_rest = r0 + R_t b`` with
@@ -152,6 +154,7 @@ def _map_kernel(
     valid: wp.array(dtype=wp.int32),
     out_points: wp.array(dtype=wp.vec3d),
     out_dirs: wp.array(dtype=wp.vec3d),
+    out_stretch: wp.array(dtype=wp.float64),
     out_inside: wp.array(dtype=wp.bool),
 ):
     i = wp.tid()
@@ -163,6 +166,7 @@ def _map_kernel(
         out_points[i] = wp.vec3d(nan, nan, nan)
         if with_dirs == 1:
             out_dirs[i] = wp.vec3d(nan, nan, nan)
+            out_stretch[i] = nan
         return
     x_rest = rest_origin[t] + rest_edges[t] * b
     out_inside[i] = True
@@ -171,6 +175,8 @@ def _map_kernel(
         d = dirs[i]
         # forward difference; backward where x + eps d leaves the cage; the containing tet's Jacobian
         # R_t D_t^-1 d (the eps -> 0 limit of both) where the cage is thinner than eps around x
+        # (diff is the rest-space image of the step eps d, or of d itself for the Jacobian)
+        step = eps
         t1, m1, b1 = _locate(bvh, p + eps * d, origin, to_bary, valid)
         if t1 >= 0 and m1 >= -tol:
             diff = rest_origin[t1] + rest_edges[t1] * b1 - x_rest
@@ -180,7 +186,9 @@ def _map_kernel(
                 diff = x_rest - (rest_origin[t2] + rest_edges[t2] * b2)
             else:
                 diff = rest_edges[t] * (to_bary[t] * d)
+                step = wp.float64(1.0)
         out_dirs[i] = wp.normalize(diff)
+        out_stretch[i] = wp.length(diff) / (step * wp.length(d))
 
 
 # --------------------------------------------------------------------------- the inverse map
@@ -280,7 +288,7 @@ class InverseMap:
         x : (N, 3) deformed points, numpy or torch
         returns : x_rest (N, 3) rest points (nan outside the cage), inside (N,) bool
         """
-        x_rest, _, inside = self._run(x, None, None)
+        x_rest, _, _, inside = self._run(x, None, None)
         return x_rest, inside
 
     def map_directions(self, x, d, eps: float | None = None):
@@ -295,9 +303,20 @@ class InverseMap:
         return self._run(x, d, eps)[1]
 
     def map_samples(self, x, d, eps: float | None = None):
-        """:meth:`map_points` and :meth:`map_directions` in one pass (what a renderer wants).
+        """:meth:`map_points` and :meth:`map_directions` in one pass.
 
         returns : x_rest (N, 3), d_rest (N, 3), inside (N,)
+        """
+        x_rest, d_rest, _, inside = self._run(x, d, eps)
+        return x_rest, d_rest, inside
+
+    def map_rays(self, x, d, eps: float | None = None):
+        """:meth:`map_samples` plus the local stretch along the ray (what a renderer wants).
+
+        returns : x_rest (N, 3), d_rest (N, 3), stretch (N,), inside (N,). ``stretch`` is the rest-space
+            length of a unit deformed length along ``d``: ``|Phi^-1(x + eps d) - Phi^-1(x)| / (eps |d|)``
+            from the same difference as ``d_rest`` (``|R_t D_t^-1 d| / |d|`` for the Jacobian); a deformed
+            ray section of length ``delta`` around ``x`` spans ``stretch * delta`` in rest space. nan outside.
         """
         return self._run(x, d, eps)
 
@@ -308,7 +327,7 @@ class InverseMap:
         torch_in, with_dirs = _is_torch(x), d is not None
         if with_dirs and _is_torch(d) != torch_in:
             raise TypeError("x and d: pass both as numpy arrays or both as torch tensors")
-        # without directions the kernel never touches d and out_d: they alias x and out_x
+        # without directions the kernel never touches d, out_d and out_s (d and out_d alias x and out_x)
         if torch_in:
             import torch
 
@@ -317,43 +336,47 @@ class InverseMap:
             ds = _torch_points("d", d, device) if with_dirs else xs
             out_x = torch.empty_like(xs)
             out_d = torch.empty_like(xs) if with_dirs else out_x
+            out_s = torch.empty(len(xs), dtype=torch.float64, device=device)
             out_in = torch.empty(len(xs), dtype=torch.bool, device=device)
             arrays = [wp.from_torch(a, dtype=wp.vec3d) for a in (xs, ds, out_x, out_d)]
-            arrays.append(wp.from_torch(out_in, dtype=wp.bool))
+            arrays += [wp.from_torch(out_s, dtype=wp.float64), wp.from_torch(out_in, dtype=wp.bool)]
             stream = None if self.device.is_cpu else wp.stream_from_torch(device)
         else:
             xs = wp.array(_as_points("x", x), dtype=wp.vec3d, device=self.device)
             ds = wp.array(_as_points("d", d), dtype=wp.vec3d, device=self.device) if with_dirs else xs
             out_x = wp.empty(len(xs), dtype=wp.vec3d, device=self.device)
             out_d = wp.empty(len(xs), dtype=wp.vec3d, device=self.device) if with_dirs else out_x
-            arrays = [xs, ds, out_x, out_d, wp.empty(len(xs), dtype=wp.bool, device=self.device)]
+            out_s = wp.empty(len(xs), dtype=wp.float64, device=self.device)
+            arrays = [xs, ds, out_x, out_d, out_s, wp.empty(len(xs), dtype=wp.bool, device=self.device)]
             stream = None
         if len(ds) != len(xs):
             raise ValueError(f"d: expected shape ({len(xs)}, 3) like x, got {tuple(d.shape)}")
         self._launch(arrays, int(with_dirs), eps, stream)
         if torch_in:
             dtype = x.dtype if x.is_floating_point() else None  # float64 for integer input
-            x_rest, d_rest = (a.to(device=x.device, dtype=dtype) for a in (out_x, out_d))
+            x_rest, d_rest, stretch = (a.to(device=x.device, dtype=dtype) for a in (out_x, out_d, out_s))
             inside = out_in.to(x.device)
         else:
-            x_rest, d_rest, inside = (a.numpy() for a in arrays[2:])
-        return x_rest, (d_rest if with_dirs else None), inside
+            x_rest, d_rest, stretch, inside = (a.numpy() for a in arrays[2:])
+        if not with_dirs:
+            d_rest = stretch = None
+        return x_rest, d_rest, stretch, inside
 
     def _launch(self, arrays: list, with_dirs: int, eps: float, stream) -> None:
-        """Run the map kernel on ``arrays`` = [x, d, out_x, out_d, out_inside]; on the CPU, split the points
-        into chunks over ``cpu_threads`` Python threads (Warp releases the GIL during a CPU launch; the
-        chunks write disjoint outputs)."""
+        """Run the map kernel on ``arrays`` = [x, d, out_x, out_d, out_stretch, out_inside]; on the CPU,
+        split the points into chunks over ``cpu_threads`` Python threads (Warp releases the GIL during a
+        CPU launch; the chunks write disjoint outputs)."""
         n = arrays[0].shape[0]
         tets = [self._origin, self._to_bary, self._rest_origin, self._rest_edges, self._valid]
 
         def launch(lo: int, hi: int) -> None:
-            x, d, out_x, out_d, out_in = (a[lo:hi] for a in arrays)
+            x, d, out_x, out_d, out_s, out_in = (a[lo:hi] for a in arrays)
             inputs = [self._bvh.id, x, d, with_dirs, eps, self.tol, *tets]
             wp.launch(
                 _map_kernel,
                 dim=hi - lo,
                 inputs=inputs,
-                outputs=[out_x, out_d, out_in],
+                outputs=[out_x, out_d, out_s, out_in],
                 device=self.device,
                 stream=stream,
             )

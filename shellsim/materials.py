@@ -43,7 +43,9 @@ class Material:
         if not (math.isfinite(self.youngs) and self.youngs > 0):
             raise InputError(f"material {self.name!r}: Young's modulus must be > 0 Pa, got {self.youngs}")
         if not (math.isfinite(self.poisson) and -1.0 < self.poisson < 0.5):
-            raise InputError(f"material {self.name!r}: Poisson ratio must lie in (-1, 0.5), got {self.poisson}")
+            raise InputError(
+                f"material {self.name!r}: Poisson ratio must lie in (-1, 0.5), got {self.poisson}"
+            )
         if not (math.isfinite(self.density) and self.density > 0):
             raise InputError(f"material {self.name!r}: density must be > 0 kg/m^3, got {self.density}")
 
@@ -84,6 +86,9 @@ def get_material(
     key = str(name).strip().lower()
     if key not in PRESETS:
         raise InputError(f"unknown material {name!r}; known materials: {', '.join(PRESETS)}")
-    overrides = {k: float(v) for k, v in (("youngs", youngs), ("poisson", poisson), ("density", density))
-                 if v is not None}
+    overrides = {
+        k: float(v)
+        for k, v in (("youngs", youngs), ("poisson", poisson), ("density", density))
+        if v is not None
+    }
     return replace(PRESETS[key], **overrides)

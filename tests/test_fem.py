@@ -3,10 +3,8 @@
 import numpy as np
 import pytest
 
-wp = pytest.importorskip("warp")
-
-from shellsim.contact import Box, Sphere  # noqa: E402
-from shellsim.fem import (  # noqa: E402
+from shellsim.contact import Box, Sphere
+from shellsim.fem import (
     SimSettings,
     SimulationError,
     Simulator,
@@ -15,8 +13,8 @@ from shellsim.fem import (  # noqa: E402
     snh_energy_reference,
     tet_volumes,
 )
-from shellsim.materials import Material, get_material  # noqa: E402
-from shellsim.motion import MotionWriter, load_motion  # noqa: E402
+from shellsim.materials import Material, get_material
+from shellsim.motion import MotionWriter, load_motion
 
 G = 9.81
 
@@ -168,8 +166,8 @@ def test_body_resting_on_the_ground_settles_without_drift():
         if frame == 9:
             settled = sim.positions
     x = sim.positions
-    # it settles a little (penalty depth + elastic sag; the sides bulge and the diagonal cut of the cubes shears
-    # by micrometres), nothing passes the ground, and then it stays: no drift, no creep
+    # it settles a little (penalty depth + elastic sag; the sides bulge and the diagonal cut of the cubes
+    # shears by micrometres), nothing passes the ground, and then it stays: no drift, no creep
     np.testing.assert_allclose(com(sim)[:2], v.mean(0)[:2], atol=1e-5)
     np.testing.assert_allclose(x[:, :2], v[:, :2], atol=5e-5)
     np.testing.assert_allclose(x, settled, atol=2e-8)
@@ -195,8 +193,11 @@ def test_pinned_vertices_hold_and_the_free_end_sags():
 @pytest.mark.parametrize("obstacle", ["sphere", "box"])
 def test_obstacles_stop_a_falling_body(obstacle):
     v, t = box_tets((2, 2, 2), (0.06, 0.06, 0.06), origin=(-0.03, -0.03, 0.02))
-    collider = (dict(spheres=(Sphere((0.0, 0.0, -0.2), 0.2),)) if obstacle == "sphere"
-                else dict(boxes=(Box((0.0, 0.0, -0.1), (0.2, 0.2, 0.1)),)))
+    collider = (
+        dict(spheres=(Sphere((0.0, 0.0, -0.2), 0.2),))
+        if obstacle == "sphere"
+        else dict(boxes=(Box((0.0, 0.0, -0.1), (0.2, 0.2, 0.1)),))
+    )
     sim = Simulator(v, t, RUBBER, SimSettings(ground=None, **collider), device="cpu")
     for _ in range(15):
         sim.step()

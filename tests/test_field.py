@@ -10,6 +10,7 @@ from scipy.special import sph_harm_y
 
 from neural.errors import InputError
 from neural.field import FieldConfig, HashGridConfig, ShellField, spherical_harmonics
+from neural.field.network import SoftplusBeta
 
 SMALL_GRID = HashGridConfig(log2_table_size=12, base_resolution=4, max_resolution=128)
 
@@ -184,3 +185,16 @@ def test_invalid_inputs_are_rejected():
         small_config(backend="jax")
     sdf, s = field.sdf_and_kernel(torch.zeros(0, 3))
     assert sdf.shape == s.shape == (0,)
+
+
+def test_fast_softplus_matches_torch_softplus():
+    z = torch.cat([torch.linspace(-3, 3, 2001), torch.tensor([-1e4, -0.15, -0.0, 0.0, 0.15, 1e4])])
+    z64 = z.double().requires_grad_()
+    ours = SoftplusBeta.apply(z64, 100.0)
+    ref = torch.nn.functional.softplus(z64, beta=100.0)
+    torch.testing.assert_close(ours, ref, rtol=0, atol=1e-8)
+    (g_ours,) = torch.autograd.grad(ours.sum(), z64)
+    (g_ref,) = torch.autograd.grad(ref.sum(), z64)
+    torch.testing.assert_close(g_ours, g_ref, rtol=0, atol=1e-6)
+    inner = (torch.rand(20, dtype=torch.float64) - 0.5) * 0.2  # |beta z| < 15: exact, so gradcheck applies
+    assert torch.autograd.gradcheck(lambda t: SoftplusBeta.apply(t, 100.0), (inner.requires_grad_(),))

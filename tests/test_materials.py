@@ -18,7 +18,9 @@ def test_lame_parameters_follow_from_youngs_modulus_and_poisson_ratio():
 
 def test_presets_have_physical_orders_of_magnitude():
     assert {"rubber", "jelly", "foam", "wood", "metal"} <= set(PRESETS)
-    assert PRESETS["jelly"].youngs < PRESETS["foam"].youngs < PRESETS["rubber"].youngs < PRESETS["wood"].youngs
+    assert (
+        PRESETS["jelly"].youngs < PRESETS["foam"].youngs < PRESETS["rubber"].youngs < PRESETS["wood"].youngs
+    )
     assert PRESETS["wood"].youngs < PRESETS["metal"].youngs
     assert 7000 < PRESETS["metal"].density < 8100  # steel
     assert PRESETS["foam"].density < 100 < PRESETS["wood"].density < 1000 < PRESETS["rubber"].density
@@ -35,9 +37,16 @@ def test_unknown_names_list_the_known_ones():
         get_material("unobtainium")
 
 
-@pytest.mark.parametrize("kw, what", [({"youngs": -1.0}, "Young"), ({"poisson": 0.5}, "Poisson"),
-                                      ({"poisson": -1.0}, "Poisson"), ({"density": 0.0}, "density"),
-                                      ({"youngs": float("nan")}, "Young")])
+@pytest.mark.parametrize(
+    "kw, what",
+    [
+        ({"youngs": -1.0}, "Young"),
+        ({"poisson": 0.5}, "Poisson"),
+        ({"poisson": -1.0}, "Poisson"),
+        ({"density": 0.0}, "density"),
+        ({"youngs": float("nan")}, "Young"),
+    ],
+)
 def test_out_of_range_values_are_input_errors(kw, what):
     with pytest.raises(InputError, match=what):
         get_material("rubber", **kw)

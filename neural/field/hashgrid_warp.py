@@ -3,10 +3,11 @@
 Not re-exported: use :class:`neural.field.HashGridEncoding`. Tensors are shared with Warp without copies
 (``wp.from_torch``); kernels run on the tensors' device (cpu or cuda, on the current torch stream).
 
-One launch covers ``(levels, points)``; a thread encodes one point at one level, and the backward pass
-scatters ``weight * grad`` into the level's rows of the table gradient with atomic adds. The gradient
-with respect to the input points is **not** computed (the field feeds ``x`` to its MLP directly, and the
-paper's normals and eikonal term use finite differences): autograd receives None for ``x``.
+One launch per level over the points (on the CPU this beats one 2-D launch over levels x points: plain 1-D
+indexing, and one level's rows stay in cache); a kernel thread encodes one point at one level, and the
+backward pass scatters ``weight * grad`` into the level's rows of the table gradient with atomic adds.
+The gradient with respect to the input points is **not** computed (the field feeds ``x`` to its MLP
+directly, and the paper's normals and eikonal term use finite differences): autograd receives None for ``x``.
 
 Warp runs a CPU launch on one core. On the CPU, ``cpu_threads`` Python threads each launch a strided
 subset of the levels (Warp releases the GIL during a CPU launch), so several cores work; levels write
@@ -125,29 +126,41 @@ def _pool(n_threads: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="hashgrid")
 
 
-def _launch(kernel, x, table_in, table_out, resolutions: Sequence[int], table_size: int, cpu_threads: int):
+def _launch(
+    kernel,
+    x,
+    table_in,
+    table_out,
+    resolutions: Sequence[int],
+    table_size: int,
+    cpu_threads: int,
+    zero_out: bool = False,
+) -> None:
     """Launch ``kernel`` once per level over the points of ``x``.
 
     x (N,) vec3 Warp array; ``table_in`` the table (forward) or the output gradient (backward), and
     ``table_out`` the output (forward) or the table gradient (backward), as flat Warp arrays of vectors.
+    ``zero_out`` (CPU only) clears each level's rows of ``table_out`` (T entries) just before its launch, in
+    the launching thread: the threads share the clearing (and its page faults) and find the rows in cache.
     """
     wp = _warp()
     n_levels = len(resolutions)
-    if x.shape[0] == 0:
-        return
+    stream = wp.stream_from_torch(wp.device_to_torch(x.device)) if x.device.is_cuda else None
 
     def run(levels) -> None:
         for level in levels:
+            if zero_out:
+                table_out[level * table_size : (level + 1) * table_size].zero_()
+            if x.shape[0] == 0:
+                continue
             res = int(resolutions[level])
             dense = int(is_dense(res, table_size))
             inputs = [x, table_in, level, n_levels, res, dense, table_size, table_out]
             wp.launch(kernel, dim=x.shape[0], inputs=inputs, device=x.device, stream=stream)
 
     if x.device.is_cuda or cpu_threads == 1 or n_levels == 1:
-        stream = wp.stream_from_torch(wp.device_to_torch(x.device)) if x.device.is_cuda else None
         run(range(n_levels))
         return
-    stream = None
     wp.load_module(kernel.module, device=x.device)  # compile once, before the threads race to do it
     n_threads = min(cpu_threads, n_levels)
     futures = [_pool(n_threads).submit(run, range(k, n_levels, n_threads)) for k in range(n_threads)]
@@ -166,7 +179,7 @@ class _HashEncode(torch.autograd.Function):
         _launch(
             forward_kernel,
             wp.from_torch(x, dtype=wp.vec3, requires_grad=False),
-            wp.from_torch(table.detach().view(-1, n_features), dtype=vecf, requires_grad=False),
+            wp.from_torch(table.detach().contiguous().view(-1, n_features), dtype=vecf, requires_grad=False),
             wp.from_torch(out, dtype=vecf, requires_grad=False),
             resolutions,
             table_size,
@@ -180,12 +193,17 @@ class _HashEncode(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_out):
+        if not ctx.needs_input_grad[1]:
+            return None, None, None, None
         wp = _warp()
         (x,) = ctx.saved_tensors
         n_levels, table_size, n_features = ctx.table_shape
         vecf, _, backward_kernel = _kernels(n_features)
         grad_out = grad_out.to(torch.float32).contiguous().view(-1, n_features)
-        grad_table = torch.zeros(ctx.table_shape, dtype=torch.float32, device=x.device)
+        # CPU: the launching threads clear each level's rows (zero_out); CUDA: cleared here, on torch's stream
+        on_cpu = x.device.type == "cpu"
+        allocate = torch.empty if on_cpu else torch.zeros
+        grad_table = allocate(ctx.table_shape, dtype=torch.float32, device=x.device)
         _launch(
             backward_kernel,
             wp.from_torch(x, dtype=wp.vec3, requires_grad=False),
@@ -194,6 +212,7 @@ class _HashEncode(torch.autograd.Function):
             ctx.resolutions,
             table_size,
             ctx.cpu_threads,
+            zero_out=on_cpu,
         )
         return None, grad_table, None, None
 
@@ -209,4 +228,12 @@ def hash_encode_warp(
     check_encode_inputs(x, table, resolutions)
     if table.dtype != torch.float32:
         raise ValueError(f"table: the Warp backend needs float32, got {table.dtype}")
-    return _HashEncode.apply(x, table, tuple(int(r) for r in resolutions), int(cpu_threads))
+    n_levels, table_size, _ = table.shape
+    if n_levels * max(table_size, x.shape[0]) >= 2**31:
+        raise ValueError(
+            f"table {tuple(table.shape)}, x {tuple(x.shape)}: the Warp kernels index with int32 and need "
+            "L * T and L * N below 2^31"
+        )
+    if not isinstance(cpu_threads, int) or cpu_threads < 1:
+        raise ValueError(f"cpu_threads: expected a positive int, got {cpu_threads!r}")
+    return _HashEncode.apply(x, table, tuple(int(r) for r in resolutions), cpu_threads)

@@ -37,6 +37,6 @@ def extract_field_shells(field, config: ShellConfig, device: str) -> FieldShells
     outer, inner = result.outer, result.inner
     for mesh in (outer, inner):
         mesh.vertices = mesh.vertices / scale + center
-    stats = {f"width_{k}": float(v) / scale for k, v in shell_width_stats(outer, inner).items()}
+    stats = {f"width_{k}": float(v) for k, v in shell_width_stats(outer, inner).items()}  # world units
     stats.update(outer_faces=int(len(outer.faces)), inner_faces=int(len(inner.faces)))
     return FieldShells(outer, inner, stats)

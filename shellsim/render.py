@@ -1,0 +1,507 @@
+"""Rendering an asset at rest and deformed by a motion of its cage (paper Sec. 5, DESIGN.md step 7).
+
+For one frame with cage vertices ``p`` (V, 3), :class:`DeformedRenderer`
+
+1. **deforms the shells**: every ``M+`` / ``M-`` vertex is the barycentric interpolation of ``p`` in its
+   rest tet (:func:`shellsim.deform.deform_points`), and builds their Embree scenes and the Warp BVH of the
+   deformed tets (:class:`shellsim.deform.InverseMap`);
+2. **casts** the camera rays against the deformed shells and places samples in the deformed narrow band
+   (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
+3. **maps** every sample back to rest space: ``x_rest = Phi^-1(x)``, the ray direction by finite
+   differences ``d_rest = normalize(Phi^-1(x + eps d) - Phi^-1(x))`` and the local stretch
+   ``|Phi^-1(x + eps d) - Phi^-1(x)| / eps``, which turns a deformed section of length ``delta`` into a
+   rest-space one of length ``stretch * delta`` (:meth:`InverseMap.map_rays`). Samples outside the deformed
+   cage (``inside = False``) are dropped: the cage contains everything the field shows;
+4. **shades** the rest-space samples with the field and composites them along the deformed rays (Eq. 2-3),
+   over the asset's background.
+
+With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4).
+
+:func:`render_motion` renders a motion file frame by frame to ``DIR/00000.png ...`` (frame ``k`` of the
+motion is ``k:05d.png``), skipping frames already on disk so an interrupted render resumes, and optionally
+assembles an MP4; :func:`render_views` renders every camera of a camera file at rest.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from neural.errors import InputError
+
+log = logging.getLogger(__name__)
+
+#: Rays rendered at once (bounds the memory of one pass).
+RAY_CHUNK = 16384
+#: Horizontal field of view of the orbit camera, degrees, and its elevation above the horizon.
+ORBIT_FOV_DEG = 40.0
+ORBIT_ELEVATION_DEG = 25.0
+#: Stages of a frame, in :meth:`DeformedRenderer.render`'s ``stats`` as ``<stage>_ms``.
+STAGES = ("build", "cast", "map", "field")
+
+
+@dataclass
+class _Frame:
+    """What one frame's rays are cast against and mapped through."""
+
+    intersector: object  # ShellIntersector of the (deformed) shells
+    inverse: object | None  # InverseMap of the deformed cage; None at rest
+
+
+class DeformedRenderer:
+    """Renders an asset's field through its shells, at rest or with its cage deformed.
+
+    asset : :class:`neural.asset.Asset` (shells, background, narrow-band settings)
+    field : its ``ShellField`` on ``device``
+    cage : :class:`shellsim.cage.Cage` embedding the asset's shells; None renders at rest only
+    device : torch device of the field ("cpu", "cuda"); the inverse map runs on the matching Warp device
+    config : narrow-band settings; None takes the asset's ``meta["narrowband"]`` (or the defaults)
+
+    State: the rest shells' faces and Embree scenes (built once), the field and the cage.
+    """
+
+    def __init__(self, asset, field, cage, device: str = "cpu", config=None):
+        from neural.device import warp_device
+        from neural.render.narrowband import NarrowBandConfig, ShellIntersector
+
+        self.outer, self.inner = asset.outer_mesh(), asset.inner_mesh()
+        for name, mesh in (("outer", self.outer), ("inner", self.inner)):
+            embedded = len(mesh.vertices) if cage is None else len(getattr(cage, f"{name}_tet"))
+            if embedded != len(mesh.vertices):
+                raise ValueError(
+                    f"cage: embeds {embedded} {name}-shell vertices but the asset's {name} shell has "
+                    f"{len(mesh.vertices)}"
+                )
+        self.field = field
+        self.cage = cage
+        self.device = torch.device(device)
+        self.warp_device = warp_device(str(device))
+        self.config = NarrowBandConfig(**asset.meta.get("narrowband", {})) if config is None else config
+        background = asset.meta.get("background", (1.0, 1.0, 1.0))
+        self.background = torch.as_tensor(background, dtype=torch.float32, device=self.device)
+        self._rest = _Frame(ShellIntersector(self.outer, self.inner), None)
+
+    def deformed_shells(self, positions):
+        """``M+`` and ``M-`` of cage vertices ``positions`` (V, 3): two ``trimesh.Trimesh`` (world)."""
+        import trimesh
+
+        from .deform import deform_points
+
+        c = self.cage
+        outer = deform_points(positions, c.tets, c.outer_tet, c.outer_bary)
+        inner = deform_points(positions, c.tets, c.inner_tet, c.inner_bary)
+        return (
+            trimesh.Trimesh(outer, self.outer.faces, process=False),
+            trimesh.Trimesh(inner, self.inner.faces, process=False),
+        )
+
+    def _frame(self, positions) -> _Frame:
+        from neural.render.narrowband import ShellIntersector
+
+        from .deform import InverseMap
+
+        if self.cage is None:
+            raise ValueError("positions: this renderer has no cage; it renders at rest only")
+        positions = np.asarray(positions, dtype=np.float64)
+        if positions.shape != self.cage.vertices.shape:
+            raise ValueError(
+                f"positions: expected {self.cage.vertices.shape} like the cage, got {positions.shape}"
+            )
+        outer, inner = self.deformed_shells(positions)
+        inverse = InverseMap(positions, self.cage.tets, self.cage.vertices, device=self.warp_device)
+        return _Frame(ShellIntersector(outer, inner), inverse)
+
+    @torch.no_grad()
+    def render_rays(
+        self, origins: torch.Tensor, dirs: torch.Tensor, positions=None
+    ) -> tuple[torch.Tensor, dict]:
+        """Colours (R, 3) of rays ``origins``, ``dirs`` (R, 3) (world, on the renderer's device) with the cage
+        at ``positions`` (V, 3), or at rest when None; and the stats of :meth:`render`."""
+        times = dict.fromkeys(STAGES, 0.0)
+        start = time.perf_counter()
+        frame = self._rest if positions is None else self._frame(positions)
+        times["build"] = time.perf_counter() - start
+        colors, counts, dropped = [], [], 0
+        for i in range(0, len(origins), RAY_CHUNK):
+            color, n, d = self._render_chunk(
+                frame, origins[i : i + RAY_CHUNK], dirs[i : i + RAY_CHUNK], times
+            )
+            colors.append(color)
+            counts.append(n)
+            dropped += d
+        colors = torch.cat(colors) if colors else origins.new_zeros(0, 3)
+        counts = np.concatenate(counts) if counts else np.zeros(0, np.int64)
+        stats = {f"{k}_ms": 1000.0 * v for k, v in times.items()}
+        stats.update(
+            ms=1000.0 * (time.perf_counter() - start),
+            samples_per_pixel=float(counts.mean()) if counts.size else 0.0,
+            dropped_samples=int(dropped),
+            counts=counts,
+        )
+        return colors, stats
+
+    def _render_chunk(self, frame: _Frame, o: torch.Tensor, d: torch.Tensor, times: dict):
+        """One chunk of rays: colours (R, 3), samples per ray (R,) and the number of samples dropped."""
+        from neural.render.fullray import render_rays, render_samples
+        from neural.render.narrowband import narrow_band_samples
+        from neural.render.samples import RaySamples
+
+        tick = time.perf_counter()
+        samples, nb_stats = narrow_band_samples(frame.intersector, o, d, self.config, device=self.device)
+        now = time.perf_counter()
+        times["cast"] += now - tick
+        tick = now
+        if frame.inverse is None:
+            color = render_rays(self.field, o, d, samples, self.background)["color"]
+            times["field"] += time.perf_counter() - tick
+            return color, nb_stats.counts, 0
+        rays = samples.ray_indices
+        norm = d.norm(dim=1)[rays]
+        unit = d[rays] / norm[:, None].clamp_min(1e-12)
+        x_rest, d_rest, stretch, inside = frame.inverse.map_rays(samples.points(o, d), unit)
+        kept = RaySamples(
+            rays[inside],
+            samples.t_starts[inside],
+            samples.t_ends[inside],
+            samples.n_rays,
+            samples.t_mid[inside],
+        )
+        scale = (norm * stretch)[inside]  # rest-space length per unit of t
+        now = time.perf_counter()
+        times["map"] += now - tick
+        tick = now
+        out = render_samples(
+            self.field,
+            x_rest[inside],
+            d_rest[inside],
+            kept.deltas * scale,
+            (kept.t_mid - kept.t_starts) * scale,
+            kept,
+            self.background,
+        )
+        times["field"] += time.perf_counter() - tick
+        return out["color"], nb_stats.counts, int((~inside).sum())
+
+    def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
+        """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
+        (V, 3) (None: at rest), and stats: ``ms`` and per stage ``build_ms`` (shell deformation, Embree scenes
+        and the inverse map's BVH; Embree finishes its BVH on the first cast, counted in ``cast_ms``),
+        ``cast_ms`` (Procedure 3), ``map_ms`` (inverse map), ``field_ms`` (field and compositing);
+        ``samples_per_pixel``, ``dropped_samples`` (outside the cage) and ``counts`` (H, W)."""
+        from neural.data import camera_rays
+
+        start = time.perf_counter()
+        origins, dirs = camera_rays(cameras, index, device=self.device)
+        colors, stats = self.render_rays(origins, dirs, positions)
+        h, w = int(cameras.height[index]), int(cameras.width[index])
+        stats["counts"] = stats["counts"].reshape(h, w)
+        stats["ms"] = 1000.0 * (time.perf_counter() - start)
+        return colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy(), stats
+
+
+# --------------------------------------------------------------------------- cameras and frames
+
+
+def orbit_camera(
+    center,
+    distance: float,
+    up,
+    azimuth: float,
+    width: int,
+    height: int,
+    elevation_deg: float = ORBIT_ELEVATION_DEG,
+    fov_deg: float = ORBIT_FOV_DEG,
+):
+    """One pinhole camera (a ``Cameras`` of length 1) at ``distance`` from ``center`` (3,), ``elevation_deg``
+    above the plane normal to ``up`` (3,), at ``azimuth`` radians around ``up``, looking at ``center``
+    with a horizontal field of view ``fov_deg``, imaging ``width`` x ``height`` pixels."""
+    from neural.data import Cameras, look_at
+
+    up = np.asarray(up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    el = math.radians(elevation_deg)
+    view = math.cos(el) * (math.cos(azimuth) * e1 + math.sin(azimuth) * e2) + math.sin(el) * up
+    c2w = look_at(np.asarray(center, dtype=np.float64) + distance * view, center, up)
+    focal = 0.5 * width / math.tan(0.5 * math.radians(fov_deg))
+    return Cameras(
+        c2w[None],
+        [focal],
+        [focal],
+        [0.5 * width],
+        [0.5 * height],
+        [width],
+        [height],
+        np.zeros((1, 4)),
+        ["orbit"],
+    )
+
+
+def orbit_framing(points) -> tuple[np.ndarray, float]:
+    """Centre (3,) and distance of an orbit that keeps ``points`` (N, 3) in view: the bounding box's
+    centre and the distance at which its circumscribed sphere fills ``ORBIT_FOV_DEG`` (with 5% room)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    radius = 0.5 * float(np.linalg.norm(hi - lo))
+    return 0.5 * (lo + hi), 1.05 * radius / math.sin(0.5 * math.radians(ORBIT_FOV_DEG))
+
+
+def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
+    """``--frames``: ``"a:b"`` (b exclusive; either may be left out), ``"k"`` or None (all) -> the frame
+    indices, checked against ``n_frames``; a malformed or out-of-range spec is an :class:`InputError`."""
+    if spec is None:
+        return range(n_frames)
+    text = str(spec).strip()
+    parts = text.split(":")
+    try:
+        if len(parts) == 1:
+            a = int(parts[0])
+            b = a + 1
+        elif len(parts) == 2:
+            a = int(parts[0]) if parts[0].strip() else 0
+            b = int(parts[1]) if parts[1].strip() else n_frames
+        else:
+            raise ValueError
+    except ValueError:
+        raise InputError(
+            f"--frames {text!r}: expected START:END (END exclusive, either optional) or one frame "
+            f"number, e.g. 0:60"
+        ) from None
+    if not 0 <= a < b <= n_frames:
+        raise InputError(
+            f"--frames {text!r}: {source} has {n_frames} frames (0..{n_frames - 1}); need "
+            f"0 <= START < END <= {n_frames}"
+        )
+    return range(a, b)
+
+
+def load_cage_for(asset):
+    """The asset's cage (stored or built); failing to build one is an :class:`InputError` naming the file."""
+    from .cage import load_or_build_cage
+
+    try:
+        return load_or_build_cage(asset)
+    except InputError:
+        raise
+    except (ImportError, RuntimeError, ValueError, OSError) as err:
+        raise InputError(f"{asset.cage_path}: no usable cage and building one failed ({err})") from None
+
+
+def check_motion(motion, cage, motion_path, asset) -> None:
+    """A motion must move this asset's cage: same tets and rest vertices, else an :class:`InputError`."""
+    same = (
+        motion.rest_vertices.shape == cage.vertices.shape
+        and np.array_equal(motion.tets, cage.tets)
+        and np.allclose(
+            motion.rest_vertices,
+            cage.vertices,
+            rtol=0,
+            atol=1e-6 * float(np.ptp(cage.vertices, axis=0).max()),
+        )
+    )
+    if not same:
+        raise InputError(
+            f"{motion_path}: moves a cage of {len(motion.rest_vertices)} vertices and {len(motion.tets)} "
+            f"tets that is not the cage of asset {asset.name!r} ({len(cage.vertices)} vertices, "
+            f"{len(cage.tets)} tets, {asset.cage_path}); make the motion from this asset"
+        )
+
+
+# --------------------------------------------------------------------------- files
+
+
+def save_png(path: Path, image: np.ndarray) -> None:
+    """Write an (H, W, 3) float image in [0, 1] as an 8-bit PNG atomically (temporary file + rename), so a
+    PNG on disk is always complete."""
+    from PIL import Image
+
+    tmp = path.with_name(path.stem + ".tmp.png")
+    Image.fromarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB").save(tmp)
+    os.replace(tmp, path)
+
+
+def write_video(frames: list[Path], path, fps: float) -> Path:
+    """Assemble PNG ``frames`` into an H.264 MP4 at ``fps`` with imageio-ffmpeg (odd sizes are padded by
+    one edge row / column: H.264's 4:2:0 chroma needs even sizes)."""
+    import imageio.v2 as imageio
+
+    if not frames:
+        raise ValueError("frames: nothing to assemble")
+    if not (fps > 0 and math.isfinite(fps)):
+        raise ValueError(f"fps: expected a positive number, got {fps}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
+    with imageio.get_writer(
+        tmp, fps=fps, codec="libx264", macro_block_size=1, quality=8, pixelformat="yuv420p", format="FFMPEG"
+    ) as writer:
+        for frame in frames:
+            image = np.asarray(imageio.imread(frame))[..., :3]
+            h, w = image.shape[:2]
+            writer.append_data(np.pad(image, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge"))
+    os.replace(tmp, path)
+    return path
+
+
+def _motion_fps(motion) -> float:
+    """Frames per second of a motion: its ``meta["fps"]``, else from its times, else 30."""
+    fps = motion.meta.get("fps")
+    if isinstance(fps, int | float) and fps > 0 and math.isfinite(fps):
+        return float(fps)
+    dt = np.diff(motion.times)
+    if dt.size and np.median(dt) > 0:
+        return float(1.0 / np.median(dt))
+    return 30.0
+
+
+# --------------------------------------------------------------------------- whole renders
+
+
+def _setup(asset_spec, device: str):
+    from neural.asset import load_asset, load_field
+    from neural.device import pick_device
+
+    asset = load_asset(asset_spec)
+    device = pick_device(device)
+    return asset, device, load_field(asset, device)
+
+
+def _summary(out_dir: Path, written: list, skipped: int, stats: list[dict]) -> dict:
+    summary = {"out": str(out_dir), "rendered": len(written), "skipped": skipped}
+    if stats:
+        for key in ("ms", *(f"{s}_ms" for s in STAGES), "samples_per_pixel"):
+            summary[key] = float(np.mean([s[key] for s in stats]))
+        log.debug(
+            "%d frames rendered to %s (%d already there): %.0f ms/frame (build %.0f, cast %.0f, map %.0f, "
+            "field %.0f), %.2f samples/pixel",
+            len(written),
+            out_dir,
+            skipped,
+            summary["ms"],
+            summary["build_ms"],
+            summary["cast_ms"],
+            summary["map_ms"],
+            summary["field_ms"],
+            summary["samples_per_pixel"],
+        )
+    return summary
+
+
+def render_views(
+    asset_spec,
+    cameras_path,
+    out_dir,
+    size: tuple[int, int] | None = None,
+    device: str = "auto",
+    overwrite: bool = False,
+    progress: bool = True,
+) -> dict:
+    """Render every camera of a ``transforms*.json``-style camera file (images may be absent) at rest to
+    ``out_dir/<frame name>.png`` (the listed image's name, else ``frame_<index>``); ``size`` = (W, H)
+    overrides the file's. PNGs already there are kept unless ``overwrite``. Returns a summary with the
+    mean ms per frame and per stage."""
+    from tqdm import tqdm
+
+    from neural.data import load_camera_file
+
+    asset, device, field = _setup(asset_spec, device)
+    cameras = load_camera_file(cameras_path, *(size or (None, None)))
+    renderer = DeformedRenderer(asset, field, None, device)
+    names = list(cameras.names)
+    if len(set(names)) != len(names):
+        names = [f"{i:05d}" for i in range(len(cameras))]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written, skipped, stats = [], 0, []
+    for i in tqdm(range(len(cameras)), desc="render", unit="view", disable=not progress):
+        path = out_dir / f"{names[i]}.png"
+        if path.is_file() and not overwrite:
+            skipped += 1
+            continue
+        image, frame_stats = renderer.render(cameras, i)
+        save_png(path, image)
+        written.append(path)
+        stats.append(frame_stats)
+    return _summary(out_dir, written, skipped, stats)
+
+
+def render_motion(
+    asset_spec,
+    motion_path,
+    out_dir,
+    cameras=None,
+    orbit: bool = False,
+    frames: str | None = None,
+    size: tuple[int, int] | None = None,
+    video=None,
+    fps: float | None = None,
+    device: str = "auto",
+    overwrite: bool = False,
+    progress: bool = True,
+) -> dict:
+    """Render frames of a motion to ``out_dir/<k:05d>.png`` (``k`` the motion frame), optionally an MP4.
+
+    asset_spec : asset directory or shipped name; motion_path : ``.npz`` of :mod:`shellsim.motion` made
+        for this asset's cage (else an :class:`InputError`)
+    cameras : camera file (its first camera views every frame) or None with ``orbit``: a camera circling the
+        bounding box of the cage over the whole motion about the asset's up axis, one revolution over the
+        whole motion (both depend on the motion's length: after a motion has grown, render with
+        ``overwrite`` for a smooth orbit)
+    frames : ``"a:b"`` spec of :func:`parse_frames` (None: all)
+    size : (W, H); default the camera file's, or 400 x 400 for the orbit
+    video : MP4 path assembled from the frames ``frames`` at ``fps`` (default: the motion's)
+    overwrite : re-render PNGs already on disk (default: keep them, so an interrupted render resumes)
+    Returns a summary: counts, mean ms per frame and per stage, ``video``.
+    """
+    from tqdm import tqdm
+
+    from neural.data import load_camera_file
+
+    from .motion import load_motion
+
+    if (cameras is None) == (not orbit):
+        raise ValueError("give exactly one of cameras and orbit=True")
+    if fps is not None and not (fps > 0 and math.isfinite(fps)):
+        raise InputError(f"--fps: expected a positive number, got {fps}")
+    asset, device, field = _setup(asset_spec, device)
+    motion = load_motion(motion_path)
+    cage = load_cage_for(asset)
+    check_motion(motion, cage, motion_path, asset)
+    indices = parse_frames(frames, motion.n_frames, source=str(motion_path))
+    if orbit:
+        width, height = size or (400, 400)
+        center, distance = orbit_framing(motion.positions)
+    else:
+        view = load_camera_file(cameras, *(size or (None, None))).subset([0])
+    renderer = DeformedRenderer(asset, field, cage, device)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written, skipped, stats = [], 0, []
+    bar = tqdm(indices, desc="render", unit="frame", disable=not progress)
+    for k in bar:
+        path = out_dir / f"{k:05d}.png"
+        if path.is_file() and not overwrite:
+            skipped += 1
+            continue
+        if orbit:
+            view = orbit_camera(center, distance, asset.up, 2 * math.pi * k / motion.n_frames, width, height)
+        image, frame_stats = renderer.render(view, 0, motion.positions[k])
+        save_png(path, image)
+        written.append(path)
+        stats.append(frame_stats)
+        bar.set_postfix(ms=f"{frame_stats['ms']:.0f}", spp=f"{frame_stats['samples_per_pixel']:.1f}")
+    summary = _summary(out_dir, written, skipped, stats)
+    if video is not None:
+        fps = _motion_fps(motion) if fps is None else fps
+        summary["video"] = str(write_video([out_dir / f"{k:05d}.png" for k in indices], video, fps))
+        log.info("wrote %s (%d frames at %g fps)", video, len(indices), fps)
+    return summary

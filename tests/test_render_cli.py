@@ -1,0 +1,261 @@
+"""``shellsim render`` end to end on the small test asset of ``test_render_deformed``: rest renders of a
+camera file, motion renders that resume, the MP4, and one-line errors for bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+
+import numpy as np
+import pytest
+from PIL import Image
+from test_render_deformed import CENTER, make_asset
+
+from neural.asset import load_asset
+from shellsim.cage import load_cage
+from shellsim.cli import main
+from shellsim.motion import Motion, save_motion
+
+
+@pytest.fixture(scope="module")
+def asset_dir(tmp_path_factory):
+    return make_asset(tmp_path_factory.mktemp("asset"))
+
+
+def write_cameras(path, n: int, with_size: bool = True):
+    """A NeRF-synthetic-style camera file of ``n`` views around the asset (no images on disk)."""
+    frames = []
+    for i in range(n):
+        a = 2 * math.pi * i / n
+        eye = CENTER + np.array([math.cos(a), math.sin(a), 0.4])
+        back = (eye - CENTER) / np.linalg.norm(eye - CENTER)
+        right = np.cross([0.0, 0.0, 1.0], back)
+        right /= np.linalg.norm(right)
+        c2w = np.eye(4)
+        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, np.cross(back, right), back, eye
+        frames.append({"file_path": f"./views/v_{i}", "transform_matrix": c2w.tolist()})
+    data = {"camera_angle_x": 0.8, "frames": frames}
+    if with_size:
+        data.update(w=24, h=18)
+    path.write_text(json.dumps(data))
+    return path
+
+
+def write_motion(path, asset_dir, n_frames: int, vertices=None):
+    """A motion of the asset's cage: a sideways sway growing with height (or of other ``vertices``)."""
+    cage = load_cage(load_asset(asset_dir).cage_path)
+    rest = cage.vertices if vertices is None else vertices
+    tets = cage.tets if vertices is None else np.zeros((1, 4), np.int64)
+    h = np.clip(rest[:, 2] - rest[:, 2].min(), 0, None)
+    frames = [rest + np.outer(0.3 * h**2 * math.sin(0.7 * k), [1.0, 0.0, 0.0]) for k in range(n_frames)]
+    save_motion(path, Motion(rest, tets, np.stack(frames), np.arange(n_frames) / 10.0, {"fps": 10.0}))
+    return path
+
+
+def error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_rest_render_writes_one_png_per_camera(tmp_path, asset_dir, capsys):
+    cams = write_cameras(tmp_path / "cams.json", 3, with_size=False)
+    out = tmp_path / "views"
+    assert (
+        main(
+            [
+                "render",
+                "--asset",
+                str(asset_dir),
+                "--cameras",
+                str(cams),
+                "--out",
+                str(out),
+                "--width",
+                "20",
+                "--height",
+                "14",
+            ]
+        )
+        == 0
+    )
+    assert sorted(p.name for p in out.iterdir()) == ["v_0.png", "v_1.png", "v_2.png"]
+    for p in out.iterdir():
+        image = np.asarray(Image.open(p))
+        assert image.shape == (14, 20, 3)
+        assert image.min() < 200 and image.max() == 255  # the ball on the white background
+    assert "3 frames rendered" in capsys.readouterr().out
+
+
+def test_motion_render_resumes_and_writes_the_video(tmp_path, asset_dir):
+    cams = write_cameras(tmp_path / "cams.json", 2)
+    motion = write_motion(tmp_path / "m.npz", asset_dir, 4)
+    out = tmp_path / "frames"
+    base = [
+        "render",
+        "--asset",
+        str(asset_dir),
+        "--motion",
+        str(motion),
+        "--cameras",
+        str(cams),
+        "--out",
+        str(out),
+    ]
+    assert main([*base, "--frames", "0:2"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["00000.png", "00001.png"]
+    first = sorted(out.iterdir())
+    for p in first:  # mark the first render: a resumed run must not rewrite these files
+        os.utime(p, ns=(1, 1))
+    video = tmp_path / "clip.mp4"
+    assert main([*base, "--frames", "0:4", "--video", str(video)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["00000.png", "00001.png", "00002.png", "00003.png"]
+    assert all(p.stat().st_mtime_ns == 1 for p in first)
+    images = [np.asarray(Image.open(out / f"{k:05d}.png")) for k in range(4)]
+    assert images[0].shape == (18, 24, 3)  # the camera file's size
+    assert (np.abs(images[2].astype(int) - images[0]) > 10).any(axis=2).sum() >= 3  # the sway shows
+
+    import imageio.v2 as imageio
+
+    with imageio.get_reader(video) as reader:
+        frames = [frame for frame in reader]
+        assert reader.get_meta_data()["fps"] == pytest.approx(10.0)
+    assert len(frames) == 4
+    assert frames[0].shape[:2] == (18, 24)
+
+
+def test_orbit_render_with_odd_sizes(tmp_path, asset_dir):
+    motion = write_motion(tmp_path / "m.npz", asset_dir, 3)
+    out, video = tmp_path / "orbit", tmp_path / "orbit.mp4"
+    assert (
+        main(
+            [
+                "render",
+                "--asset",
+                str(asset_dir),
+                "--motion",
+                str(motion),
+                "--orbit",
+                "--out",
+                str(out),
+                "--width",
+                "15",
+                "--height",
+                "11",
+                "--frames",
+                "1:3",
+                "--video",
+                str(video),
+                "--fps",
+                "5",
+            ]
+        )
+        == 0
+    )
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["00001.png", "00002.png"]
+    a, b = (np.asarray(Image.open(out / n)) for n in names)
+    assert a.shape == (11, 15, 3) and a.min() < 200  # the asset is in view
+    assert not np.array_equal(a, b)  # the camera moved
+
+    import imageio.v2 as imageio
+
+    with imageio.get_reader(video) as reader:
+        assert sum(1 for _ in reader) == 2
+
+
+def test_motion_of_another_cage_is_one_error_line(tmp_path, asset_dir, capsys):
+    cams = write_cameras(tmp_path / "cams.json", 1)
+    motion = write_motion(
+        tmp_path / "other.npz", asset_dir, 2, vertices=np.random.default_rng(0).random((7, 3))
+    )
+    code = main(
+        [
+            "render",
+            "--asset",
+            str(asset_dir),
+            "--motion",
+            str(motion),
+            "--cameras",
+            str(cams),
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    assert code == 2
+    line = error_line(capsys)
+    assert str(motion) in line and "7 vertices" in line and "not the cage" in line
+
+
+@pytest.mark.parametrize("spec", ["x:y", "3:9", "2:1"])
+def test_bad_frames_spec_is_one_error_line(tmp_path, asset_dir, capsys, spec):
+    cams = write_cameras(tmp_path / "cams.json", 1)
+    motion = write_motion(tmp_path / "m.npz", asset_dir, 3)
+    code = main(
+        [
+            "render",
+            "--asset",
+            str(asset_dir),
+            "--motion",
+            str(motion),
+            "--cameras",
+            str(cams),
+            "--out",
+            str(tmp_path / "o"),
+            "--frames",
+            spec,
+        ]
+    )
+    assert code == 2
+    assert "--frames" in error_line(capsys)
+
+
+def test_unbuildable_cage_is_one_error_line(tmp_path, asset_dir, capsys, monkeypatch):
+    """No cage.npz and fTetWild failing: one line naming the cage file."""
+    broken = tmp_path / "asset"
+    shutil.copytree(asset_dir, broken)
+    (broken / "cage.npz").unlink()
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("fTetWild failed")
+
+    monkeypatch.setattr("shellsim.cage.build_cage", fail)
+    cams = write_cameras(tmp_path / "cams.json", 1)
+    motion = write_motion(tmp_path / "m.npz", asset_dir, 2)
+    code = main(
+        [
+            "render",
+            "--asset",
+            str(broken),
+            "--motion",
+            str(motion),
+            "--cameras",
+            str(cams),
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    assert code == 2
+    line = error_line(capsys)
+    assert str(broken / "cage.npz") in line and "fTetWild failed" in line
+
+
+def test_options_that_need_a_motion(tmp_path, asset_dir, capsys):
+    cams = write_cameras(tmp_path / "cams.json", 1)
+    code = main(
+        [
+            "render",
+            "--asset",
+            str(asset_dir),
+            "--cameras",
+            str(cams),
+            "--out",
+            str(tmp_path / "o"),
+            "--video",
+            str(tmp_path / "v.mp4"),
+        ]
+    )
+    assert code == 2
+    assert "--video needs --motion" in error_line(capsys)

@@ -1,0 +1,197 @@
+"""``shellsim simulate``: pin grammar, bad meshes, a small run and --resume."""
+
+import types
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural.errors import InputError
+from shellsim.cli import main
+from shellsim.commands.simulate import parse_pin
+from shellsim.fem import tet_volumes
+from shellsim.motion import load_motion
+
+
+@pytest.mark.parametrize(
+    "text, axis, op, value, percent",
+    [
+        ("z<0.1", 2, "<", 0.1, False),
+        ("x >= -2", 0, ">=", -2.0, False),
+        (" Y>1e-3 ", 1, ">", 1e-3, False),
+        ("z<=5%", 2, "<=", 5.0, True),
+        ("x>.5", 0, ">", 0.5, False),
+    ],
+)
+def test_pin_rules_parse(text, axis, op, value, percent):
+    rule = parse_pin(text)
+    assert (rule.axis, rule.op, rule.value, rule.percent) == (axis, op, value, percent)
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["__import__('os')", "z<", "q<1", "z<1; x>2", "z=1", "z<nan", "z<inf", "", "1<z", "z<1e999", "z<<1"],
+)
+def test_pin_junk_is_rejected(text):
+    with pytest.raises(InputError, match="--pin"):
+        parse_pin(text)
+
+
+def test_pin_selection_in_world_units_and_percent():
+    v = np.array([[0.0, 0, 0], [0, 0, 1], [0, 0, 2], [0, 0, 10]])
+    assert parse_pin("z<1.5").select(v).tolist() == [True, True, False, False]
+    assert parse_pin("z>=15%").select(v).tolist() == [False, False, True, True]
+
+
+def test_cli_defaults_are_the_simulator_defaults():
+    from shellsim.cli import build_parser
+    from shellsim.fem import SimSettings
+
+    args = build_parser().parse_args(["simulate", "--mesh", "x.ply"])
+    defaults = SimSettings()
+    assert (args.substeps, args.friction, args.damping) == (
+        defaults.substeps,
+        defaults.friction,
+        defaults.damping,
+    )
+    assert args.fps == pytest.approx(1 / defaults.dt)
+
+
+def _fail(argv, capsys):
+    capsys.readouterr()
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert err.startswith("shellsim: error:") and "\n" not in err and "Traceback" not in err
+    return err
+
+
+def test_bad_meshes_fail_with_one_line(tmp_path, capsys):
+    open_mesh = trimesh.creation.box((1, 1, 1))
+    open_mesh.update_faces(np.arange(len(open_mesh.faces)) != 0)  # drop a triangle: a hole
+    open_mesh.export(tmp_path / "open.ply")
+    (tmp_path / "empty.ply").write_bytes(b"")
+    (tmp_path / "garbage.obj").write_bytes(b"\x00\xffnot a mesh at all\x13" * 10)
+    for name, words in (("open.ply", "not closed"), ("empty.ply", ""), ("garbage.obj", "")):
+        err = _fail(["simulate", "--mesh", str(tmp_path / name), "--out", str(tmp_path / "m.npz")], capsys)
+        assert name in err and words in err
+        assert not (tmp_path / "m.npz").exists()
+
+
+def _box_cage(n=2, size=1.0):
+    axes = [np.linspace(0.0, size, n + 1)] * 3
+    v = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    m = n + 1
+    tets = []
+    for i in range(n):
+        for j in range(n):
+            for k in range(n):
+                c = [((i + a) * m + j + b) * m + k + d for a in (0, 1) for b in (0, 1) for d in (0, 1)]
+                tets += [
+                    [c[0], c[p], c[q], c[7]] for p, q in ((4, 6), (4, 5), (2, 6), (2, 3), (1, 5), (1, 3))
+                ]
+    tets = np.array(tets)
+    flip = tet_volumes(v, tets) < 0
+    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
+    return v, tets
+
+
+@pytest.fixture
+def closed_mesh(tmp_path, monkeypatch):
+    """A closed box mesh file; tetrahedralising is replaced by a 48-tet box (fTetWild is slow and tested
+    with the cage)."""
+    path = tmp_path / "cube.stl"
+    trimesh.creation.box((1, 1, 1)).export(path)
+    calls = []
+
+    def build_cage(outer, inner, config=None, what=""):
+        calls.append((outer, inner))
+        v, t = _box_cage()
+        return types.SimpleNamespace(vertices=v + outer.bounds[0], tets=t)
+
+    monkeypatch.setattr("shellsim.cage.build_cage", build_cage)
+    return path, calls
+
+
+def test_run_writes_a_motion_file_and_resume_extends_it(tmp_path, closed_mesh, capsys):
+    mesh, calls = closed_mesh
+    base = [
+        "simulate",
+        "--mesh",
+        str(mesh),
+        "--material",
+        "rubber",
+        "--fps",
+        "30",
+        "--substeps",
+        "2",
+        "--size",
+        "0.1",
+        "--drop-height",
+        "0.01",
+        "--velocity",
+        "0.1,0,0",
+        "--device",
+        "cpu",
+    ]
+    full, part = tmp_path / "full.npz", tmp_path / "part.npz"
+    assert main([*base, "--frames", "5", "--out", str(full)]) == 0
+    assert main([*base, "--frames", "3", "--out", str(part)]) == 0
+    assert calls[0][0] is calls[0][1]  # no inner shell: inner = outer
+    motion = load_motion(part)
+    assert motion.n_frames == 3 and np.allclose(motion.times, [0, 1 / 30, 2 / 30])
+    v0 = motion.rest_vertices
+    np.testing.assert_allclose(motion.positions[0], v0, atol=1e-6)
+    assert motion.meta["world"]["scale"] == pytest.approx(0.1)  # a 1-unit cube measures 0.1 m
+    # it falls (and moves along +x) in world units
+    assert motion.positions[-1][:, 2].mean() < v0[:, 2].mean() - 0.01
+    assert motion.positions[-1][:, 0].mean() > v0[:, 0].mean()
+
+    assert main([*base, "--frames", "5", "--out", str(part), "--resume"]) == 0
+    resumed, straight = load_motion(part), load_motion(full)
+    assert resumed.n_frames == 5
+    np.testing.assert_array_equal(resumed.positions[:3], motion.positions)
+    # resuming continues the same trajectory, up to the Newton tolerance (newton_tol x size per second:
+    # 1.7e-3 m/s, ~3e-4 world units per substep) and float32 storage; the frames move ~100x more
+    np.testing.assert_allclose(resumed.positions, straight.positions, atol=3e-4)
+    assert np.abs(np.diff(straight.positions, axis=0)).max() > 100 * 3e-4
+    np.testing.assert_allclose(resumed.times, straight.times)
+
+    err = _fail([*base, "--frames", "6", "--out", str(part), "--resume", "--material", "jelly"], capsys)
+    assert "material" in err
+    err = _fail([*base, "--frames", "6", "--out", str(part), "--pin", "z<-100"], capsys)
+    assert "selects no cage vertex" in err
+    err = _fail([*base, "--frames", "6", "--out", str(part), "--pin", "__import__('os')"], capsys)
+    assert "--pin" in err
+    assert load_motion(part).n_frames == 5  # failed commands leave the file alone
+
+
+def test_pinned_vertices_stay_put(tmp_path, closed_mesh):
+    mesh, _ = closed_mesh
+    out = tmp_path / "pinned.npz"
+    argv = [
+        "simulate",
+        "--mesh",
+        str(mesh),
+        "--material",
+        "foam",
+        "--frames",
+        "4",
+        "--substeps",
+        "2",
+        "--no-ground",
+        "--pin",
+        "x<-0.49",
+        "--out",
+        str(out),
+        "--device",
+        "cpu",
+    ]
+    assert main(argv) == 0
+    motion = load_motion(out)
+    pinned = motion.rest_vertices[:, 0] < -0.49
+    assert pinned.sum() == 9
+    np.testing.assert_allclose(
+        motion.positions[:, pinned], np.broadcast_to(motion.rest_vertices[pinned], (4, 9, 3)), atol=1e-6
+    )
+    assert (motion.positions[-1][~pinned, 2] < motion.rest_vertices[~pinned, 2]).all()  # the rest sags

@@ -1,0 +1,86 @@
+"""Stage-1 training on a scene the test renders itself, checkpoints/resume, and CLI errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from scenes import write_sphere_scene
+
+from neural.data import load_dataset
+from neural.field import FieldConfig, HashGridConfig
+from neural.pipeline import build_field
+from neural.render.view import occupancy_sampler
+from neural.train import Stage1Config, evaluate, new_occupancy_grid, train_stage1
+from shellsim.cli import main
+
+SMALL_FIELD = FieldConfig(hashgrid=HashGridConfig(log2_table_size=14, max_resolution=256))
+
+
+def small_stage1(steps: int) -> Stage1Config:
+    return Stage1Config(steps=steps, target_samples=8192, initial_rays=256, eval_every=10**6,
+                        checkpoint_every=20, occupancy_resolution=32, warmup_steps=20, eval_views=3)
+
+
+@pytest.fixture(scope="module")
+def sphere_data(tmp_path_factory):
+    root = write_sphere_scene(tmp_path_factory.mktemp("sphere"), n_views=24, size=32)
+    return load_dataset(root, bound=1.0)
+
+
+def test_stage1_improves_psnr_on_a_rendered_sphere(sphere_data, tmp_path):
+    torch.manual_seed(0)
+    field = build_field(sphere_data, SMALL_FIELD, "cpu")
+    config = small_stage1(150)
+    grid = new_occupancy_grid(field, config.occupancy_resolution)
+    background = torch.ones(3)
+    before = evaluate(field, sphere_data, sphere_data.test_idx, occupancy_sampler(grid, field), background)
+    result = train_stage1(field, sphere_data, tmp_path, config, "cpu")
+    after = result["final"]
+    assert after["views"] == [int(v) for v in sphere_data.test_idx[:3]]
+    assert after["psnr"] > before["psnr"] + 4.0, (before["psnr"], after["psnr"])
+
+
+def test_stage1_resumes_from_its_checkpoint(sphere_data, tmp_path):
+    field = build_field(sphere_data, SMALL_FIELD, "cpu")
+    train_stage1(field, sphere_data, tmp_path, small_stage1(20), "cpu")
+    weights = {k: v.clone() for k, v in field.state_dict().items()}
+    resumed = build_field(sphere_data, SMALL_FIELD, "cpu")
+    result = train_stage1(resumed, sphere_data, tmp_path, small_stage1(20), "cpu")
+    # nothing left to do: the checkpoint's weights and final evaluation come back as they were
+    for key, value in resumed.state_dict().items():
+        torch.testing.assert_close(value, weights[key], rtol=0, atol=0)
+    assert result["final"] is not None and result["final"]["step"] == 20
+    longer = train_stage1(resumed, sphere_data, tmp_path, small_stage1(30), "cpu")
+    assert [h["step"] for h in longer["history"]] == [30]
+
+
+def _run_cli(argv, capsys):
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+def test_train_cli_reports_bad_inputs_in_one_line(tmp_path, capsys):
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "transforms_train.json").write_text("{not json")
+    code, err = _run_cli(["train", "--data", str(bad), "--out", str(tmp_path / "out")], capsys)
+    assert code == 2 and err.count("\n") == 0 and "transforms_train.json" in err
+
+    missing = write_sphere_scene(tmp_path / "missing", n_views=3, size=8)
+    for png in (missing / "train").glob("*.png"):
+        png.unlink()
+    code, err = _run_cli(["train", "--data", str(missing), "--out", str(tmp_path / "out")], capsys)
+    assert code == 2 and err.count("\n") == 0 and "image" in err
+
+    nokey = tmp_path / "nokey"
+    nokey.mkdir()
+    (nokey / "transforms_train.json").write_text(json.dumps({"frames": []}))
+    code, err = _run_cli(["train", "--data", str(nokey), "--out", str(tmp_path / "out")], capsys)
+    assert code == 2 and err.count("\n") == 0 and ("camera_angle_x" in err or "frames" in err)
+
+    code, err = _run_cli(["train", "--data", str(missing), "--out", str(tmp_path / "o"), "--steps", "0"], capsys)
+    assert code == 2 and "--steps" in err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())

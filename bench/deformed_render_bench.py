@@ -16,18 +16,14 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from neural.asset import load_asset, load_field  # noqa: E402
-from neural.device import pick_device  # noqa: E402
-from shellsim.cage import load_or_build_cage  # noqa: E402
-from shellsim.render import STAGES, DeformedRenderer, orbit_camera, orbit_framing  # noqa: E402
-from shellsim.wind import WindSettings, wind_displacement  # noqa: E402
+from neural.asset import load_asset, load_field
+from neural.device import pick_device
+from shellsim.cage import load_or_build_cage
+from shellsim.render import STAGES, DeformedRenderer, orbit_camera, orbit_framing
+from shellsim.wind import WindSettings, wind_displacement
 
 
 def twist(vertices: np.ndarray, up: np.ndarray, turns: float = 0.15) -> np.ndarray:

@@ -13,15 +13,11 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from shellsim.deform import InverseMap  # noqa: E402
+from shellsim.deform import InverseMap
 
 
 def cube_grid(n: int) -> tuple[np.ndarray, np.ndarray]:

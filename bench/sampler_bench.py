@@ -16,25 +16,21 @@ from __future__ import annotations
 import argparse
 import math
 import statistics
-import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from neural.device import pick_device  # noqa: E402
-from neural.render.fullray import (  # noqa: E402
+from neural.device import pick_device
+from neural.render.fullray import (
     importance_samples,
     ray_aabb,
     render_rays,
     stepped_samples,
     uniform_samples,
 )
-from neural.render.occupancy import OccupancyGrid  # noqa: E402
-from neural.render.samples import RaySamples  # noqa: E402
+from neural.render.occupancy import OccupancyGrid
+from neural.render.samples import RaySamples
 
 RADIUS = 0.5
 

@@ -16,9 +16,6 @@ import resource
 import subprocess
 import sys
 import time
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 S_SHARP, S_FUZZY = 0.001, 0.03  # kernel sizes in unit space (the sphere spans [-0.6, 0.6])
 

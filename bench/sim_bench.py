@@ -16,17 +16,13 @@ from __future__ import annotations
 
 import argparse
 import resource
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import warp as wp
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from shellsim.fem import SimSettings, Simulator, tet_volumes  # noqa: E402
-from shellsim.materials import get_material  # noqa: E402
+from shellsim.fem import SimSettings, Simulator, tet_volumes
+from shellsim.materials import get_material
 
 SIZE = 0.3  # metres
 LIFT = 0.02  # metres above the ground

@@ -29,12 +29,16 @@ from neural.train import Stage1Config, evaluate, train_stage1
 
 def main() -> None:
     here = Path(__file__).resolve().parents[1]
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--data", default=str(here.parent / "shared" / "data" / "lego"))
     parser.add_argument("--steps", type=int, default=Stage1Config.steps)
     parser.add_argument("--out", default=str(here / "runs" / "bench_lego"))
     parser.add_argument("--device", default="auto")
-    parser.add_argument("--resume", action="store_true", help="continue an earlier run instead of starting over")
+    parser.add_argument(
+        "--resume", action="store_true", help="continue an earlier run instead of starting over"
+    )
     args = parser.parse_args()
     device = pick_device(args.device)
     if not args.resume:

@@ -17,21 +17,18 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
-
-from neural.asset import load_asset  # noqa: E402
-from neural.device import pick_device, warp_device  # noqa: E402
-from neural.errors import InputError, ShellsimError  # noqa: E402
-from shellsim.cage import load_or_build_cage  # noqa: E402
-from shellsim.fem import SimSettings, Simulator, WorldMap, decode_velocities, simulate  # noqa: E402
-from shellsim.materials import PRESETS, get_material  # noqa: E402
-from shellsim.motion import MotionWriter  # noqa: E402
-from shellsim.render import render_motion  # noqa: E402
+from neural.asset import load_asset
+from neural.device import pick_device, warp_device
+from neural.errors import InputError, ShellsimError
+from shellsim.cage import load_or_build_cage
+from shellsim.fem import SimSettings, Simulator, WorldMap, restore_state, simulate
+from shellsim.materials import PRESETS, get_material
+from shellsim.motion import MotionWriter
+from shellsim.render import render_motion
 
 
 class Example:
@@ -72,16 +69,9 @@ class Example:
         if self.motion_path.is_file():
             self.writer = MotionWriter.resume(self.motion_path)
             stored = self.writer.motion.meta
-            if (
-                any(stored.get(k) != json.loads(json.dumps(v)) for k, v in meta.items())
-                or "state" not in stored
-            ):
+            if any(stored.get(k) != json.loads(json.dumps(v)) for k, v in meta.items()):
                 raise InputError(f"{self.motion_path}: made with other settings; use another --out")
-            state = stored["state"]
-            velocities = decode_velocities(state["velocities"], len(rest)) * self.world.scale
-            self.sim.set_state(
-                self.world.to_sim(self.writer.last_positions), velocities, self.writer.last_time
-            )
+            restore_state(self.sim, self.writer, self.world)
         else:
             self.writer = MotionWriter(self.motion_path, cage.vertices, cage.tets, meta)
 

@@ -15,17 +15,14 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
-
-from neural.asset import load_asset  # noqa: E402
-from neural.errors import ShellsimError  # noqa: E402
-from shellsim.cage import load_or_build_cage  # noqa: E402
-from shellsim.motion import MotionWriter  # noqa: E402
-from shellsim.render import render_motion  # noqa: E402
-from shellsim.wind import WindSettings, animate_wind, wind_meta  # noqa: E402
+from neural.asset import load_asset
+from neural.errors import ShellsimError
+from shellsim.cage import load_or_build_cage
+from shellsim.motion import MotionWriter
+from shellsim.render import render_motion
+from shellsim.wind import WindSettings, animate_wind, wind_meta
 
 
 class Example:

@@ -172,8 +172,13 @@ def save_asset(root, field, outer, inner, meta: dict) -> Path:
     save_file(state, str(root / files["field"]))
     outer.export(root / files["shell_outer"])
     inner.export(root / files["shell_inner"])
-    full = {"format": FORMAT, "format_version": FORMAT_VERSION, **meta, "files": files,
-            "field": field.config_dict()}
+    full = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        **meta,
+        "files": files,
+        "field": field.config_dict(),
+    }
     write_meta(root, full)
     return root
 
@@ -186,7 +191,9 @@ def load_field(asset: Asset, device: str = "cpu"):
 
     path = asset.file("field")
     try:
-        field = ShellField.from_config_dict(asset.meta["field"], center=tuple(asset.center), scale=asset.scale)
+        field = ShellField.from_config_dict(
+            asset.meta["field"], center=tuple(asset.center), scale=asset.scale
+        )
     except (TypeError, ValueError, KeyError) as err:
         raise InputError(f"{asset.root / 'asset.json'}: invalid field configuration ({err})") from None
     try:
@@ -196,7 +203,9 @@ def load_field(asset: Asset, device: str = "cpu"):
     try:
         field.load_state_dict(state)
     except RuntimeError as err:
-        raise InputError(f"{path}: weights do not match the field configuration in asset.json ({err})") from None
+        raise InputError(
+            f"{path}: weights do not match the field configuration in asset.json ({err})"
+        ) from None
     return field.to(device).eval()
 
 

@@ -16,8 +16,13 @@ import torch
 from .errors import InputError
 
 
-def save_checkpoint(path, model: torch.nn.Module, optimizer: torch.optim.Optimizer | None,
-                    extra: dict[str, torch.Tensor] | None = None, meta: dict | None = None) -> None:
+def save_checkpoint(
+    path,
+    model: torch.nn.Module,
+    optimizer: torch.optim.Optimizer | None,
+    extra: dict[str, torch.Tensor] | None = None,
+    meta: dict | None = None,
+) -> None:
     """Write model (+ optimizer state, extra tensors, JSON ``meta``) to ``path`` atomically."""
     from safetensors.torch import save_file
 
@@ -37,8 +42,9 @@ def save_checkpoint(path, model: torch.nn.Module, optimizer: torch.optim.Optimiz
     os.replace(tmp, path)
 
 
-def load_checkpoint(path, model: torch.nn.Module, optimizer: torch.optim.Optimizer | None = None
-                    ) -> tuple[dict, dict[str, torch.Tensor]]:
+def load_checkpoint(
+    path, model: torch.nn.Module, optimizer: torch.optim.Optimizer | None = None
+) -> tuple[dict, dict[str, torch.Tensor]]:
     """Restore ``model`` (and ``optimizer``) from ``path``; returns (meta, extra tensors)."""
     from safetensors import safe_open
 
@@ -50,7 +56,7 @@ def load_checkpoint(path, model: torch.nn.Module, optimizer: torch.optim.Optimiz
     except Exception as err:  # safetensors raises several error types for corrupt files
         raise InputError(f"{path}: cannot read checkpoint ({err})") from None
     device = next(model.parameters()).device
-    model_state = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
+    model_state = {k[len("model.") :]: v for k, v in tensors.items() if k.startswith("model.")}
     try:
         model.load_state_dict(model_state)
     except RuntimeError as err:
@@ -64,5 +70,5 @@ def load_checkpoint(path, model: torch.nn.Module, optimizer: torch.optim.Optimiz
                 restored.setdefault(int(pid), {})[name] = value if name == "step" else value.to(device)
         state["state"] = restored
         optimizer.load_state_dict(state)
-    extra = {k[len("extra."):]: v.to(device) for k, v in tensors.items() if k.startswith("extra.")}
+    extra = {k[len("extra.") :]: v.to(device) for k, v in tensors.items() if k.startswith("extra.")}
     return meta, extra

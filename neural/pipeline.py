@@ -49,32 +49,54 @@ def build_field(data: SceneData, config: FieldConfig, device: str) -> ShellField
     return ShellField(config, center=tuple(float(c) for c in norm.center), scale=float(norm.scale)).to(device)
 
 
-def train_asset(data_dir, out_dir, config: PipelineConfig, device: str, name: str | None = None,
-                keep_checkpoints: bool = False) -> Path:
+def train_asset(
+    data_dir,
+    out_dir,
+    config: PipelineConfig,
+    device: str,
+    name: str | None = None,
+    keep_checkpoints: bool = False,
+) -> Path:
     """Run Procedure 4 on the dataset in ``data_dir`` and write the asset to ``out_dir``."""
     out_dir = Path(out_dir)
     started = time.time()
-    data = load_dataset(data_dir, downscale=config.downscale, background=config.background, bound=config.bound)
-    log.info("%s: %d training and %d held-out views of %dx%d", data_dir, len(data.train_idx),
-             len(data.test_idx), int(data.cameras.width[0]), int(data.cameras.height[0]))
+    data = load_dataset(
+        data_dir, downscale=config.downscale, background=config.background, bound=config.bound
+    )
+    log.info(
+        "%s: %d training and %d held-out views of %dx%d",
+        data_dir,
+        len(data.train_idx),
+        len(data.test_idx),
+        int(data.cameras.width[0]),
+        int(data.cameras.height[0]),
+    )
     field_ = build_field(data, config.field, device)
     stage1 = train_stage1(field_, data, out_dir, config.stage1, device)
     shells = extract_field_shells(field_, config.shell, device)
-    stage2 = train_stage2(field_, data, shells.outer, shells.inner, out_dir, config.stage2, config.narrowband,
-                          device)
+    narrowband = config.narrowband.scaled(1.0 / float(data.normalisation.scale))  # unit cube -> world
+    stage2 = train_stage2(
+        field_, data, shells.outer, shells.inner, out_dir, config.stage2, narrowband, device
+    )
     meta = {
         "name": name or out_dir.name,
-        "normalisation": {"center": [float(c) for c in data.normalisation.center],
-                          "scale": float(data.normalisation.scale)},
+        "normalisation": {
+            "center": [float(c) for c in data.normalisation.center],
+            "scale": float(data.normalisation.scale),
+        },
         "up": [float(u) for u in data.up],
         "background": [float(b) for b in data.background],
-        "narrowband": dataclasses.asdict(config.narrowband),
+        "narrowband": dataclasses.asdict(narrowband),
         "shell": {**dataclasses.asdict(config.shell), **shells.stats},
         "training": {
             "command": " ".join(shlex.quote(a) for a in ["shellsim", *sys.argv[1:]]),
-            "data": str(data_dir), "downscale": config.downscale, "device": device,
-            "stage1": dataclasses.asdict(config.stage1), "stage2": dataclasses.asdict(config.stage2),
-            "train_views": len(data.train_idx), "heldout_views": [int(v) for v in data.test_idx],
+            "data": str(data_dir),
+            "downscale": config.downscale,
+            "device": device,
+            "stage1": dataclasses.asdict(config.stage1),
+            "stage2": dataclasses.asdict(config.stage2),
+            "train_views": len(data.train_idx),
+            "heldout_views": [int(v) for v in data.test_idx],
             "wall_minutes": round((time.time() - started) / 60.0, 2),
             "torch": torch.__version__,
         },
@@ -107,4 +129,3 @@ def parse_background(text: str) -> tuple[float, float, float]:
     if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
         raise InputError(f"--background: expected white, black or r,g,b in [0, 1], got {text!r}")
     return values  # type: ignore[return-value]
-

@@ -55,7 +55,7 @@ class Stage1Config:
     occupancy_resolution: int = 128
     occupancy_every: int = 16
     eval_every: int = 1000
-    eval_views: int = 2
+    eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
     checkpoint_every: int = 250
     seed: int = 0
 
@@ -70,7 +70,7 @@ class Stage2Config:
     lr_network: float = 5e-4
     final_lr_factor: float = 0.3
     eval_every: int = 500
-    eval_views: int = 2
+    eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
     checkpoint_every: int = 250
     seed: int = 1
 
@@ -80,13 +80,19 @@ def make_optimizer(field: ShellField, lr_encoding: float, lr_network: float) -> 
     enc = [p for n, p in field.named_parameters() if n.startswith("encoding")]
     net = [p for n, p in field.named_parameters() if not n.startswith("encoding")]
     return torch.optim.Adam(
-        [{"params": enc, "lr": lr_encoding, "base_lr": lr_encoding},
-         {"params": net, "lr": lr_network, "base_lr": lr_network}],
-        betas=(0.9, 0.99), eps=1e-15, fused=True,  # fused: about 6x faster than foreach on a CPU
+        [
+            {"params": enc, "lr": lr_encoding, "base_lr": lr_encoding},
+            {"params": net, "lr": lr_network, "base_lr": lr_network},
+        ],
+        betas=(0.9, 0.99),
+        eps=1e-15,
+        fused=True,  # fused: about 6x faster than foreach on a CPU
     )
 
 
-def set_learning_rate(optimizer: torch.optim.Optimizer, step: int, steps: int, warmup: int, final: float) -> None:
+def set_learning_rate(
+    optimizer: torch.optim.Optimizer, step: int, steps: int, warmup: int, final: float
+) -> None:
     """Linear warm-up then exponential decay to ``final`` x the base rate at the last step."""
     factor = min(1.0, (step + 1) / max(warmup, 1)) * final ** (step / max(steps, 1))
     for group in optimizer.param_groups:
@@ -123,8 +129,14 @@ def finite_difference_gradient(field: ShellField, x: torch.Tensor, eps: float) -
     return (f[:, :, None] * offsets[None]).sum(1) / (4.0 * eps * eps)
 
 
-def regularisers(field: ShellField, points: torch.Tensor, normals: torch.Tensor, inv_s: torch.Tensor,
-                 config: Stage1Config, generator: torch.Generator) -> dict[str, torch.Tensor]:
+def regularisers(
+    field: ShellField,
+    points: torch.Tensor,
+    normals: torch.Tensor,
+    inv_s: torch.Tensor,
+    config: Stage1Config,
+    generator: torch.Generator,
+) -> dict[str, torch.Tensor]:
     """Eikonal (Eq. 10), normal (Eq. 12) and kernel-smoothness (Eq. 11) losses on a subset of samples.
 
     points (N, 3) world positions (detached), normals (N, 3) predicted normals, inv_s (N,) at them.
@@ -152,9 +164,13 @@ def evaluate(field: ShellField, data: SceneData, views, sampler, background: tor
         ssims.append(ssim(image, data.images[v]))
         spps.append(stats["samples_per_pixel"])
         times.append(stats["ms"])
-    return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)),
-            "samples_per_pixel": float(np.mean(spps)), "ms_per_frame": float(np.mean(times)),
-            "views": [int(v) for v in views]}
+    return {
+        "psnr": float(np.mean(psnrs)),
+        "ssim": float(np.mean(ssims)),
+        "samples_per_pixel": float(np.mean(spps)),
+        "ms_per_frame": float(np.mean(times)),
+        "views": [int(v) for v in views],
+    }
 
 
 def new_occupancy_grid(field: ShellField, resolution: int) -> OccupancyGrid:
@@ -171,12 +187,34 @@ def _sdf_kernel(field: ShellField):
     return fn
 
 
+def _psnr(color: torch.Tensor, target: torch.Tensor) -> float:
+    """PSNR of a training batch (for the progress bar)."""
+    return -10.0 * math.log10(max(float(((color.detach() - target) ** 2).mean()), 1e-10))
+
+
+def _periodic_evaluation(
+    stage: str, done: int, config, field, data: SceneData, sampler, background, bar
+) -> dict | None:
+    """Held-out evaluation every ``config.eval_every`` steps on ``config.eval_views`` views, and at the last
+    step on every held-out view; None on the other steps."""
+    if done % config.eval_every and done != config.steps:
+        return None
+    views = data.test_idx if done == config.steps else np.asarray(data.test_idx)[: config.eval_views]
+    metrics = {**evaluate(field, data, views, sampler, background), "step": done}
+    bar.write(
+        f"{stage} step {done}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.3f}, "
+        f"{metrics['samples_per_pixel']:.2f} samples/pixel"
+    )
+    return metrics
+
+
 def _progress(total: int, start: int, desc: str):
     return tqdm(total=total, initial=start, desc=desc, dynamic_ncols=True, mininterval=1.0)
 
 
-def train_stage1(field: ShellField, data: SceneData, out_dir: Path, config: Stage1Config,
-                 device: str) -> dict:
+def train_stage1(
+    field: ShellField, data: SceneData, out_dir: Path, config: Stage1Config, device: str
+) -> dict:
     """Stage 1 (Procedure 4 lines 1-5): full-ray volume rendering with Eq. 8. Resumes from
     ``out_dir/checkpoints/stage1.safetensors``; returns the final held-out evaluation."""
     torch.manual_seed(config.seed)
@@ -194,7 +232,6 @@ def train_stage1(field: ShellField, data: SceneData, out_dir: Path, config: Stag
     reg_gen = torch.Generator().manual_seed(config.seed + 7 + start)
     sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray, perturb=True)
     eval_sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray)
-    eval_views = np.asarray(data.test_idx)[: config.eval_views]
     scale = float(field.scale)
     bar = _progress(config.steps, start, "stage 1")
     history = []
@@ -214,35 +251,52 @@ def train_stage1(field: ShellField, data: SceneData, out_dir: Path, config: Stag
         loss_c = (out["color"] - target).abs().mean()  # Eq. 9
         k = max(1, int(n_samples * config.reg_fraction))
         pick = torch.randperm(n_samples, generator=reg_gen)[:k].to(origins.device)
-        reg = regularisers(field, out["points"][pick].detach(), out["normal"][pick], out["inv_s"][pick],
-                           config, reg_gen)
-        loss = (loss_c + config.lambda_e * reg["eikonal"] + config.lambda_n * reg["normal"]
-                + config.lambda_s * reg["smooth"])  # Eq. 8
+        reg = regularisers(
+            field, out["points"][pick].detach(), out["normal"][pick], out["inv_s"][pick], config, reg_gen
+        )
+        loss = (
+            loss_c
+            + config.lambda_e * reg["eikonal"]
+            + config.lambda_n * reg["normal"]
+            + config.lambda_s * reg["smooth"]
+        )  # Eq. 8
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
         n_rays = int(np.clip(n_rays * config.target_samples / n_samples, 256, config.max_rays))
-        with torch.no_grad():
-            batch_psnr = -10.0 * math.log10(max(float(((out["color"] - target) ** 2).mean()), 1e-10))
-        bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{batch_psnr:.2f}", rays=n_rays,
-                        spp=f"{n_samples / len(origins):.1f}", s=f"{float(1 / out['inv_s'].mean()) * scale:.4f}")
+        bar.set_postfix(
+            loss=f"{loss.item():.4f}",
+            psnr=f"{_psnr(out['color'], target):.2f}",
+            rays=n_rays,
+            spp=f"{n_samples / len(origins):.1f}",
+            s=f"{float(1 / out['inv_s'].mean()) * scale:.4f}",
+        )
         bar.update(1)
         done = step + 1
-        if done % config.eval_every == 0 or done == config.steps:
-            metrics = evaluate(field, data, eval_views, eval_sampler, background)
-            metrics["step"] = done
-            history.append(metrics)
-            bar.write(f"stage 1 step {done}: held-out PSNR {metrics['psnr']:.2f} dB, "
-                      f"SSIM {metrics['ssim']:.3f}, {metrics['samples_per_pixel']:.1f} samples/pixel")
+        final = _periodic_evaluation("stage 1", done, config, field, data, eval_sampler, background, bar)
+        history += [final] if final else []
         if done % config.checkpoint_every == 0 or done == config.steps:
-            final = history[-1] if done == config.steps else None
-            save_checkpoint(ckpt, field, optimizer, grid.state(), {"step": done, "n_rays": n_rays, "final": final})
+            save_checkpoint(
+                ckpt,
+                field,
+                optimizer,
+                grid.state(),
+                {"step": done, "n_rays": n_rays, "final": final if done == config.steps else None},
+            )
     bar.close()
     return {"history": history, "final": history[-1] if history else final, "occupancy": grid}
 
 
-def train_stage2(field: ShellField, data: SceneData, outer, inner, out_dir: Path, config: Stage2Config,
-                 narrowband, device: str) -> dict:
+def train_stage2(
+    field: ShellField,
+    data: SceneData,
+    outer,
+    inner,
+    out_dir: Path,
+    config: Stage2Config,
+    narrowband,
+    device: str,
+) -> dict:
     """Stage 2 (Procedure 4 lines 8-13): fine-tune inside the shells M+ (``outer``) / M- (``inner``) with the
     color loss (Eq. 9) only. Resumes from ``out_dir/checkpoints/stage2.safetensors``."""
     from .render.narrowband import ShellIntersector
@@ -258,7 +312,6 @@ def train_stage2(field: ShellField, data: SceneData, outer, inner, out_dir: Path
         log.info("resuming stage 2 from %s at step %d", ckpt, start)
     sampler = narrow_band_sampler(ShellIntersector(outer, inner), narrowband)
     pixels = PixelSampler(data, device, config.seed + start)
-    eval_views = np.asarray(data.test_idx)[: config.eval_views]
     bar = _progress(config.steps, start, "stage 2")
     history = []
     for step in range(start, config.steps):
@@ -270,20 +323,18 @@ def train_stage2(field: ShellField, data: SceneData, outer, inner, out_dir: Path
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
-        with torch.no_grad():
-            batch_psnr = -10.0 * math.log10(max(float(((out["color"] - target) ** 2).mean()), 1e-10))
-        bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{batch_psnr:.2f}",
-                        spp=f"{len(samples.ray_indices) / len(origins):.2f}")
+        bar.set_postfix(
+            loss=f"{loss.item():.4f}",
+            psnr=f"{_psnr(out['color'], target):.2f}",
+            spp=f"{len(samples.ray_indices) / len(origins):.2f}",
+        )
         bar.update(1)
         done = step + 1
-        if done % config.eval_every == 0 or done == config.steps:
-            metrics = evaluate(field, data, eval_views, sampler, background)
-            metrics["step"] = done
-            history.append(metrics)
-            bar.write(f"stage 2 step {done}: held-out PSNR {metrics['psnr']:.2f} dB, "
-                      f"SSIM {metrics['ssim']:.3f}, {metrics['samples_per_pixel']:.2f} samples/pixel")
+        final = _periodic_evaluation("stage 2", done, config, field, data, sampler, background, bar)
+        history += [final] if final else []
         if done % config.checkpoint_every == 0 or done == config.steps:
-            final = history[-1] if done == config.steps else None
-            save_checkpoint(ckpt, field, optimizer, None, {"step": done, "final": final})
+            save_checkpoint(
+                ckpt, field, optimizer, None, {"step": done, "final": final if done == config.steps else None}
+            )
     bar.close()
     return {"history": history, "final": history[-1] if history else final}

@@ -40,7 +40,17 @@ import numpy as np
 
 from neural.errors import InputError
 
-from .embed import BARY_TOL, TET_FACES, boundary_facets, embed_points, interpolate, outside_distance
+from .embed import (
+    BARY_TOL,
+    TET_FACES,
+    boundary_facets,
+    check_embedding,
+    check_tets,
+    embed_points,
+    interpolate,
+    outside_distance,
+)
+from .npz import load_npz, save_npz
 
 logger = logging.getLogger(__name__)
 
@@ -335,11 +345,8 @@ def cage_summary(cage: Cage) -> dict:
 
 def save_cage(path: str | os.PathLike, cage: Cage) -> None:
     """Write ``cage`` to ``path`` (npz, no pickle) atomically: temporary file + rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(
-        tmp,
+    save_npz(
+        path,
         format=np.array(FORMAT),
         format_version=np.array(FORMAT_VERSION),
         vertices=np.asarray(cage.vertices, np.float64),
@@ -351,25 +358,12 @@ def save_cage(path: str | os.PathLike, cage: Cage) -> None:
         shell_digest=np.array(cage.shell_digest),
         config=np.array(json.dumps(dataclasses.asdict(cage.config))),
     )
-    os.replace(tmp, path)
 
 
 def load_cage(path: str | os.PathLike) -> Cage:
     """Read and validate a cage file; any problem is an :class:`InputError` naming the file."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: cage file not found")
-    keys = ("format", "format_version", *ARRAY_KEYS, "shell_digest", "config")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in keys if k not in data.files]
-            if missing:
-                raise InputError(f"{path}: not a cage file, missing {', '.join(missing)}")
-            arrays = {k: data[k] for k in keys}
-    except InputError:
-        raise
-    except Exception as err:  # zip/npy format errors come in many types
-        raise InputError(f"{path}: cannot read cage file ({err})") from None
+    arrays = load_npz(path, ("format", "format_version", *ARRAY_KEYS, "shell_digest", "config"), "cage")
     if (
         str(arrays["format"]) != FORMAT
         or arrays["format_version"].shape != ()
@@ -383,24 +377,17 @@ def load_cage(path: str | os.PathLike) -> Cage:
     vertices, tets = arrays["vertices"], arrays["tets"]
     if vertices.ndim != 2 or vertices.shape[1] != 3 or not np.issubdtype(vertices.dtype, np.floating):
         raise InputError(f"{path}: vertices must be (V, 3) floats, got {vertices.shape} {vertices.dtype}")
-    if tets.ndim != 2 or tets.shape[1] != 4 or not np.issubdtype(tets.dtype, np.integer):
-        raise InputError(f"{path}: tets must be (T, 4) integers, got {tets.shape} {tets.dtype}")
-    if tets.size and (tets.min() < 0 or tets.max() >= len(vertices)):
-        raise InputError(f"{path}: tets index vertices outside 0..{len(vertices) - 1}")
-    check_tet_mesh(vertices.astype(np.float64), tets.astype(np.int64), str(path))
+    try:
+        tets = check_tets(tets, len(vertices), allow_empty=True)
+    except ValueError as err:
+        raise InputError(f"{path}: {err}") from None
+    check_tet_mesh(vertices.astype(np.float64), tets, str(path))
     for name in ("outer", "inner"):
-        tet_index, bary = arrays[f"{name}_tet"], arrays[f"{name}_bary"]
-        if (
-            tet_index.ndim != 1
-            or not np.issubdtype(tet_index.dtype, np.integer)
-            or bary.shape != (len(tet_index), 4)
-        ):
-            raise InputError(
-                f"{path}: {name}_tet (P,) integers and {name}_bary (P, 4) expected, got "
-                f"{tet_index.shape} {tet_index.dtype} and {bary.shape}"
-            )
-        if tet_index.size and (tet_index.min() < 0 or tet_index.max() >= len(tets)):
-            raise InputError(f"{path}: {name}_tet indexes tets outside 0..{len(tets) - 1}")
+        names = (f"{name}_tet", f"{name}_bary")
+        try:
+            _, bary = check_embedding(arrays[names[0]], arrays[names[1]], len(tets), names)
+        except ValueError as err:
+            raise InputError(f"{path}: {err}") from None
         if not np.isfinite(bary).all() or not np.allclose(bary.sum(axis=1), 1.0, rtol=0, atol=1e-6):
             raise InputError(f"{path}: {name}_bary rows must be finite and sum to 1")
     return Cage(

@@ -27,13 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"shellsim.commands.{name}")
-        except ModuleNotFoundError as err:
-            if err.name != f"shellsim.commands.{name}":
-                raise
-            continue
-        module.register(sub)
+        importlib.import_module(f"shellsim.commands.{name}").register(sub)
     return parser
 
 
@@ -43,6 +37,10 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
     )
+    if not args.verbose:
+        import warp
+
+        warp.config.quiet = True  # no banner or kernel-cache lines on stdout; -v shows them
     try:
         args.func(args)
     except ShellsimError as err:

@@ -69,8 +69,23 @@ def _check_vector(name: str, value) -> None:
         raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
 
 
+@wp.struct
+class Colliders:
+    """What the vertices collide with, simulation units: the ground plane ``dot(x, up) = ground`` (when
+    ``has_ground`` != 0), spheres (S,) vec4d (centre, radius) and axis-aligned boxes (B,) (centre, half
+    extents)."""
+
+    up: vec3
+    ground: f64
+    has_ground: int
+    spheres: wp.array(dtype=wp.vec4d)
+    box_center: wp.array(dtype=vec3)
+    box_half: wp.array(dtype=vec3)
+
+
 def collider_arrays(spheres, boxes, device) -> tuple[wp.array, wp.array, wp.array]:
-    """Warp arrays for the kernels: spheres (S,) vec4d (centre, radius), box centres and half extents (B,)."""
+    """Warp arrays for :class:`Colliders`: spheres (S,) vec4d (centre, radius), box centres and half extents
+    (B,)."""
     sph = np.array([[*s.center, s.radius] for s in spheres], np.float64).reshape(-1, 4)
     box_c = np.array([b.center for b in boxes], np.float64).reshape(-1, 3)
     box_h = np.array([b.half_extents for b in boxes], np.float64).reshape(-1, 3)
@@ -79,6 +94,17 @@ def collider_arrays(spheres, boxes, device) -> tuple[wp.array, wp.array, wp.arra
         wp.array(box_c, dtype=vec3, device=device),
         wp.array(box_h, dtype=vec3, device=device),
     )
+
+
+def make_colliders(up, ground: float | None, arrays: tuple[wp.array, wp.array, wp.array]) -> Colliders:
+    """:class:`Colliders` of the unit ``up`` (3,), the ground height (None: no ground) and
+    :func:`collider_arrays`."""
+    colliders = Colliders()
+    colliders.up = vec3(*up)
+    colliders.ground = f64(ground or 0.0)
+    colliders.has_ground = int(ground is not None)
+    colliders.spheres, colliders.box_center, colliders.box_half = arrays
+    return colliders
 
 
 @wp.func
@@ -108,27 +134,19 @@ def box_contact(x: vec3, center: vec3, half: vec3):
 
 
 @wp.func
-def deepest_contact(
-    x: vec3,
-    up: vec3,
-    ground: f64,
-    has_ground: int,
-    spheres: wp.array(dtype=wp.vec4d),
-    box_center: wp.array(dtype=vec3),
-    box_half: wp.array(dtype=vec3),
-):
+def deepest_contact(x: vec3, c: Colliders):
     """Largest penetration depth over all colliders (<= 0 when none touches) and its outward normal."""
     depth = f64(-1.0e30)
-    normal = up
-    if has_ground != 0:
-        depth = ground - wp.dot(x, up)
-    for s in range(spheres.shape[0]):
-        d, n = sphere_contact(x, spheres[s])
+    normal = c.up
+    if c.has_ground != 0:
+        depth = c.ground - wp.dot(x, c.up)
+    for s in range(c.spheres.shape[0]):
+        d, n = sphere_contact(x, c.spheres[s])
         if d > depth:
             depth = d
             normal = n
-    for b in range(box_center.shape[0]):
-        d, n = box_contact(x, box_center[b], box_half[b])
+    for b in range(c.box_center.shape[0]):
+        d, n = box_contact(x, c.box_center[b], c.box_half[b])
         if d > depth:
             depth = d
             normal = n
@@ -149,19 +167,14 @@ def penalty(d: f64, n: vec3, k: f64, energy: f64, force: vec3, hess: mat33):
 def lag_friction(
     x: wp.array(dtype=vec3),
     mass: wp.array(dtype=f64),
-    up: vec3,
-    ground: f64,
-    has_ground: int,
-    spheres: wp.array(dtype=wp.vec4d),
-    box_center: wp.array(dtype=vec3),
-    box_half: wp.array(dtype=vec3),
+    colliders: Colliders,
     kappa: f64,
     normal_force: wp.array(dtype=f64),
     normal: wp.array(dtype=vec3),
 ):
     """Lagged contact state at the start of a substep: ``lambda_i = kappa m_i max(d, 0)`` and ``n_i``."""
     i = wp.tid()
-    d, n = deepest_contact(x[i], up, ground, has_ground, spheres, box_center, box_half)
+    d, n = deepest_contact(x[i], colliders)
     normal_force[i] = kappa * mass[i] * wp.max(d, f64(0.0))
     normal[i] = n
 
@@ -175,12 +188,7 @@ def vertex_terms(
     pinned: wp.array(dtype=wp.int32),
     inv_h2: f64,
     drag_over_h: f64,
-    up: vec3,
-    ground: f64,
-    has_ground: int,
-    spheres: wp.array(dtype=wp.vec4d),
-    box_center: wp.array(dtype=vec3),
-    box_half: wp.array(dtype=vec3),
+    colliders: Colliders,
     kappa: f64,
     friction: f64,
     normal_force: wp.array(dtype=f64),
@@ -216,13 +224,14 @@ def vertex_terms(
     h = (m * inv_h2 + drag_over_h * m) * wp.identity(n=3, dtype=f64)
 
     k = kappa * m
-    if has_ground != 0:
-        e, f, h = penalty(ground - wp.dot(xi, up), up, k, e, f, h)
-    for s in range(spheres.shape[0]):
-        d, n = sphere_contact(xi, spheres[s])
+    c = colliders
+    if c.has_ground != 0:
+        e, f, h = penalty(c.ground - wp.dot(xi, c.up), c.up, k, e, f, h)
+    for s in range(c.spheres.shape[0]):
+        d, n = sphere_contact(xi, c.spheres[s])
         e, f, h = penalty(d, n, k, e, f, h)
-    for b in range(box_center.shape[0]):
-        d, n = box_contact(xi, box_center[b], box_half[b])
+    for b in range(c.box_center.shape[0]):
+        d, n = box_contact(xi, c.box_center[b], c.box_half[b])
         e, f, h = penalty(d, n, k, e, f, h)
 
     lam = friction * normal_force[i]

@@ -27,6 +27,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import warp as wp
 
+from .embed import check_points, check_tets, interpolate
+
 #: Barycentric tolerance of the point-in-tet test: a point whose smallest barycentric coordinate is
 #: at least ``-BARY_TOL`` is inside (points on shared and boundary faces are found).
 BARY_TOL = 1e-6
@@ -34,22 +36,6 @@ BARY_TOL = 1e-6
 EPS_REL = 1e-4
 #: Fewest points per CPU thread of a query.
 _MIN_CHUNK = 16384
-
-
-def _as_points(name: str, x) -> np.ndarray:
-    x = np.asarray(x, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (N, 3), got {x.shape}")
-    return x
-
-
-def _as_tets(tets, n_vertices: int) -> np.ndarray:
-    tets = np.asarray(tets)
-    if tets.ndim != 2 or tets.shape[1] != 4 or not np.issubdtype(tets.dtype, np.integer):
-        raise ValueError(f"tets: expected (T, 4) integers, got {tets.shape} {tets.dtype}")
-    if tets.size and (tets.min() < 0 or tets.max() >= n_vertices):
-        raise ValueError(f"tets: indices must lie in 0..{n_vertices - 1}")
-    return tets.astype(np.int64)
 
 
 def deform_points(cage_positions, tets, tet_index, bary) -> np.ndarray:
@@ -60,19 +46,25 @@ def deform_points(cage_positions, tets, tet_index, bary) -> np.ndarray:
     tet_index : (P,) int, containing tet of each embedded point (from :mod:`shellsim.embed`)
     bary : (P, 4) float, its barycentric coordinates in that tet
     returns : (P, 3) float64, ``sum_k bary[p, k] * cage_positions[tets[tet_index[p], k]]``
+        (:func:`shellsim.embed.interpolate` for one frame)
     """
-    cage_positions = _as_points("cage_positions", cage_positions)
-    tets = _as_tets(tets, len(cage_positions))
-    tet_index = np.asarray(tet_index)
-    bary = np.asarray(bary, dtype=np.float64)
-    if tet_index.ndim != 1 or bary.shape != (len(tet_index), 4):
-        raise ValueError(f"tet_index (P,) and bary (P, 4) expected, got {tet_index.shape} and {bary.shape}")
-    if tet_index.size and (tet_index.min() < 0 or tet_index.max() >= len(tets)):
-        raise ValueError(f"tet_index: indices must lie in 0..{len(tets) - 1}")
-    return np.einsum("pk,pkc->pc", bary, cage_positions[tets[tet_index]])
+    return interpolate(check_points("cage_positions", cage_positions), tets, tet_index, bary)
 
 
 # --------------------------------------------------------------------------- Warp kernels
+
+
+@wp.struct
+class _Tets:
+    """Per deformed tet ``t`` of one frame: ``origin`` v0, ``to_bary`` D_t^-1 (``valid`` 0 where D_t is
+    degenerate), ``rest_origin`` r0 and ``rest_edges`` R_t; ``bvh`` the Warp BVH over their boxes."""
+
+    bvh: wp.uint64
+    origin: wp.array(dtype=wp.vec3d)
+    to_bary: wp.array(dtype=wp.mat33d)
+    rest_origin: wp.array(dtype=wp.vec3d)
+    rest_edges: wp.array(dtype=wp.mat33d)
+    valid: wp.array(dtype=wp.int32)
 
 
 @wp.kernel
@@ -84,11 +76,7 @@ def _prepare_tets(
     min_det: wp.float64,
     lowers: wp.array(dtype=wp.vec3),
     uppers: wp.array(dtype=wp.vec3),
-    origin: wp.array(dtype=wp.vec3d),
-    to_bary: wp.array(dtype=wp.mat33d),
-    rest_origin: wp.array(dtype=wp.vec3d),
-    rest_edges: wp.array(dtype=wp.mat33d),
-    valid: wp.array(dtype=wp.int32),
+    out: _Tets,
 ):
     t = wp.tid()
     v0 = deformed[tets[t, 0]]
@@ -100,35 +88,31 @@ def _prepare_tets(
     lowers[t] = wp.vec3(wp.float32(lo[0] - pad), wp.float32(lo[1] - pad), wp.float32(lo[2] - pad))
     uppers[t] = wp.vec3(wp.float32(hi[0] + pad), wp.float32(hi[1] + pad), wp.float32(hi[2] + pad))
     d = wp.matrix_from_cols(v1 - v0, v2 - v0, v3 - v0)
-    origin[t] = v0
+    out.origin[t] = v0
     r0 = rest[tets[t, 0]]
-    rest_origin[t] = r0
-    rest_edges[t] = wp.matrix_from_cols(rest[tets[t, 1]] - r0, rest[tets[t, 2]] - r0, rest[tets[t, 3]] - r0)
+    out.rest_origin[t] = r0
+    out.rest_edges[t] = wp.matrix_from_cols(
+        rest[tets[t, 1]] - r0, rest[tets[t, 2]] - r0, rest[tets[t, 3]] - r0
+    )
     if wp.abs(wp.determinant(d)) > min_det:
-        to_bary[t] = wp.inverse(d)
-        valid[t] = 1
+        out.to_bary[t] = wp.inverse(d)
+        out.valid[t] = 1
     else:
-        valid[t] = 0
+        out.valid[t] = 0
 
 
 @wp.func
-def _locate(
-    bvh: wp.uint64,
-    p: wp.vec3d,
-    origin: wp.array(dtype=wp.vec3d),
-    to_bary: wp.array(dtype=wp.mat33d),
-    valid: wp.array(dtype=wp.int32),
-):
+def _locate(tets: _Tets, p: wp.vec3d):
     """The candidate tet whose smallest barycentric coordinate of ``p`` is largest (first one >= 0)."""
     pf = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
-    query = wp.bvh_query_aabb(bvh, pf, pf)
+    query = wp.bvh_query_aabb(tets.bvh, pf, pf)
     t = int(0)  # noqa: UP018 (a Warp dynamic variable, not a constant)
     best = int(-1)  # noqa: UP018
     best_min = wp.float64(-1.0e300)
     best_b = wp.vec3d()
     while wp.bvh_query_next(query, t):
-        if valid[t] == 1:
-            b = to_bary[t] * (p - origin[t])
+        if tets.valid[t] == 1:
+            b = tets.to_bary[t] * (p - tets.origin[t])
             m = wp.min(wp.min(b[0], b[1]), wp.min(b[2], wp.float64(1.0) - b[0] - b[1] - b[2]))
             if m > best_min:
                 best = t
@@ -139,19 +123,20 @@ def _locate(
     return best, best_min, best_b
 
 
+@wp.func
+def _to_rest(tets: _Tets, t: int, b: wp.vec3d):
+    """``Phi^-1`` inside tet ``t`` of the point with barycentric coordinates ``b`` (b1, b2, b3)."""
+    return tets.rest_origin[t] + tets.rest_edges[t] * b
+
+
 @wp.kernel
 def _map_kernel(
-    bvh: wp.uint64,
+    tets: _Tets,
     points: wp.array(dtype=wp.vec3d),
     dirs: wp.array(dtype=wp.vec3d),
     with_dirs: int,
     eps: wp.float64,
     tol: wp.float64,
-    origin: wp.array(dtype=wp.vec3d),
-    to_bary: wp.array(dtype=wp.mat33d),
-    rest_origin: wp.array(dtype=wp.vec3d),
-    rest_edges: wp.array(dtype=wp.mat33d),
-    valid: wp.array(dtype=wp.int32),
     out_points: wp.array(dtype=wp.vec3d),
     out_dirs: wp.array(dtype=wp.vec3d),
     out_stretch: wp.array(dtype=wp.float64),
@@ -160,7 +145,7 @@ def _map_kernel(
     i = wp.tid()
     nan = wp.float64(wp.nan)
     p = points[i]
-    t, m, b = _locate(bvh, p, origin, to_bary, valid)
+    t, m, b = _locate(tets, p)
     if t < 0 or m < -tol:
         out_inside[i] = False
         out_points[i] = wp.vec3d(nan, nan, nan)
@@ -168,7 +153,7 @@ def _map_kernel(
             out_dirs[i] = wp.vec3d(nan, nan, nan)
             out_stretch[i] = nan
         return
-    x_rest = rest_origin[t] + rest_edges[t] * b
+    x_rest = _to_rest(tets, t, b)
     out_inside[i] = True
     out_points[i] = x_rest
     if with_dirs == 1:
@@ -177,15 +162,15 @@ def _map_kernel(
         # R_t D_t^-1 d (the eps -> 0 limit of both) where the cage is thinner than eps around x
         # (diff is the rest-space image of the step eps d, or of d itself for the Jacobian)
         step = eps
-        t1, m1, b1 = _locate(bvh, p + eps * d, origin, to_bary, valid)
+        t1, m1, b1 = _locate(tets, p + eps * d)
         if t1 >= 0 and m1 >= -tol:
-            diff = rest_origin[t1] + rest_edges[t1] * b1 - x_rest
+            diff = _to_rest(tets, t1, b1) - x_rest
         else:
-            t2, m2, b2 = _locate(bvh, p - eps * d, origin, to_bary, valid)
+            t2, m2, b2 = _locate(tets, p - eps * d)
             if t2 >= 0 and m2 >= -tol:
-                diff = x_rest - (rest_origin[t2] + rest_edges[t2] * b2)
+                diff = x_rest - _to_rest(tets, t2, b2)
             else:
-                diff = rest_edges[t] * (to_bary[t] * d)
+                diff = tets.rest_edges[t] * (tets.to_bary[t] * d)
                 step = wp.float64(1.0)
         out_dirs[i] = wp.normalize(diff)
         out_stretch[i] = wp.length(diff) / (step * wp.length(d))
@@ -223,15 +208,13 @@ class InverseMap:
         tol: float = BARY_TOL,
         cpu_threads: int | None = None,
     ):
-        deformed = _as_points("deformed_vertices", deformed_vertices)
-        rest = _as_points("rest_vertices", rest_vertices)
+        deformed = check_points("deformed_vertices", deformed_vertices)
+        rest = check_points("rest_vertices", rest_vertices)
         if rest.shape != deformed.shape:
             raise ValueError(
                 f"rest_vertices: expected {deformed.shape} like deformed_vertices, got {rest.shape}"
             )
-        tets = _as_tets(tets, len(deformed))
-        if len(tets) == 0:
-            raise ValueError("tets: the cage has no tets")
+        tets = check_tets(tets, len(deformed))
         if not np.isfinite(deformed).all():
             raise ValueError("deformed_vertices: contain NaN or infinity")
         if not tol >= 0:
@@ -252,11 +235,12 @@ class InverseMap:
         dev = self.device
         lowers = wp.empty(n, dtype=wp.vec3, device=dev)
         uppers = wp.empty(n, dtype=wp.vec3, device=dev)
-        self._origin = wp.empty(n, dtype=wp.vec3d, device=dev)
-        self._to_bary = wp.zeros(n, dtype=wp.mat33d, device=dev)
-        self._rest_origin = wp.empty(n, dtype=wp.vec3d, device=dev)
-        self._rest_edges = wp.empty(n, dtype=wp.mat33d, device=dev)
-        self._valid = wp.empty(n, dtype=wp.int32, device=dev)
+        self._tets = _Tets()
+        self._tets.origin = wp.empty(n, dtype=wp.vec3d, device=dev)
+        self._tets.to_bary = wp.zeros(n, dtype=wp.mat33d, device=dev)
+        self._tets.rest_origin = wp.empty(n, dtype=wp.vec3d, device=dev)
+        self._tets.rest_edges = wp.empty(n, dtype=wp.mat33d, device=dev)
+        self._tets.valid = wp.empty(n, dtype=wp.int32, device=dev)
         wp.launch(
             _prepare_tets,
             dim=n,
@@ -267,18 +251,11 @@ class InverseMap:
                 pad,
                 1e-12 * edge**3,
             ],
-            outputs=[
-                lowers,
-                uppers,
-                self._origin,
-                self._to_bary,
-                self._rest_origin,
-                self._rest_edges,
-                self._valid,
-            ],
+            outputs=[lowers, uppers, self._tets],
             device=dev,
         )
-        self._bvh = wp.Bvh(lowers, uppers)
+        self._bvh = wp.Bvh(lowers, uppers)  # kept alive with the map: the kernels query it by id
+        self._tets.bvh = self._bvh.id
         if dev.is_cuda:  # queries on torch's stream must see the finished build
             wp.synchronize_device(dev)
 
@@ -342,8 +319,8 @@ class InverseMap:
             arrays += [wp.from_torch(out_s, dtype=wp.float64), wp.from_torch(out_in, dtype=wp.bool)]
             stream = None if self.device.is_cpu else wp.stream_from_torch(device)
         else:
-            xs = wp.array(_as_points("x", x), dtype=wp.vec3d, device=self.device)
-            ds = wp.array(_as_points("d", d), dtype=wp.vec3d, device=self.device) if with_dirs else xs
+            xs = wp.array(check_points("x", x), dtype=wp.vec3d, device=self.device)
+            ds = wp.array(check_points("d", d), dtype=wp.vec3d, device=self.device) if with_dirs else xs
             out_x = wp.empty(len(xs), dtype=wp.vec3d, device=self.device)
             out_d = wp.empty(len(xs), dtype=wp.vec3d, device=self.device) if with_dirs else out_x
             out_s = wp.empty(len(xs), dtype=wp.float64, device=self.device)
@@ -367,11 +344,10 @@ class InverseMap:
         split the points into chunks over ``cpu_threads`` Python threads (Warp releases the GIL during a
         CPU launch; the chunks write disjoint outputs)."""
         n = arrays[0].shape[0]
-        tets = [self._origin, self._to_bary, self._rest_origin, self._rest_edges, self._valid]
 
         def launch(lo: int, hi: int) -> None:
             x, d, out_x, out_d, out_s, out_in = (a[lo:hi] for a in arrays)
-            inputs = [self._bvh.id, x, d, with_dirs, eps, self.tol, *tets]
+            inputs = [self._tets, x, d, with_dirs, eps, self.tol]
             wp.launch(
                 _map_kernel,
                 dim=hi - lo,
@@ -433,10 +409,10 @@ def map_points_reference(deformed_vertices, tets, rest_vertices, x, tol: float =
 
     returns : x_rest (N, 3) float64 (nan outside), inside (N,) bool
     """
-    deformed = _as_points("deformed_vertices", deformed_vertices)
-    rest = _as_points("rest_vertices", rest_vertices)
-    tets = _as_tets(tets, len(deformed))
-    best, bary, inside = _locate_reference(deformed, tets, _as_points("x", x), tol)
+    deformed = check_points("deformed_vertices", deformed_vertices)
+    rest = check_points("rest_vertices", rest_vertices)
+    tets = check_tets(tets, len(deformed))
+    best, bary, inside = _locate_reference(deformed, tets, check_points("x", x), tol)
     x_rest = np.einsum("nk,nkc->nc", bary, rest[tets[best]])
     x_rest[~inside] = np.nan
     return x_rest, inside
@@ -445,11 +421,11 @@ def map_points_reference(deformed_vertices, tets, rest_vertices, x, tol: float =
 def map_directions_reference(deformed_vertices, tets, rest_vertices, x, d, eps: float, tol: float = BARY_TOL):
     """Brute-force twin of :meth:`InverseMap.map_directions`: forward difference, else backward, else
     the containing tet's Jacobian ``R_t D_t^-1 d``; nan outside. Returns (N, 3) float64."""
-    deformed = _as_points("deformed_vertices", deformed_vertices)
-    rest = _as_points("rest_vertices", rest_vertices)
-    tets = _as_tets(tets, len(deformed))
-    x = _as_points("x", x)
-    d = _as_points("d", d)
+    deformed = check_points("deformed_vertices", deformed_vertices)
+    rest = check_points("rest_vertices", rest_vertices)
+    tets = check_tets(tets, len(deformed))
+    x = check_points("x", x)
+    d = check_points("d", d)
     best, _, inside = _locate_reference(deformed, tets, x, tol)
     x0, _ = map_points_reference(deformed, tets, rest, x, tol)
     xf, inside_f = map_points_reference(deformed, tets, rest, x + eps * d, tol)

@@ -28,22 +28,46 @@ BARY_TOL = 1e-9
 TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
 
 
-def _check_points(name: str, x) -> np.ndarray:
+def check_points(name: str, x) -> np.ndarray:
+    """``x`` as (N, 3) float64; another shape is a ``ValueError`` naming ``name``."""
     x = np.asarray(x, dtype=np.float64)
     if x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"{name}: expected shape (N, 3), got {x.shape}")
     return x
 
 
-def _check_tets(tets, n_vertices: int) -> np.ndarray:
+def check_tets(tets, n_vertices: int, allow_empty: bool = False) -> np.ndarray:
+    """``tets`` as (T, 4) int64 indices into ``n_vertices`` vertices; anything else (no tets at all unless
+    ``allow_empty``) is a ``ValueError`` naming ``tets``."""
     tets = np.asarray(tets)
     if tets.ndim != 2 or tets.shape[1] != 4 or not np.issubdtype(tets.dtype, np.integer):
         raise ValueError(f"tets: expected (T, 4) integers, got {tets.shape} {tets.dtype}")
-    if len(tets) == 0:
+    if len(tets) == 0 and not allow_empty:
         raise ValueError("tets: the mesh has no tetrahedra")
-    if tets.min() < 0 or tets.max() >= n_vertices:
-        raise ValueError(f"tets: indices must lie in 0..{n_vertices - 1}")
+    if tets.size and (tets.min() < 0 or tets.max() >= n_vertices):
+        raise ValueError(f"tets: vertex indices outside 0..{n_vertices - 1}")
     return tets.astype(np.int64)
+
+
+def check_embedding(
+    tet_index, bary, n_tets: int, names=("tet_index", "bary")
+) -> tuple[np.ndarray, np.ndarray]:
+    """``tet_index`` (P,) int indices into ``n_tets`` tets and ``bary`` (P, 4) as float64; anything else is a
+    ``ValueError`` naming them as ``names``."""
+    tet_index = np.asarray(tet_index)
+    bary = np.asarray(bary, dtype=np.float64)
+    if (
+        tet_index.ndim != 1
+        or not np.issubdtype(tet_index.dtype, np.integer)
+        or bary.shape != (len(tet_index), 4)
+    ):
+        raise ValueError(
+            f"{names[0]} (P,) int and {names[1]} (P, 4) expected, got {tet_index.shape} {tet_index.dtype} "
+            f"and {bary.shape}"
+        )
+    if tet_index.size and (tet_index.min() < 0 or tet_index.max() >= n_tets):
+        raise ValueError(f"{names[0]}: tet indices outside 0..{n_tets - 1}")
+    return tet_index, bary
 
 
 def barycentric(points: np.ndarray, tet_vertices: np.ndarray) -> np.ndarray:
@@ -56,7 +80,7 @@ def barycentric(points: np.ndarray, tet_vertices: np.ndarray) -> np.ndarray:
 
     Raises ``ValueError`` for a degenerate (zero-volume) tet, where the coordinates are undefined.
     """
-    points = _check_points("points", points)
+    points = check_points("points", points)
     tet_vertices = np.asarray(tet_vertices, dtype=np.float64)
     if tet_vertices.shape != (len(points), 4, 3):
         raise ValueError(f"tet_vertices: expected shape ({len(points)}, 4, 3), got {tet_vertices.shape}")
@@ -88,20 +112,8 @@ def interpolate(
     vertices = np.asarray(vertices)
     if vertices.ndim not in (2, 3) or vertices.shape[-1] != 3:
         raise ValueError(f"vertices: expected shape (V, 3) or (F, V, 3), got {vertices.shape}")
-    tets = _check_tets(tets, vertices.shape[-2])
-    tet_index = np.asarray(tet_index)
-    bary = np.asarray(bary, dtype=np.float64)
-    if (
-        tet_index.ndim != 1
-        or not np.issubdtype(tet_index.dtype, np.integer)
-        or bary.shape != (len(tet_index), 4)
-    ):
-        raise ValueError(
-            f"tet_index (P,) int and bary (P, 4) expected, got {tet_index.shape} {tet_index.dtype} "
-            f"and {bary.shape}"
-        )
-    if tet_index.size and (tet_index.min() < 0 or tet_index.max() >= len(tets)):
-        raise ValueError(f"tet_index: indices must lie in 0..{len(tets) - 1}")
+    tets = check_tets(tets, vertices.shape[-2])
+    tet_index, bary = check_embedding(tet_index, bary, len(tets))
     corners = tets[tet_index]  # (P, 4)
     out = np.zeros(vertices.shape[:-2] + (len(tet_index), 3), dtype=np.float64)
     for k in range(4):  # one corner at a time keeps the (F, P, 4, 3) gather out of memory
@@ -148,9 +160,9 @@ def embed_points(vertices: np.ndarray, tets: np.ndarray, points: np.ndarray) -> 
     """
     import igl
 
-    vertices = _check_points("vertices", vertices)
-    tets = _check_tets(tets, len(vertices))
-    points = _check_points("points", points)
+    vertices = check_points("vertices", vertices)
+    tets = check_tets(tets, len(vertices))
+    points = check_points("points", points)
     if len(points) == 0:
         return np.zeros(0, np.int64), np.zeros((0, 4))
     tree = igl.AABB()
@@ -177,9 +189,9 @@ def outside_distance(vertices: np.ndarray, tets: np.ndarray, points: np.ndarray)
     """
     import igl
 
-    vertices = _check_points("vertices", vertices)
-    tets = _check_tets(tets, len(vertices))
-    points = _check_points("points", points)
+    vertices = check_points("vertices", vertices)
+    tets = check_tets(tets, len(vertices))
+    points = check_points("points", points)
     dist = np.zeros(len(points))
     if len(points) == 0:
         return dist

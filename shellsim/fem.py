@@ -48,7 +48,8 @@ import warp as wp
 
 from neural.errors import InputError, ShellsimError
 
-from .contact import Box, Sphere, collider_arrays, lag_friction, vertex_terms
+from .contact import Box, Sphere, collider_arrays, lag_friction, make_colliders, vertex_terms
+from .embed import check_tets
 from .materials import Material
 
 log = logging.getLogger(__name__)
@@ -176,6 +177,20 @@ def flat(M: mat33) -> vec9:
 
 
 @wp.func
+def scaling_modes(s: vec3, mu: f64, lam: f64, k: f64) -> mat33:
+    """The 3x3 matrix whose eigenpairs are the scaling modes of d2Psi/dF2 at singular values ``s``
+    (Smith et al. 2019): ``mu I + lam c c^T + k [[0, s2, s1], [s2, 0, s0], [s1, s0, 0]]``,
+    ``c = (s1 s2, s0 s2, s0 s1)``, ``k = lam (J - 1) - mu``."""
+    c = vec3(s[1] * s[2], s[0] * s[2], s[0] * s[1])
+    zero = f64(0.0)
+    return (
+        mu * wp.identity(n=3, dtype=f64)
+        + lam * wp.outer(c, c)
+        + k * mat33(zero, s[2], s[1], s[2], zero, s[0], s[1], s[0], zero)
+    )
+
+
+@wp.func
 def snh_hessian_psd(F: mat33, mu: f64, lam: f64) -> mat99:
     """d2Psi/dF2 (row-major vec(F)) with negative eigenvalues clamped, from the analytic eigensystem."""
     U = mat33()
@@ -199,13 +214,7 @@ def snh_hessian_psd(F: mat33, mu: f64, lam: f64) -> mat99:
         flip = flat(r * (a + b))
         H += wp.max(mu + k * s[m], f64(0.0)) * wp.outer(twist, twist)
         H += wp.max(mu - k * s[m], f64(0.0)) * wp.outer(flip, flip)
-    c = vec3(s[1] * s[2], s[0] * s[2], s[0] * s[1])
-    zero = f64(0.0)
-    A = (
-        mu * wp.identity(n=3, dtype=f64)
-        + lam * wp.outer(c, c)
-        + k * mat33(zero, s[2], s[1], s[2], zero, s[0], s[1], s[0], zero)
-    )
+    A = scaling_modes(s, mu, lam, k)
     Q = mat33()
     d = vec3()
     wp.eig3(A, Q, d)
@@ -248,13 +257,7 @@ def snh_min_eigenvalue(F: mat33, mu: f64, lam: f64) -> f64:
         s[2] = -s[2]
     k = lam * (J - f64(1.0)) - mu
     twist_flip = mu - wp.abs(k) * s[0]
-    c = vec3(s[1] * s[2], s[0] * s[2], s[0] * s[1])
-    zero = f64(0.0)
-    A = (
-        mu * wp.identity(n=3, dtype=f64)
-        + lam * wp.outer(c, c)
-        + k * mat33(zero, s[2], s[1], s[2], zero, s[0], s[1], s[0], zero)
-    )
+    A = scaling_modes(s, mu, lam, k)
     return wp.min(twist_flip, sym_eigenvalues(A)[2])
 
 
@@ -646,18 +649,9 @@ class Simulator:
         device=None,
     ):
         rest = np.asarray(vertices, dtype=np.float64)
-        tets = np.asarray(tets)
         if rest.ndim != 2 or rest.shape[1] != 3 or len(rest) < 4 or not np.isfinite(rest).all():
             raise ValueError(f"vertices: expected finite (V >= 4, 3), got {rest.shape}")
-        if (
-            tets.ndim != 2
-            or tets.shape[1] != 4
-            or len(tets) == 0
-            or not np.issubdtype(tets.dtype, np.integer)
-        ):
-            raise ValueError(f"tets: expected (T >= 1, 4) integers, got {tets.shape} {tets.dtype}")
-        if tets.min() < 0 or tets.max() >= len(rest):
-            raise ValueError(f"tets: indices must lie in 0..{len(rest) - 1}")
+        tets = check_tets(tets, len(rest))
         volumes = tet_volumes(rest, tets)
         if (volumes <= 0).any():
             raise ValueError(
@@ -707,9 +701,7 @@ class Simulator:
         self._diag_index = arr(diag_index, wp.int32)
         self._values = wp.zeros(len(columns), dtype=mat33, device=dev)
         self._inv_diag = wp.zeros(len(rest), dtype=mat33, device=dev)
-        self._spheres, self._box_c, self._box_h = collider_arrays(
-            self.settings.spheres, self.settings.boxes, dev
-        )
+        self._collider_arrays = collider_arrays(self.settings.spheres, self.settings.boxes, dev)
         vecs = (
             "_x_prev",
             "_x_tilde",
@@ -821,18 +813,11 @@ class Simulator:
             device=dev,
         )
         wp.launch(store_deformation, nt, [self._x, self._tets, self._dm_inv, self._f_prev], device=dev)
-        contact = (
-            vec3(*up),
-            f64(s.ground or 0.0),
-            int(s.ground is not None),
-            self._spheres,
-            self._box_c,
-            self._box_h,
-        )
+        contact = make_colliders(up, s.ground, self._collider_arrays)
         wp.launch(
             lag_friction,
             n,
-            [self._x, self._mass, *contact, f64(s.contact_stiffness), self._fn, self._fn_normal],
+            [self._x, self._mass, contact, f64(s.contact_stiffness), self._fn, self._fn_normal],
             device=dev,
         )
         terms = dict(h=h, contact=contact)
@@ -952,7 +937,7 @@ class Simulator:
                 self._pinned,
                 1.0 / (h * h),
                 s.drag / h,
-                *terms["contact"],
+                terms["contact"],
                 f64(s.contact_stiffness),
                 f64(s.friction),
                 self._fn,
@@ -1095,6 +1080,23 @@ def decode_velocities(text: str, n_vertices: int) -> np.ndarray:
     if v.size != 3 * n_vertices or not np.isfinite(v).all():
         raise InputError(f"motion meta state: expected {n_vertices} finite velocities, got {v.size / 3:g}")
     return v.reshape(n_vertices, 3).astype(np.float64)
+
+
+def restore_state(sim: Simulator, writer, world: WorldMap = WorldMap()) -> None:
+    """Set ``sim`` to the last frame of ``writer``'s motion, written by :func:`simulate`: its positions, time
+    and the velocities of ``meta['state']``, so that :func:`simulate` continues the trajectory exactly.
+
+    A state missing or stored for another frame than the last is an :class:`InputError`."""
+    state = writer.motion.meta.get("state")
+    if not isinstance(state, dict):
+        raise InputError(f"{writer.path}: no simulation state in the motion's meta; cannot resume it")
+    if state.get("frame") != writer.n_frames - 1:
+        raise InputError(
+            f"{writer.path}: the stored state is for frame {state.get('frame')}, "
+            f"not the last frame {writer.n_frames - 1}; cannot resume it"
+        )
+    velocities = decode_velocities(state["velocities"], len(writer.motion.rest_vertices)) * world.scale
+    sim.set_state(world.to_sim(writer.last_positions), velocities, writer.last_time)
 
 
 def simulate(sim: Simulator, frames: int, writer, world: WorldMap = WorldMap(), progress: bool = True):

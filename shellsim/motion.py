@@ -25,6 +25,9 @@ import numpy as np
 
 from neural.errors import InputError
 
+from .embed import check_tets
+from .npz import load_npz, save_npz
+
 KEYS = ("rest_vertices", "tets", "positions", "times", "meta")
 
 
@@ -44,43 +47,28 @@ class Motion:
 
 
 def save_motion(path: str | os.PathLike, motion: Motion) -> None:
-    """Write ``motion`` to ``path`` atomically: a reader sees the old file or the new one, never a torn one."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(
-        tmp,
+    """Write ``motion`` to ``path`` atomically: readers see the old file or the new one, never a torn one."""
+    save_npz(
+        path,
         rest_vertices=np.asarray(motion.rest_vertices, dtype=np.float64),
         tets=np.asarray(motion.tets, dtype=np.int64),
         positions=np.asarray(motion.positions, dtype=np.float32),
         times=np.asarray(motion.times, dtype=np.float64),
         meta=np.array(json.dumps(motion.meta)),
     )
-    os.replace(tmp, path)
 
 
 def load_motion(path: str | os.PathLike) -> Motion:
     """Read and validate a motion file; any problem is an :class:`InputError` naming the file."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: motion file not found")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in KEYS if k not in data.files]
-            if missing:
-                raise InputError(f"{path}: not a motion file, missing {', '.join(missing)}")
-            arrays = {k: data[k] for k in KEYS}
-    except InputError:
-        raise
-    except Exception as err:  # zip/npy format errors come in many types
-        raise InputError(f"{path}: cannot read motion file ({err})") from None
+    arrays = load_npz(path, KEYS, "motion")
     rest, tets, pos, times = (arrays[k] for k in KEYS[:4])
     if rest.ndim != 2 or rest.shape[1] != 3:
         raise InputError(f"{path}: rest_vertices must be (V, 3), got {rest.shape}")
-    if tets.ndim != 2 or tets.shape[1] != 4 or not np.issubdtype(tets.dtype, np.integer):
-        raise InputError(f"{path}: tets must be (T, 4) integers, got {tets.shape} {tets.dtype}")
-    if tets.size and (tets.min() < 0 or tets.max() >= len(rest)):
-        raise InputError(f"{path}: tets index vertices outside 0..{len(rest) - 1}")
+    try:
+        tets = check_tets(tets, len(rest), allow_empty=True)
+    except ValueError as err:
+        raise InputError(f"{path}: {err}") from None
     if pos.ndim != 3 or pos.shape[1:] != rest.shape or pos.shape[0] < 1:
         raise InputError(f"{path}: positions must be (F, {len(rest)}, 3) with F >= 1, got {pos.shape}")
     if times.shape != (pos.shape[0],):
@@ -91,7 +79,9 @@ def load_motion(path: str | os.PathLike) -> Motion:
         meta = json.loads(str(arrays["meta"]))
     except json.JSONDecodeError as err:
         raise InputError(f"{path}: meta is not valid JSON ({err})") from None
-    return Motion(rest.astype(np.float64), tets.astype(np.int64), pos.astype(np.float32), times.astype(np.float64), meta)
+    return Motion(
+        rest.astype(np.float64), tets.astype(np.int64), pos.astype(np.float32), times.astype(np.float64), meta
+    )
 
 
 class MotionWriter:
@@ -104,8 +94,13 @@ class MotionWriter:
 
     def __init__(self, path, rest_vertices, tets, meta: dict, flush_seconds: float = 2.0):
         self.path = Path(path)
-        self.motion = Motion(np.asarray(rest_vertices, np.float64), np.asarray(tets, np.int64),
-                             np.zeros((0, len(rest_vertices), 3), np.float32), np.zeros(0), dict(meta))
+        self.motion = Motion(
+            np.asarray(rest_vertices, np.float64),
+            np.asarray(tets, np.int64),
+            np.zeros((0, len(rest_vertices), 3), np.float32),
+            np.zeros(0),
+            dict(meta),
+        )
         self._frames: list[np.ndarray] = []
         self._times: list[float] = []
         self.flush_seconds = flush_seconds

@@ -4,15 +4,19 @@ NeRF-synthetic format (``transforms_train.json`` + RGBA PNGs) so they go through
 - :func:`write_sphere_scene`: an opaque coloured sphere, ray-traced analytically (colour from the normal).
 - :func:`write_fuzzy_scene`: a solid sphere with a translucent, cloud-like shell on one side (+x), rendered
   by brute-force volume integration of an emission-absorption density.
+- :class:`SphereField`: an analytic stand-in for the neural field (exact sphere SDF, constant kernel) for
+  renderers that take a field.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 from PIL import Image
 
 
@@ -23,7 +27,9 @@ def orbit_cameras(n: int, radius: float, seed: int = 0) -> np.ndarray:
     for i in range(n):
         azim = 2 * math.pi * (i + rng.uniform(0, 0.5)) / n
         elev = math.radians(rng.uniform(-20, 60))
-        eye = radius * np.array([math.cos(elev) * math.cos(azim), math.cos(elev) * math.sin(azim), math.sin(elev)])
+        eye = radius * np.array(
+            [math.cos(elev) * math.cos(azim), math.cos(elev) * math.sin(azim), math.sin(elev)]
+        )
         back = eye / np.linalg.norm(eye)  # camera +z points away from the target
         right = np.cross([0.0, 0.0, 1.0], back)
         right /= np.linalg.norm(right)
@@ -45,15 +51,18 @@ def _rays(c2w: np.ndarray, size: int, angle_x: float) -> tuple[np.ndarray, np.nd
 
 def sphere_color(normals: np.ndarray) -> np.ndarray:
     """(N, 3) albedo pattern of the test sphere: smooth colour bands from the normal direction."""
-    return np.clip(0.5 + 0.4 * np.stack([normals[:, 0], normals[:, 1] * normals[:, 2] * 2, normals[:, 2]], -1),
-                   0, 1)
+    return np.clip(
+        0.5 + 0.4 * np.stack([normals[:, 0], normals[:, 1] * normals[:, 2] * 2, normals[:, 2]], -1), 0, 1
+    )
 
 
 def _write(root: Path, images: list[np.ndarray], c2ws: np.ndarray, angle_x: float) -> Path:
     (root / "train").mkdir(parents=True, exist_ok=True)
     frames = []
     for k, (img, m) in enumerate(zip(images, c2ws, strict=True)):
-        Image.fromarray((np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8), "RGBA").save(root / "train" / f"r_{k}.png")
+        Image.fromarray((np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8), "RGBA").save(
+            root / "train" / f"r_{k}.png"
+        )
         frames.append({"file_path": f"./train/r_{k}", "transform_matrix": m.tolist()})
     (root / "transforms_train.json").write_text(json.dumps({"camera_angle_x": angle_x, "frames": frames}))
     return root
@@ -104,6 +113,32 @@ def write_fuzzy_scene(root: Path, n_views: int = 24, size: int = 32, steps: int 
         r = np.linalg.norm(x, axis=-1, keepdims=True)
         color = np.where(r < 0.46, np.array([0.8, 0.3, 0.2]), np.array([0.3, 0.5, 0.9]))
         acc = w.sum(1, keepdims=True)
-        rgb = (w[..., None] * color).sum(1) / np.maximum(acc, 1e-8)  # PNG alpha is straight, not premultiplied
+        rgb = (w[..., None] * color).sum(1) / np.maximum(
+            acc, 1e-8
+        )  # PNG alpha is straight, not premultiplied
         images.append(np.concatenate([rgb, acc], -1).reshape(size, size, 4))
     return _write(Path(root), images, c2ws, angle_x)
+
+
+@dataclass
+class Geometry:
+    """What the renderers read of a field's geometry at N points."""
+
+    sdf: torch.Tensor  # (N,)
+    inv_s: torch.Tensor  # (N,)
+    normal: torch.Tensor  # (N, 3)
+
+
+class SphereField:
+    """Exact SDF ``|x - c| - R`` of a sphere, a constant kernel and a colour that varies with position."""
+
+    def __init__(self, radius=1.0, inv_s=1000.0, center=(0.0, 0.0, 0.0)):
+        self.radius, self.inv_s, self.center = radius, inv_s, torch.tensor(center)
+
+    def geometry(self, x):
+        r = x - self.center.to(x)
+        dist = r.norm(dim=1)
+        return Geometry(dist - self.radius, torch.full_like(dist, self.inv_s), r / dist[:, None])
+
+    def radiance(self, x, d, geo):
+        return torch.sigmoid(torch.stack([x[:, 0] + d[:, 2], x[:, 1], x[:, 2] * 2.0], dim=1))

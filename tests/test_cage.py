@@ -1,11 +1,11 @@
 """shellsim.cage and ``shellsim cage`` on procedural shells (spheres, a torus, two far-apart spheres)."""
 
-import json
 import shutil
 
 import numpy as np
 import pytest
 import trimesh
+from meshes import write_asset_dir
 
 import shellsim.cage as cage_module
 from neural.asset import load_asset
@@ -30,28 +30,6 @@ from shellsim.embed import interpolate, outside_distance
 QUICK = CageConfig(margin=0.05, target_tets=1000, surface_faces=1000, tolerance=3.0, max_attempts=1)
 
 
-def write_asset(root, outer, inner):
-    """A minimal asset directory: asset.json, the two shells as PLY and a placeholder field file."""
-    root.mkdir(parents=True, exist_ok=True)
-    outer.export(root / "shell_outer.ply")
-    inner.export(root / "shell_inner.ply")
-    (root / "field.safetensors").write_bytes(b"placeholder: the cage reads only the shells")
-    meta = {
-        "format": "shellsim-asset",
-        "format_version": 1,
-        "name": root.name,
-        "normalisation": {"center": [0, 0, 0], "scale": 1.0},
-        "files": {
-            "field": "field.safetensors",
-            "shell_outer": "shell_outer.ply",
-            "shell_inner": "shell_inner.ply",
-        },
-        "field": {},
-    }
-    (root / "asset.json").write_text(json.dumps(meta))
-    return root
-
-
 def enclosed_volume(vertices, faces):
     """Divergence theorem: volume enclosed by an outward-oriented closed surface."""
     v = vertices[faces]
@@ -62,7 +40,7 @@ def enclosed_volume(vertices, faces):
 def sphere_asset(tmp_path_factory):
     outer = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
     inner = trimesh.creation.icosphere(subdivisions=2, radius=0.7)
-    return write_asset(tmp_path_factory.mktemp("assets") / "ball", outer, inner)
+    return write_asset_dir(tmp_path_factory.mktemp("assets") / "ball", outer, inner, "ball")
 
 
 @pytest.fixture(scope="module")

@@ -8,6 +8,7 @@ import itertools
 
 import numpy as np
 import pytest
+from meshes import kuhn_grid
 
 from shellsim.deform import (
     InverseMap,
@@ -19,32 +20,9 @@ from shellsim.deform import (
 N = 4  # cells per side: 384 tets
 
 
-def kuhn_grid(n: int):
-    """Rest vertices ((n+1)^3, 3) of the unit cube and positively oriented tets (6 n^3, 4).
-
-    Tet ``6 * cell + p`` walks from the cell's lowest corner to its highest adding the axes in the order
-    of permutation ``p``; ``flip`` marks tets whose first two vertices were swapped for orientation.
-    """
-    verts = np.stack(np.meshgrid(*[np.linspace(0.0, 1.0, n + 1)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    idx = np.arange((n + 1) ** 3).reshape(n + 1, n + 1, n + 1)
-    tets = []
-    for cell in itertools.product(range(n), repeat=3):
-        for perm in itertools.permutations(range(3)):
-            corner = list(cell)
-            tet = [idx[tuple(corner)]]
-            for axis in perm:
-                corner[axis] += 1
-                tet.append(idx[tuple(corner)])
-            tets.append(tet)
-    tets = np.array(tets, dtype=np.int64)
-    v = verts[tets]
-    flip = np.linalg.det(v[:, 1:] - v[:, :1]) < 0
-    tets[flip] = tets[flip][:, [1, 0, 2, 3]]
-    return verts, tets, flip
-
-
 def embed_in_grid(x: np.ndarray, n: int, flip: np.ndarray):
-    """Closed-form containing tet (P,) and barycentrics (P, 4) of rest points in ``kuhn_grid(n)``."""
+    """Closed-form containing tet (P,) and barycentrics (P, 4) of rest points in ``kuhn_grid(0, 1, n)``,
+    whose tet ``6 * cell + p`` adds the axes in the order of permutation ``p``."""
     cell = np.clip(np.floor(x * n).astype(np.int64), 0, n - 1)
     frac = x * n - cell
     order = np.argsort(-frac, axis=1, kind="stable")  # axes in the order the Kuhn path adds them
@@ -65,7 +43,7 @@ def smooth_warp(x: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def grid():
-    return kuhn_grid(N)
+    return kuhn_grid(0.0, 1.0, N)
 
 
 def test_closed_form_embedding_reproduces_points(grid, rng):

@@ -1,7 +1,6 @@
 """shellsim.embed on a procedural tet mesh of a box (Kuhn subdivision), where containment and the distance
 outside have closed forms."""
 
-import itertools
 import subprocess
 import sys
 from pathlib import Path
@@ -9,31 +8,11 @@ from pathlib import Path
 import igl
 import numpy as np
 import pytest
+from meshes import kuhn_grid
 
 from shellsim.embed import barycentric, boundary_facets, embed_points, interpolate, outside_distance
 
 LO, HI = np.array([-1.0, -0.5, 0.0]), np.array([1.0, 0.5, 0.75])
-
-
-def box_tets(n=(4, 3, 2), lo=LO, hi=HI):
-    """(V, 3), (T, 4): the box ``[lo, hi]`` cut into n cells per axis, each cell into 6 positive tets."""
-    axes = [np.linspace(lo[k], hi[k], n[k] + 1) for k in range(3)]
-    vertices = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    index = np.arange(len(vertices)).reshape(n[0] + 1, n[1] + 1, n[2] + 1)
-    tets = []
-    for i, j, k in itertools.product(*(range(m) for m in n)):
-        for perm in itertools.permutations(range(3)):
-            corner = np.zeros(3, int)
-            path = [index[i, j, k]]
-            for axis in perm:
-                corner[axis] = 1
-                path.append(index[i + corner[0], j + corner[1], k + corner[2]])
-            tets.append(path)
-    tets = np.array(tets, dtype=np.int64)
-    e = vertices[tets[:, 1:]] - vertices[tets[:, :1]]
-    negative = np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2])) < 0
-    tets[negative] = tets[negative][:, [0, 2, 1, 3]]
-    return vertices, tets
 
 
 def box_distance(points):
@@ -43,7 +22,8 @@ def box_distance(points):
 
 @pytest.fixture(scope="module")
 def box():
-    return box_tets()
+    """(V, 3), (T, 4): the box ``[LO, HI]`` cut into 4 x 3 x 2 cells, each cell into 6 positive tets."""
+    return kuhn_grid(LO, HI, (4, 3, 2))[:2]
 
 
 def test_barycentric_closed_form(rng):

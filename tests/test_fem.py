@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from meshes import kuhn_grid
 
 from shellsim.contact import Box, Sphere
 from shellsim.fem import (
@@ -21,20 +22,8 @@ G = 9.81
 
 def box_tets(cells=(2, 2, 2), size=(0.1, 0.1, 0.1), origin=(0.0, 0.0, 0.0)):
     """A box split into cubes, each cut into the 6 tets around its main diagonal (conforming, oriented)."""
-    axes = [np.linspace(0.0, size[i], cells[i] + 1) + origin[i] for i in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    ny, nz = cells[1] + 1, cells[2] + 1
-    tets = []
-    for i in range(cells[0]):
-        for j in range(cells[1]):
-            for k in range(cells[2]):
-                c = [((i + a) * ny + j + b) * nz + k + d for a in (0, 1) for b in (0, 1) for d in (0, 1)]
-                for p, q in ((4, 6), (4, 5), (2, 6), (2, 3), (1, 5), (1, 3)):
-                    tets.append([c[0], c[p], c[q], c[7]])
-    tets = np.array(tets)
-    flip = tet_volumes(grid, tets) < 0
-    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
-    return grid, tets
+    verts, tets, _ = kuhn_grid(0.0, size, cells)
+    return verts + origin, tets
 
 
 def com(sim):

@@ -2,10 +2,10 @@
 occupancy grid (closed-form cell marking on a sphere, loop twin, subset of the dense sampler, same render)."""
 
 import math
-from dataclasses import dataclass
 
 import pytest
 import torch
+from scenes import SphereField
 
 from neural.render.fullray import (
     _neus_weights,
@@ -20,27 +20,6 @@ from neural.render.occupancy import OccupancyConfig, OccupancyGrid
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 LO, HI = torch.tensor([-1.0, -1.2, -0.9]), torch.tensor([1.1, 0.8, 1.3])
-
-
-@dataclass
-class Geometry:
-    sdf: torch.Tensor
-    inv_s: torch.Tensor
-    normal: torch.Tensor
-
-
-class SphereField:
-    """Exact SDF ``|x| - R`` of a sphere at the origin, a constant kernel, a position-dependent colour."""
-
-    def __init__(self, radius, inv_s):
-        self.radius, self.inv_s = radius, inv_s
-
-    def geometry(self, x):
-        dist = x.norm(dim=1)
-        return Geometry(dist - self.radius, torch.full_like(dist, self.inv_s), x / dist[:, None])
-
-    def radiance(self, x, d, geo):
-        return torch.sigmoid(torch.stack([x[:, 0] + d[:, 2], x[:, 1], x[:, 2] * 2.0], dim=1))
 
 
 def random_rays(n, seed, distance=3.0, spread=1.0, device="cpu"):

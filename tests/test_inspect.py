@@ -2,21 +2,19 @@
 a motion frame moving the drawn cage and shells exactly, the off-screen PNG (size, not blank, translucent
 shell visible), the frame slider, and the CLI's one-line errors."""
 
-import itertools
-import json
 import sys
 
 import numpy as np
 import pytest
+from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError, ShellsimError
 from shellsim.motion import Motion, save_motion
 
 pv = pytest.importorskip("pyvista")
 
-from shellsim.cage import Cage, save_cage, shell_digest  # noqa: E402
 from shellsim.cli import main  # noqa: E402
-from shellsim.embed import embed_points, interpolate  # noqa: E402
+from shellsim.embed import interpolate  # noqa: E402
 from shellsim.inspect import (  # noqa: E402
     SCALARS,
     build_scene,
@@ -29,23 +27,7 @@ from shellsim.inspect import (  # noqa: E402
 
 def box_cage(n: int = 3, half: float = 1.25):
     """The cube [-half, half]^3 split into n^3 cells of 6 Kuhn tets: vertices (V, 3), tets (T, 4)."""
-    axis = np.linspace(-half, half, n + 1)
-    verts = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    idx = np.arange(len(verts)).reshape((n + 1,) * 3)
-    tets = []
-    for cell in itertools.product(range(n), repeat=3):
-        for perm in itertools.permutations(range(3)):
-            corner = list(cell)
-            tet = [idx[tuple(corner)]]
-            for a in perm:
-                corner[a] += 1
-                tet.append(idx[tuple(corner)])
-            tets.append(tet)
-    tets = np.array(tets, dtype=np.int64)
-    e = verts[tets[:, 1:]] - verts[tets[:, :1]]
-    flip = np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2])) < 0
-    tets[flip] = tets[flip][:, [1, 0, 2, 3]]
-    return verts, tets
+    return kuhn_grid(-half, half, n)[:2]
 
 
 def write_asset(root, inner_subdivisions: int = 2, field=None):
@@ -55,43 +37,11 @@ def write_asset(root, inner_subdivisions: int = 2, field=None):
 
     from neural.asset import load_asset
 
-    root.mkdir()
     outer = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
     inner = trimesh.creation.icosphere(subdivisions=inner_subdivisions, radius=0.9)
-    outer.export(root / "shell_outer.ply")
-    inner.export(root / "shell_inner.ply")
-    if field is None:
-        (root / "field.safetensors").write_bytes(b"placeholder")
-    else:
-        from safetensors.torch import save_file
-
-        save_file({k: v.contiguous() for k, v in field.state_dict().items()}, str(root / "field.safetensors"))
-    meta = {
-        "format": "shellsim-asset",
-        "format_version": 1,
-        "name": "ball",
-        "normalisation": {"center": [0, 0, 0], "scale": 0.5},
-        "up": [0, 0, 1],
-        "files": {
-            "field": "field.safetensors",
-            "shell_outer": "shell_outer.ply",
-            "shell_inner": "shell_inner.ply",
-        },
-        "field": {} if field is None else field.config_dict(),
-    }
-    (root / "asset.json").write_text(json.dumps(meta))
+    write_asset_dir(root, outer, inner, "ball", scale=0.5, up=(0, 0, 1), field=field)
     asset = load_asset(root)
-    outer, inner = asset.outer_mesh(), asset.inner_mesh()
-    verts, tets = box_cage()
-    cage = Cage(
-        verts,
-        tets,
-        *embed_points(verts, tets, outer.vertices),
-        *embed_points(verts, tets, inner.vertices),
-        shell_digest(outer, inner),
-    )
-    save_cage(asset.cage_path, cage)
-    return asset, cage
+    return asset, save_embedded_cage(asset, *box_cage())
 
 
 def twist_motion(cage, n_frames: int = 4, fps: float = 10.0) -> Motion:

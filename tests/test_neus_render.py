@@ -1,10 +1,9 @@
 """NeuS opacity with a per-sample kernel (Eq. 3) and packed compositing (Eq. 2): closed forms on a sphere,
 brute-force integration of the density, and the vectorised compositor against its per-ray loop twin."""
 
-from dataclasses import dataclass
-
 import pytest
 import torch
+from scenes import SphereField
 
 from neural.render.composite import composite, composite_reference, transmittance
 from neural.render.fullray import render_rays
@@ -16,28 +15,6 @@ DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 def phi(f, inv_s):
     return torch.sigmoid(f * inv_s)
-
-
-@dataclass
-class Geometry:
-    sdf: torch.Tensor
-    inv_s: torch.Tensor
-    normal: torch.Tensor
-
-
-class SphereField:
-    """Exact SDF ``|x - c| - R`` of a sphere, a constant kernel and a colour that varies with position."""
-
-    def __init__(self, radius=1.0, inv_s=1000.0, center=(0.0, 0.0, 0.0)):
-        self.radius, self.inv_s, self.center = radius, inv_s, torch.tensor(center)
-
-    def geometry(self, x):
-        r = x - self.center.to(x)
-        dist = r.norm(dim=1)
-        return Geometry(dist - self.radius, torch.full_like(dist, self.inv_s), r / dist[:, None])
-
-    def radiance(self, x, d, geo):
-        return torch.sigmoid(torch.stack([x[:, 0] + d[:, 2], x[:, 1], x[:, 2] * 2.0], dim=1))
 
 
 class NoField:

@@ -54,6 +54,17 @@ def write_motion(path, asset_dir, n_frames: int, vertices=None):
     return path
 
 
+def render(asset_dir, out, *options, motion=None, cameras=None) -> int:
+    """Exit code of ``shellsim render --asset ASSET_DIR [--motion MOTION] [--cameras CAMERAS] --out OUT
+    OPTIONS...`` (paths in ``options`` may be ``Path``s)."""
+    args = ["render", "--asset", str(asset_dir)]
+    if motion is not None:
+        args += ["--motion", str(motion)]
+    if cameras is not None:
+        args += ["--cameras", str(cameras)]
+    return main([*args, "--out", str(out), *map(str, options)])
+
+
 def error_line(capsys) -> str:
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
@@ -63,24 +74,7 @@ def error_line(capsys) -> str:
 def test_rest_render_writes_one_png_per_camera(tmp_path, asset_dir, capsys):
     cams = write_cameras(tmp_path / "cams.json", 3, with_size=False)
     out = tmp_path / "views"
-    assert (
-        main(
-            [
-                "render",
-                "--asset",
-                str(asset_dir),
-                "--cameras",
-                str(cams),
-                "--out",
-                str(out),
-                "--width",
-                "20",
-                "--height",
-                "14",
-            ]
-        )
-        == 0
-    )
+    assert render(asset_dir, out, "--width", "20", "--height", "14", cameras=cams) == 0
     assert sorted(p.name for p in out.iterdir()) == ["v_0.png", "v_1.png", "v_2.png"]
     for p in out.iterdir():
         image = np.asarray(Image.open(p))
@@ -93,24 +87,13 @@ def test_motion_render_resumes_and_writes_the_video(tmp_path, asset_dir):
     cams = write_cameras(tmp_path / "cams.json", 2)
     motion = write_motion(tmp_path / "m.npz", asset_dir, 4)
     out = tmp_path / "frames"
-    base = [
-        "render",
-        "--asset",
-        str(asset_dir),
-        "--motion",
-        str(motion),
-        "--cameras",
-        str(cams),
-        "--out",
-        str(out),
-    ]
-    assert main([*base, "--frames", "0:2"]) == 0
+    assert render(asset_dir, out, "--frames", "0:2", motion=motion, cameras=cams) == 0
     assert sorted(p.name for p in out.iterdir()) == ["00000.png", "00001.png"]
     first = sorted(out.iterdir())
     for p in first:  # mark the first render: a resumed run must not rewrite these files
         os.utime(p, ns=(1, 1))
     video = tmp_path / "clip.mp4"
-    assert main([*base, "--frames", "0:4", "--video", str(video)]) == 0
+    assert render(asset_dir, out, "--frames", "0:4", "--video", video, motion=motion, cameras=cams) == 0
     assert sorted(p.name for p in out.iterdir()) == ["00000.png", "00001.png", "00002.png", "00003.png"]
     assert all(p.stat().st_mtime_ns == 1 for p in first)
     images = [np.asarray(Image.open(out / f"{k:05d}.png")) for k in range(4)]
@@ -129,31 +112,8 @@ def test_motion_render_resumes_and_writes_the_video(tmp_path, asset_dir):
 def test_orbit_render_with_odd_sizes(tmp_path, asset_dir):
     motion = write_motion(tmp_path / "m.npz", asset_dir, 3)
     out, video = tmp_path / "orbit", tmp_path / "orbit.mp4"
-    assert (
-        main(
-            [
-                "render",
-                "--asset",
-                str(asset_dir),
-                "--motion",
-                str(motion),
-                "--orbit",
-                "--out",
-                str(out),
-                "--width",
-                "15",
-                "--height",
-                "11",
-                "--frames",
-                "1:3",
-                "--video",
-                str(video),
-                "--fps",
-                "5",
-            ]
-        )
-        == 0
-    )
+    options = ("--orbit", "--width", "15", "--height", "11", "--frames", "1:3", "--video", video)
+    assert render(asset_dir, out, *options, "--fps", "5", motion=motion) == 0
     names = sorted(p.name for p in out.iterdir())
     assert names == ["00001.png", "00002.png"]
     a, b = (np.asarray(Image.open(out / n)) for n in names)
@@ -171,19 +131,7 @@ def test_motion_of_another_cage_is_one_error_line(tmp_path, asset_dir, capsys):
     motion = write_motion(
         tmp_path / "other.npz", asset_dir, 2, vertices=np.random.default_rng(0).random((7, 3))
     )
-    code = main(
-        [
-            "render",
-            "--asset",
-            str(asset_dir),
-            "--motion",
-            str(motion),
-            "--cameras",
-            str(cams),
-            "--out",
-            str(tmp_path / "o"),
-        ]
-    )
+    code = render(asset_dir, tmp_path / "o", motion=motion, cameras=cams)
     assert code == 2
     line = error_line(capsys)
     assert str(motion) in line and "7 vertices" in line and "not the cage" in line
@@ -193,21 +141,7 @@ def test_motion_of_another_cage_is_one_error_line(tmp_path, asset_dir, capsys):
 def test_bad_frames_spec_is_one_error_line(tmp_path, asset_dir, capsys, spec):
     cams = write_cameras(tmp_path / "cams.json", 1)
     motion = write_motion(tmp_path / "m.npz", asset_dir, 3)
-    code = main(
-        [
-            "render",
-            "--asset",
-            str(asset_dir),
-            "--motion",
-            str(motion),
-            "--cameras",
-            str(cams),
-            "--out",
-            str(tmp_path / "o"),
-            "--frames",
-            spec,
-        ]
-    )
+    code = render(asset_dir, tmp_path / "o", "--frames", spec, motion=motion, cameras=cams)
     assert code == 2
     assert "--frames" in error_line(capsys)
 
@@ -224,19 +158,7 @@ def test_unbuildable_cage_is_one_error_line(tmp_path, asset_dir, capsys, monkeyp
     monkeypatch.setattr("shellsim.cage.build_cage", fail)
     cams = write_cameras(tmp_path / "cams.json", 1)
     motion = write_motion(tmp_path / "m.npz", asset_dir, 2)
-    code = main(
-        [
-            "render",
-            "--asset",
-            str(broken),
-            "--motion",
-            str(motion),
-            "--cameras",
-            str(cams),
-            "--out",
-            str(tmp_path / "o"),
-        ]
-    )
+    code = render(broken, tmp_path / "o", motion=motion, cameras=cams)
     assert code == 2
     line = error_line(capsys)
     assert str(broken / "cage.npz") in line and "fTetWild failed" in line
@@ -244,18 +166,6 @@ def test_unbuildable_cage_is_one_error_line(tmp_path, asset_dir, capsys, monkeyp
 
 def test_options_that_need_a_motion(tmp_path, asset_dir, capsys):
     cams = write_cameras(tmp_path / "cams.json", 1)
-    code = main(
-        [
-            "render",
-            "--asset",
-            str(asset_dir),
-            "--cameras",
-            str(cams),
-            "--out",
-            str(tmp_path / "o"),
-            "--video",
-            str(tmp_path / "v.mp4"),
-        ]
-    )
+    code = render(asset_dir, tmp_path / "o", "--video", tmp_path / "v.mp4", cameras=cams)
     assert code == 2
     assert "--video needs --motion" in error_line(capsys)

@@ -17,7 +17,6 @@ box around the shells. Truths that do not come from the renderer:
 
 from __future__ import annotations
 
-import itertools
 import math
 from pathlib import Path
 
@@ -25,13 +24,14 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from meshes import kuhn_grid, save_embedded_cage
 
 from neural.asset import load_asset, load_field, save_asset
 from neural.data import Cameras, look_at
 from neural.field import FieldConfig, ShellField
 from neural.field.hashgrid import HashGridConfig
 from neural.metrics import psnr
-from shellsim.cage import Cage, load_or_build_cage, save_cage, shell_digest
+from shellsim.cage import Cage, load_or_build_cage, shell_digest
 from shellsim.deform import InverseMap, map_points_reference
 from shellsim.embed import embed_points
 from shellsim.render import DeformedRenderer, orbit_camera, parse_frames
@@ -39,27 +39,6 @@ from shellsim.render import DeformedRenderer, orbit_camera, parse_frames
 CENTER = np.array([0.1, -0.2, 0.3])  # the asset's normalisation centre: the sphere's centre
 SCALE = 2.0  # unit space = (x - CENTER) * SCALE; the unit sphere of radius 0.5 has world radius 0.25
 SIZE = 40  # test images are SIZE x SIZE
-
-
-def kuhn_box(lo, hi, n: int):
-    """Vertices ((n+1)^3, 3) of the box [lo, hi] and its n^3 cells split into 6 positively oriented tets."""
-    axes = [np.linspace(lo[k], hi[k], n + 1) for k in range(3)]
-    verts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    idx = np.arange(len(verts)).reshape(n + 1, n + 1, n + 1)
-    tets = []
-    for cell in itertools.product(range(n), repeat=3):
-        for perm in itertools.permutations(range(3)):
-            corner = list(cell)
-            tet = [idx[tuple(corner)]]
-            for axis in perm:
-                corner[axis] += 1
-                tet.append(idx[tuple(corner)])
-            tets.append(tet)
-    tets = np.array(tets, dtype=np.int64)
-    e = verts[tets[:, 1:]] - verts[tets[:, :1]]
-    flip = np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2])) < 0
-    tets[flip] = tets[flip][:, [1, 0, 2, 3]]
-    return verts, tets
 
 
 def make_asset(root: Path, cells: int = 3) -> Path:
@@ -85,13 +64,7 @@ def make_asset(root: Path, cells: int = 3) -> Path:
         "narrowband": {"delta_s": 0.01, "w_s": 0.01, "n_max": 16},
     }
     save_asset(root, field, outer, inner, meta)
-    asset = load_asset(root)
-    outer, inner = asset.outer_mesh(), asset.inner_mesh()
-    verts, tets = kuhn_box(CENTER - 0.36, CENTER + 0.36, cells)
-    outer_tet, outer_bary = embed_points(verts, tets, outer.vertices)
-    inner_tet, inner_bary = embed_points(verts, tets, inner.vertices)
-    cage = Cage(verts, tets, outer_tet, outer_bary, inner_tet, inner_bary, shell_digest(outer, inner))
-    save_cage(asset.cage_path, cage)
+    save_embedded_cage(load_asset(root), *kuhn_grid(CENTER - 0.36, CENTER + 0.36, cells)[:2])
     return root
 
 
@@ -207,7 +180,7 @@ def test_samples_outside_the_cage_are_dropped(asset, renderer):
     """A cage that cuts off the top of the shells: seen from straight above, central rays meet only the
     cut-off cap before the inner shell stops them, so they show the background."""
     lo, hi = CENTER - 0.36, CENTER + np.array([0.36, 0.36, 0.1])
-    verts, tets = kuhn_box(lo, hi, 3)
+    verts, tets, _ = kuhn_grid(lo, hi, 3)
     outer, inner = renderer.outer, renderer.inner
     embedded = [*embed_points(verts, tets, outer.vertices), *embed_points(verts, tets, inner.vertices)]
     cage = Cage(verts, tets, *embedded, shell_digest(outer, inner))
@@ -222,7 +195,7 @@ def test_samples_outside_the_cage_are_dropped(asset, renderer):
 
 
 def test_stretch_matches_brute_force(rng):
-    verts, tets = kuhn_box(np.zeros(3), np.ones(3), 3)
+    verts, tets, _ = kuhn_grid(np.zeros(3), np.ones(3), 3)
     deformed = verts + 0.08 * np.sin(3 * verts[:, [1, 2, 0]])
     x = deformed[tets[rng.integers(0, len(tets), 200)]].mean(axis=1)  # tet centroids: inside
     d = rng.normal(size=(200, 3))

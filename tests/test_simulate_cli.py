@@ -5,11 +5,11 @@ import types
 import numpy as np
 import pytest
 import trimesh
+from meshes import kuhn_grid
 
 from neural.errors import InputError
 from shellsim.cli import main
 from shellsim.commands.simulate import parse_pin
-from shellsim.fem import tet_volumes
 from shellsim.motion import load_motion
 
 
@@ -78,24 +78,6 @@ def test_bad_meshes_fail_with_one_line(tmp_path, capsys):
         assert not (tmp_path / "m.npz").exists()
 
 
-def _box_cage(n=2, size=1.0):
-    axes = [np.linspace(0.0, size, n + 1)] * 3
-    v = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    m = n + 1
-    tets = []
-    for i in range(n):
-        for j in range(n):
-            for k in range(n):
-                c = [((i + a) * m + j + b) * m + k + d for a in (0, 1) for b in (0, 1) for d in (0, 1)]
-                tets += [
-                    [c[0], c[p], c[q], c[7]] for p, q in ((4, 6), (4, 5), (2, 6), (2, 3), (1, 5), (1, 3))
-                ]
-    tets = np.array(tets)
-    flip = tet_volumes(v, tets) < 0
-    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
-    return v, tets
-
-
 @pytest.fixture
 def closed_mesh(tmp_path, monkeypatch):
     """A closed box mesh file; tetrahedralising is replaced by a 48-tet box (fTetWild is slow and tested
@@ -106,7 +88,7 @@ def closed_mesh(tmp_path, monkeypatch):
 
     def build_cage(outer, inner, config=None, what=""):
         calls.append((outer, inner))
-        v, t = _box_cage()
+        v, t, _ = kuhn_grid(0.0, 1.0, 2)
         return types.SimpleNamespace(vertices=v + outer.bounds[0], tets=t)
 
     monkeypatch.setattr("shellsim.cage.build_cage", build_cage)

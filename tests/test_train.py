@@ -19,8 +19,16 @@ SMALL_FIELD = FieldConfig(hashgrid=HashGridConfig(log2_table_size=14, max_resolu
 
 
 def small_stage1(steps: int) -> Stage1Config:
-    return Stage1Config(steps=steps, target_samples=8192, initial_rays=256, eval_every=10**6,
-                        checkpoint_every=20, occupancy_resolution=32, warmup_steps=20, eval_views=3)
+    return Stage1Config(
+        steps=steps,
+        target_samples=8192,
+        initial_rays=256,
+        eval_every=10**6,
+        checkpoint_every=20,
+        occupancy_resolution=32,
+        warmup_steps=20,
+        eval_views=3,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -81,6 +89,8 @@ def test_train_cli_reports_bad_inputs_in_one_line(tmp_path, capsys):
     code, err = _run_cli(["train", "--data", str(nokey), "--out", str(tmp_path / "out")], capsys)
     assert code == 2 and err.count("\n") == 0 and ("camera_angle_x" in err or "frames" in err)
 
-    code, err = _run_cli(["train", "--data", str(missing), "--out", str(tmp_path / "o"), "--steps", "0"], capsys)
+    code, err = _run_cli(
+        ["train", "--data", str(missing), "--out", str(tmp_path / "o"), "--steps", "0"], capsys
+    )
     assert code == 2 and "--steps" in err
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())

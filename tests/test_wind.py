@@ -1,11 +1,11 @@
 """shellsim.wind: invariants (zero wind, fixed anchor, monotone bending), the cantilever closed form, the
 inextensible-rod drop, the anchor parser, the motion file and the CLI."""
 
-import itertools
 import json
 
 import numpy as np
 import pytest
+from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError
 from shellsim.motion import MotionWriter, load_motion
@@ -22,24 +22,7 @@ from shellsim.wind import (
 
 def column(n_xy: int = 2, n_z: int = 8, width: float = 0.2, height: float = 1.0):
     """A box column [0, width]^2 x [0, height] split into Kuhn tets: vertices (V, 3), tets (T, 4)."""
-    shape = (n_xy + 1, n_xy + 1, n_z + 1)
-    axes = [np.linspace(0, width, n_xy + 1)] * 2 + [np.linspace(0, height, n_z + 1)]
-    verts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    idx = np.arange(verts.shape[0]).reshape(shape)
-    tets = []
-    for cell in itertools.product(range(n_xy), range(n_xy), range(n_z)):
-        for perm in itertools.permutations(range(3)):
-            corner = list(cell)
-            tet = [idx[tuple(corner)]]
-            for axis in perm:
-                corner[axis] += 1
-                tet.append(idx[tuple(corner)])
-            tets.append(tet)
-    tets = np.array(tets, dtype=np.int64)
-    e = verts[tets[:, 1:]] - verts[tets[:, :1]]
-    flip = np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2])) < 0
-    tets[flip] = tets[flip][:, [1, 0, 2, 3]]
-    return verts, tets
+    return kuhn_grid(0.0, (width, width, height), (n_xy, n_xy, n_z))[:2]
 
 
 def rod(rng, radius, n: int = 6000):
@@ -246,29 +229,11 @@ def _write_asset(root):
     """A minimal asset: asset.json, a placeholder field file and closed cylinder shells (z up)."""
     import trimesh
 
-    root.mkdir()
     outer = trimesh.creation.cylinder(radius=0.15, height=1.0, sections=24)
     outer.apply_translation([0.0, 0.0, 0.5])
     inner = trimesh.creation.cylinder(radius=0.1, height=0.9, sections=24)
     inner.apply_translation([0.0, 0.0, 0.5])
-    outer.export(root / "shell_outer.ply")
-    inner.export(root / "shell_inner.ply")
-    (root / "field.safetensors").write_bytes(b"placeholder")
-    meta = {
-        "format": "shellsim-asset",
-        "format_version": 1,
-        "name": "rod",
-        "normalisation": {"center": [0, 0, 0.5], "scale": 1.0},
-        "up": [0, 0, 1],
-        "files": {
-            "field": "field.safetensors",
-            "shell_outer": "shell_outer.ply",
-            "shell_inner": "shell_inner.ply",
-        },
-        "field": {},
-    }
-    (root / "asset.json").write_text(json.dumps(meta))
-    return root
+    return write_asset_dir(root, outer, inner, "rod", center=(0, 0, 0.5), up=(0, 0, 1))
 
 
 def test_cli_rejects_a_junk_anchor(tmp_path, capsys):
@@ -283,23 +248,14 @@ def test_cli_rejects_a_junk_anchor(tmp_path, capsys):
 
 def test_cli_writes_and_resumes(tmp_path):
     """The CLI on an asset whose cage.npz is a box of Kuhn tets around the shells (no fTetWild run)."""
-    cage_module = pytest.importorskip("shellsim.cage", reason="shellsim.cage is not in this tree yet")
+    pytest.importorskip("shellsim.cage", reason="shellsim.cage is not in this tree yet")
     from neural.asset import load_asset
     from shellsim.cli import main
-    from shellsim.embed import embed_points
 
     asset = load_asset(_write_asset(tmp_path / "rod"))
-    outer, inner = asset.outer_mesh(), asset.inner_mesh()
     verts, tets = column(n_xy=2, n_z=6, width=0.4, height=1.1)
     verts -= [0.2, 0.2, 0.05]
-    cage = cage_module.Cage(
-        verts,
-        tets,
-        *embed_points(verts, tets, outer.vertices),
-        *embed_points(verts, tets, inner.vertices),
-        cage_module.shell_digest(outer, inner),
-    )
-    cage_module.save_cage(asset.cage_path, cage)
+    save_embedded_cage(asset, verts, tets)
     out = tmp_path / "wind.npz"
     args = ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
     assert main([*args, "--frames", "3"]) == 0

@@ -33,7 +33,7 @@ class OccupancyConfig:
     """How the grid is refreshed (defaults follow Instant-NGP / nerfacc where they apply)."""
 
     band_widths: float = 8.0  # a cell stays occupied while the surface may be within this many kernel sizes
-    ema_decay: float = 0.95  # score decay per update of a cell
+    ema_decay: float = 0.6  # score decay per update: a cell left by the surface empties within ~16 updates
     warmup_steps: int = 256  # updates before this step probe every cell
     update_fraction: float = 0.25  # after warm-up: this fraction of random cells + as many occupied ones
     jitter: bool = True  # probe a random point of each cell instead of its centre

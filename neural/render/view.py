@@ -39,8 +39,13 @@ def full_ray_sampler(field, step_size: float = DEFAULT_STEP, max_samples: int = 
     return sample
 
 
-def occupancy_sampler(grid: OccupancyGrid, field, step_size: float = DEFAULT_STEP, max_samples: int = 1024,
-                      perturb: bool = False):
+def occupancy_sampler(
+    grid: OccupancyGrid,
+    field,
+    step_size: float = DEFAULT_STEP,
+    max_samples: int = 1024,
+    perturb: bool = False,
+):
     """Steps of ``step_size`` (unit space) through the occupied cells of ``grid`` only."""
     step = step_size / float(field.scale)
 
@@ -78,8 +83,9 @@ def fitted_occupancy_grid(field, resolution: int = 128) -> OccupancyGrid:
 
 
 @torch.no_grad()
-def render_camera(field, cameras: Cameras, index: int, sampler, background: torch.Tensor,
-                  chunk: int = 16384) -> tuple[np.ndarray, dict]:
+def render_camera(
+    field, cameras: Cameras, index: int, sampler, background: torch.Tensor, chunk: int = 16384
+) -> tuple[np.ndarray, dict]:
     """Render camera ``index``: image (H, W, 3) float32 in [0, 1] and stats (``samples_per_pixel``,
     ``ms``, ``counts`` (H, W) samples per pixel)."""
     device = background.device
@@ -87,7 +93,7 @@ def render_camera(field, cameras: Cameras, index: int, sampler, background: torc
     origins, dirs = camera_rays(cameras, index, device=device)
     colors, counts = [], []
     for i in range(0, len(origins), chunk):
-        o, d = origins[i:i + chunk], dirs[i:i + chunk]
+        o, d = origins[i : i + chunk], dirs[i : i + chunk]
         samples = sampler(o, d)
         counts.append(samples.counts())
         colors.append(render_rays(field, o, d, samples, background)["color"])

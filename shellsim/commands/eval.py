@@ -47,17 +47,27 @@ def run(args: argparse.Namespace) -> None:
     field = load_field(asset, device)
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
     nb_config = NarrowBandConfig(**asset.meta.get("narrowband", {}))
-    samplers = {"narrow_band": narrow_band_sampler(ShellIntersector(asset.outer_mesh(), asset.inner_mesh()),
-                                                   nb_config)}
+    samplers = {
+        "narrow_band": narrow_band_sampler(
+            ShellIntersector(asset.outer_mesh(), asset.inner_mesh()), nb_config
+        )
+    }
     if not args.no_full_ray:
         samplers["full_ray"] = full_ray_sampler(field)
-    report = {"asset": str(asset.root), "data": str(args.data), "downscale": downscale,
-              "heldout_views": [int(v) for v in views], "lpips": lpips_status()}
+    report = {
+        "asset": str(asset.root),
+        "data": str(args.data),
+        "downscale": downscale,
+        "heldout_views": [int(v) for v in views],
+        "lpips": lpips_status(),
+    }
     for name, sampler in samplers.items():
         report[name] = evaluate(field, data, views, sampler, bg)
         r = report[name]
-        print(f"{name:12s} PSNR {r['psnr']:.2f} dB  SSIM {r['ssim']:.4f}  "
-              f"{r['samples_per_pixel']:.2f} samples/pixel  {r['ms_per_frame']:.0f} ms/frame")
+        print(
+            f"{name:12s} PSNR {r['psnr']:.2f} dB  SSIM {r['ssim']:.4f}  "
+            f"{r['samples_per_pixel']:.2f} samples/pixel  {r['ms_per_frame']:.0f} ms/frame"
+        )
     if "full_ray" in report:
         nb, fr = report["narrow_band"], report["full_ray"]
         report["speedup"] = fr["ms_per_frame"] / nb["ms_per_frame"]

@@ -39,8 +39,11 @@ def run(args: argparse.Namespace) -> None:
     device = pick_device(args.device)
     known = {f.name for f in dataclasses.fields(ShellConfig)}
     stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}
-    overrides = {name: getattr(args, name) for name in ("resolution", "steps", "beta_d", "sigma_min", "beta_e",
-                                                         "v_max") if getattr(args, name) is not None}
+    overrides = {
+        name: getattr(args, name)
+        for name in ("resolution", "steps", "beta_d", "sigma_min", "beta_e", "v_max")
+        if getattr(args, name) is not None
+    }
     try:
         config = ShellConfig(**{**stored, **overrides})
     except (TypeError, ValueError) as err:
@@ -50,6 +53,10 @@ def run(args: argparse.Namespace) -> None:
     shells = extract_field_shells(field, config, device)
     replace_shells(asset, shells.outer, shells.inner, {**dataclasses.asdict(config), **shells.stats})
     logging.getLogger("shellsim").info(
-        "%s: new shells in %.1f s: M+ %d faces, M- %d faces, mean width %.4g", asset.root,
-        time.perf_counter() - start, shells.stats["outer_faces"], shells.stats["inner_faces"],
-        shells.stats.get("width_mean", float("nan")))
+        "%s: new shells in %.1f s: M+ %d faces, M- %d faces, mean width %.4g",
+        asset.root,
+        time.perf_counter() - start,
+        shells.stats["outer_faces"],
+        shells.stats["inner_faces"],
+        shells.stats.get("width_mean", float("nan")),
+    )

@@ -39,24 +39,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def parse_size(text: str) -> tuple[int, int]:
-    """``"800x600"`` -> (800, 600); anything else is an InputError naming --size."""
-    from neural.errors import InputError
-
-    parts = text.lower().split("x")
-    if len(parts) != 2 or not all(p.strip().isdigit() and 0 < int(p) <= 16384 for p in parts):
-        raise InputError(f"--size: expected WIDTHxHEIGHT in pixels (e.g. 1024x768), got {text!r}")
-    return int(parts[0]), int(parts[1])
-
-
 def run(args: argparse.Namespace) -> None:
     from neural.asset import load_asset
     from neural.errors import InputError
     from shellsim.cage import load_or_build_cage
+    from shellsim.commands.args import parse_size
     from shellsim.inspect import check_motion, screenshot, show
     from shellsim.motion import load_motion
 
-    size = parse_size(args.size)
+    size = parse_size("--size", args.size)
     asset = load_asset(args.asset)
     motion = load_motion(args.motion) if args.motion else None
     frame = 0 if args.frame is None else args.frame

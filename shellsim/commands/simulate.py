@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
+from shellsim.commands.args import parse_floats, parse_size
 
 log = logging.getLogger(__name__)
 
@@ -57,21 +58,9 @@ def parse_pin(text: str) -> PinRule:
     return PinRule("xyz".index(match.group(1).lower()), match.group(2), value, bool(match.group(4)))
 
 
-def parse_floats(flag: str, text: str, count: int) -> tuple[float, ...]:
-    """``"1,0,0.5"`` -> (1.0, 0.0, 0.5); a wrong count or a non-finite value is an InputError."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != count or not all(math.isfinite(v) for v in values):
-        raise InputError(f"{flag}: expected {count} comma-separated numbers, got {text!r}")
-    return values
-
-
 def register(sub: argparse._SubParsersAction) -> None:
-    from shellsim.materials import (
-        PRESETS,
-    )  # numpy only; shellsim.fem (warp) is imported when the command runs
+    # numpy only; shellsim.fem (warp) is imported when the command runs
+    from shellsim.materials import PRESETS
 
     p = sub.add_parser(
         "simulate",
@@ -131,23 +120,37 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a static axis-aligned box obstacle (centre, half extents), world units",
     )
     p.add_argument("--friction", type=float, default=0.5, help="Coulomb coefficient (default 0.5)")
-    p.add_argument(
-        "--damping",
-        type=float,
-        default=0.0,
-        help="Kelvin-Voigt damping in seconds (default 0)",
-    )
+    p.add_argument("--damping", type=float, default=0.0, help="Kelvin-Voigt damping in seconds (default 0)")
     p.add_argument("--tets", type=int, help="target cage tet count when the cage is built")
     p.add_argument("--out", help="motion file (default NAME_sim.npz)")
     p.add_argument("--resume", action="store_true", help="continue OUT after its last frame")
+    p.add_argument("--video", help="then render the motion (orbiting camera) to this MP4; needs --asset")
+    p.add_argument("--video-size", default="200x200", help="WxH of the rendered frames (default 200x200)")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda (default auto)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
+    if args.video and not args.asset:
+        raise InputError("--video renders the neural asset: it needs --asset, not --mesh")
+    size = parse_size("--video-size", args.video_size) if args.video else None
     out = simulate_to_file(args)
-    # `--video OUT.mp4` (simulate, then render) belongs here: render `out` with the asset's cameras.
     log.info("motion written to %s", out)
+    if args.video:
+        from shellsim.render import render_motion
+
+        video = Path(args.video)
+        frames_dir = video.with_name(video.stem + "_frames")
+        summary = render_motion(
+            args.asset, out, frames_dir, orbit=True, size=size, video=video, device=args.device
+        )
+        log.info(
+            "rendered %d frames (%d already there) to %s and the video %s",
+            summary["rendered"],
+            summary["skipped"],
+            frames_dir,
+            video,
+        )
 
 
 def _device(name: str) -> str:
@@ -204,7 +207,7 @@ def _load_cage(args: argparse.Namespace):
 def simulate_to_file(args: argparse.Namespace) -> Path:
     """Run the simulation the arguments describe; returns the motion file written."""
     from shellsim.contact import Box, Sphere
-    from shellsim.fem import SimSettings, Simulator, WorldMap, decode_velocities, simulate
+    from shellsim.fem import SimSettings, Simulator, WorldMap, restore_state, simulate
     from shellsim.materials import get_material
     from shellsim.motion import MotionWriter
 
@@ -291,14 +294,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
             log.info("overwriting %s", out)
         writer = MotionWriter(out, vertices, tets, meta)
     else:
-        state = writer.motion.meta["state"]
-        if state.get("frame") != writer.n_frames - 1:
-            raise InputError(
-                f"{out}: the stored state is for frame {state.get('frame')}, "
-                f"not the last frame {writer.n_frames - 1}; cannot --resume it"
-            )
-        velocities = decode_velocities(state["velocities"], len(vertices)) * world.scale
-        sim.set_state(world.to_sim(writer.last_positions), velocities, writer.last_time)
+        restore_state(sim, writer, world)
 
     remaining = args.frames - max(writer.n_frames, 1)  # a new file starts with frame 0, the initial state
     log.info(

@@ -15,15 +15,23 @@ def register(sub: argparse._SubParsersAction) -> None:
         "running the same command again resumes from the last checkpoint.",
     )
     p.add_argument("--data", required=True, help="dataset directory (transforms_*.json or transforms.json)")
-    p.add_argument("--out", required=True, help="asset directory to write (checkpoints go in OUT/checkpoints)")
+    p.add_argument(
+        "--out", required=True, help="asset directory to write (checkpoints go in OUT/checkpoints)"
+    )
     p.add_argument("--downscale", type=int, default=1, help="image downscale factor (default 1)")
     p.add_argument("--steps", type=int, default=None, help="stage-1 steps (default 6000)")
     p.add_argument("--stage2-steps", type=int, default=None, help="stage-2 steps (default 1000)")
     p.add_argument("--background", default="white", help="white, black or r,g,b (default white)")
-    p.add_argument("--bound", type=float, default=None,
-                   help="half-size of the object's box in world units (default: from the dataset)")
-    p.add_argument("--shell-resolution", type=int, default=None, help="grid resolution of the shell extraction")
-    p.add_argument("--table-size", type=int, default=None, help="log2 of the hash-table size per level")
+    p.add_argument(
+        "--bound",
+        type=float,
+        default=None,
+        help="half-size of the object's box in world units (default: from the dataset)",
+    )
+    p.add_argument(
+        "--shell-resolution", type=int, default=None, help="grid resolution of the shell extraction"
+    )
+    p.add_argument("--table-size", type=int, default=None, help="log2 of the hash-table size per level (default 17)")
     p.add_argument("--name", default=None, help="asset name (default: the output directory's name)")
     p.add_argument("--keep-checkpoints", action="store_true", help="keep OUT/checkpoints after success")
     p.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
@@ -36,8 +44,12 @@ def run(args: argparse.Namespace) -> None:
     from neural.pipeline import PipelineConfig, parse_background, train_asset
 
     config = PipelineConfig(background=parse_background(args.background), bound=args.bound)
-    for flag, value in (("--downscale", args.downscale), ("--steps", args.steps),
-                        ("--stage2-steps", args.stage2_steps), ("--shell-resolution", args.shell_resolution)):
+    for flag, value in (
+        ("--downscale", args.downscale),
+        ("--steps", args.steps),
+        ("--stage2-steps", args.stage2_steps),
+        ("--shell-resolution", args.shell_resolution),
+    ):
         if value is not None and value < 1:
             raise InputError(f"{flag}: expected a positive integer, got {value}")
     config.downscale = args.downscale
@@ -50,5 +62,11 @@ def run(args: argparse.Namespace) -> None:
     if args.table_size is not None:
         grid = dataclasses.replace(config.field.hashgrid, log2_table_size=args.table_size)
         config.field = dataclasses.replace(config.field, hashgrid=grid)
-    train_asset(args.data, args.out, config, pick_device(args.device), name=args.name,
-                keep_checkpoints=args.keep_checkpoints)
+    train_asset(
+        args.data,
+        args.out,
+        config,
+        pick_device(args.device),
+        name=args.name,
+        keep_checkpoints=args.keep_checkpoints,
+    )

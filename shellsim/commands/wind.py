@@ -53,25 +53,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def parse_vector(flag: str, text: str) -> tuple[float, float, float]:
-    """``"1,0,0.5"`` -> (1.0, 0.0, 0.5); anything else is an InputError naming ``flag``."""
-    from neural.errors import InputError
-
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 3:
-        raise InputError(f"{flag}: expected three numbers x,y,z, got {text!r}")
-    return values
-
-
 def run(args: argparse.Namespace) -> None:
     from pathlib import Path
 
     from neural.asset import load_asset
     from neural.errors import InputError
     from shellsim.cage import load_or_build_cage
+    from shellsim.commands.args import parse_floats
     from shellsim.motion import MotionWriter
     from shellsim.wind import WindSettings, animate_wind, wind_meta
 
@@ -89,7 +77,7 @@ def run(args: argparse.Namespace) -> None:
         "seed": args.seed,
     }
     if args.direction is not None:
-        options["direction"] = parse_vector("--direction", args.direction)
+        options["direction"] = parse_floats("--direction", args.direction, 3)  # WindSettings rejects 0,0,0
     settings = WindSettings(up=tuple(asset.up), **{k: v for k, v in options.items() if v is not None})
     cage = load_or_build_cage(asset)  # the stored cage whatever its settings, else a default one
     out = Path(args.out) if args.out else Path(f"{asset.name}_wind.npz")

@@ -87,7 +87,7 @@ def write_sphere_scene(root: Path, n_views: int = 24, size: int = 32, radius: fl
     return _write(Path(root), images, c2ws, angle_x)
 
 
-def fuzzy_density(x: np.ndarray, core: float = 0.45, fuzz: float = 0.3, sigma: float = 6.0) -> np.ndarray:
+def fuzzy_density(x: np.ndarray, core: float = 0.45, fuzz: float = 0.3, sigma: float = 2.0) -> np.ndarray:
     """(N,) density: an opaque core sphere everywhere, plus a thin cloud layer of thickness ``fuzz``
     around it on the +x half only (the volumetric part)."""
     r = np.linalg.norm(x, axis=-1)

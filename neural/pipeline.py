@@ -59,6 +59,8 @@ def train_asset(
 ) -> Path:
     """Run Procedure 4 on the dataset in ``data_dir`` and write the asset to ``out_dir``."""
     out_dir = Path(out_dir)
+    if (out_dir / "asset.json").is_file() and not (out_dir / "checkpoints").is_dir():
+        raise InputError(f"{out_dir}: holds a finished asset already; choose another --out or delete it")
     started = time.time()
     data = load_dataset(
         data_dir, downscale=config.downscale, background=config.background, bound=config.bound

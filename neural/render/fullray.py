@@ -266,8 +266,16 @@ def render_rays(
     ray_indices = samples.ray_indices
     norm = dirs.norm(dim=1)[ray_indices]
     unit_dirs = dirs[ray_indices] / norm[:, None].clamp_min(1e-12)
-    return render_samples(field, samples.points(origins, dirs), unit_dirs, samples.deltas * norm,
-                          (samples.t_mid - samples.t_starts) * norm, samples, background, cos_anneal)
+    return render_samples(
+        field,
+        samples.points(origins, dirs),
+        unit_dirs,
+        samples.deltas * norm,
+        (samples.t_mid - samples.t_starts) * norm,
+        samples,
+        background,
+        cos_anneal,
+    )
 
 
 def render_samples(
@@ -282,13 +290,14 @@ def render_samples(
 ) -> dict[str, Any]:
     """Shade and composite S samples given where the field is evaluated (Eq. 2-3).
 
-    ``field.geometry(points)`` returns an object with ``sdf`` (S,), ``inv_s`` (S,), ``normal`` (S, 3) unit, and
-    ``field.radiance(points, unit_dirs, geometry)`` the colours (S, 3). Opacity is
-    :func:`~neural.render.neus.neus_alpha` with ``cos = dot(unit_dirs, normal)``. The deformed renderer passes
-    rest-space points, directions and section lengths here.
+    ``field.geometry(points)`` returns an object with ``sdf`` (S,), ``inv_s`` (S,), ``normal`` (S, 3) unit,
+    and ``field.radiance(points, unit_dirs, geometry)`` the colours (S, 3). Opacity is
+    :func:`~neural.render.neus.neus_alpha` with ``cos = dot(unit_dirs, normal)``. The deformed renderer
+    passes rest-space points, directions and section lengths here.
 
-    points, unit_dirs : (S, 3) ; deltas, fronts : (S,) section lengths and section-start-to-sample distances in
-    world units ; samples : the packed layout (ray_indices, t_mid, n_rays) ; background : (3,), (R, 3) or None.
+    points, unit_dirs : (S, 3) ; deltas, fronts : (S,) section lengths and section-start-to-sample distances
+    in world units ; samples : the packed layout (ray_indices, t_mid, n_rays) ; background : (3,), (R, 3)
+    or None.
     Returns :func:`~neural.render.composite.composite`'s ``color`` (R, 3), ``opacity`` (R,), ``depth`` (R,),
     ``weights`` (S,) plus per sample ``alpha``, ``rgb`` (S, 3), ``sdf``, ``inv_s``, ``normal`` (S, 3),
     ``points`` (S, 3), ``ray_indices`` (S,) and ``geometry`` (the field's object, None without samples).

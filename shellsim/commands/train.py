@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--shell-resolution", type=int, default=None, help="grid resolution of the shell extraction"
     )
-    p.add_argument("--table-size", type=int, default=None, help="log2 of the hash-table size per level (default 17)")
+    p.add_argument("--table-size", type=int, default=None, help="log2 of the hash-table size (default 17)")
     p.add_argument("--name", default=None, help="asset name (default: the output directory's name)")
     p.add_argument("--keep-checkpoints", action="store_true", help="keep OUT/checkpoints after success")
     p.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")

@@ -94,3 +94,12 @@ def test_train_cli_reports_bad_inputs_in_one_line(tmp_path, capsys):
     )
     assert code == 2 and "--steps" in err
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_train_cli_keeps_a_finished_asset(tmp_path, capsys):
+    data = write_sphere_scene(tmp_path / "data", n_views=3, size=8)
+    done = tmp_path / "asset"
+    done.mkdir()
+    (done / "asset.json").write_text("{}")
+    code, err = _run_cli(["train", "--data", str(data), "--out", str(done)], capsys)
+    assert code == 2 and "finished asset" in err and (done / "asset.json").read_text() == "{}"

@@ -63,7 +63,7 @@ def main() -> None:
         "heldout_psnr": round(heldout["psnr"], 3),
         "heldout_ssim": round(heldout["ssim"], 4),
         "samples_per_pixel": round(heldout["samples_per_pixel"], 2),
-        "ms_per_frame_full_ray": round(heldout["ms_per_frame"], 1),
+        "ms_per_frame_occupancy_grid": round(heldout["ms_per_frame"], 1),
         "peak_rss_gib": round(peak_gib, 2),
     }
     print(json.dumps(figures, indent=1))

@@ -269,7 +269,7 @@ def train_stage1(
             psnr=f"{_psnr(out['color'], target):.2f}",
             rays=n_rays,
             spp=f"{n_samples / len(origins):.1f}",
-            s=f"{float(1 / out['inv_s'].mean()) * scale:.4f}",
+            s=f"{float(1 / out['inv_s'].detach().mean()) * scale:.4f}",
         )
         bar.update(1)
         done = step + 1

@@ -5,15 +5,8 @@ import pytest
 from meshes import kuhn_grid
 
 from shellsim.contact import Box, Sphere
-from shellsim.fem import (
-    SimSettings,
-    SimulationError,
-    Simulator,
-    elastic_energy,
-    simulate,
-    snh_energy_reference,
-    tet_volumes,
-)
+from shellsim.elastic import elastic_energy, snh_energy_reference
+from shellsim.fem import SimSettings, SimulationError, Simulator, simulate, tet_volumes
 from shellsim.materials import Material, get_material
 from shellsim.motion import MotionWriter, load_motion
 

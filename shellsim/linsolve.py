@@ -1,0 +1,219 @@
+"""Linear solvers for the Newton steps of :mod:`shellsim.fem`: the block-sparse (3x3, CSR) stiffness
+pattern (:func:`block_topology`), a serial symmetric-Gauss-Seidel preconditioned CG that runs the whole loop
+in one Warp kernel (the CPU path, :func:`serial_pcg_solver`), and the CUDA path (:func:`bsr_cg_solver`):
+:func:`warp.optim.linear.cg` on a :mod:`warp.sparse` BSR matrix sharing that pattern, with a block-Jacobi
+preconditioner. Each factory returns ``solve(atol) -> CG iterations`` solving ``H d = b`` in place from
+the guess in ``d``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})  # no autodiff here; halves compile time
+
+vec3 = wp.vec3d
+mat33 = wp.mat33d
+f64 = wp.float64
+
+
+@wp.func
+def sgs_apply(
+    offsets: wp.array(dtype=wp.int32),
+    columns: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=mat33),
+    diag_index: wp.array(dtype=wp.int32),
+    inv_diag: wp.array(dtype=mat33),
+    r: wp.array(dtype=vec3),
+    z: wp.array(dtype=vec3),
+):
+    """z = M^-1 r for the symmetric Gauss-Seidel preconditioner M = (D + L) D^-1 (D + L^T)."""
+    n = r.shape[0]
+    for i in range(n):  # (D + L) y = r
+        acc = r[i]
+        for k in range(offsets[i], diag_index[i]):
+            acc -= values[k] * z[columns[k]]
+        z[i] = inv_diag[i] * acc
+    for j in range(n):  # (D + L^T) z = D y
+        i = n - 1 - j
+        acc = vec3(f64(0.0), f64(0.0), f64(0.0))
+        for k in range(diag_index[i] + 1, offsets[i + 1]):
+            acc += values[k] * z[columns[k]]
+        z[i] = z[i] - inv_diag[i] * acc
+    return 0
+
+
+@wp.kernel
+def pcg_serial(
+    offsets: wp.array(dtype=wp.int32),
+    columns: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=mat33),
+    diag_index: wp.array(dtype=wp.int32),
+    inv_diag: wp.array(dtype=mat33),
+    b: wp.array(dtype=vec3),
+    tol: f64,
+    atol: f64,
+    max_iter: int,
+    x: wp.array(dtype=vec3),
+    r: wp.array(dtype=vec3),
+    z: wp.array(dtype=vec3),
+    p: wp.array(dtype=vec3),
+    q: wp.array(dtype=vec3),
+    result: wp.array(dtype=f64),
+):
+    """Symmetric-Gauss-Seidel preconditioned CG for ``A x = b`` from the guess in ``x``, the whole loop in one
+    thread (a serial preconditioner costs nothing extra there).
+
+    Stops when ``|r| <= max(tol |b|, atol)``; ``result`` = (iterations, |r| / |b|)."""
+    n = b.shape[0]
+    bb = f64(0.0)
+    rr = f64(0.0)
+    for i in range(n):
+        acc = b[i]
+        for k in range(offsets[i], offsets[i + 1]):
+            acc -= values[k] * x[columns[k]]
+        r[i] = acc
+        bb += wp.dot(b[i], b[i])
+        rr += wp.dot(acc, acc)
+    sgs_apply(offsets, columns, values, diag_index, inv_diag, r, z)
+    rz = f64(0.0)
+    for i in range(n):
+        p[i] = z[i]
+        rz += wp.dot(r[i], z[i])
+    threshold = wp.max(tol * tol * bb, atol * atol)
+    it = int(0)  # noqa: UP018 (a mutable Warp variable, not a constant)
+    while it < max_iter and rr > threshold:
+        pq = f64(0.0)
+        for i in range(n):
+            acc = vec3(f64(0.0), f64(0.0), f64(0.0))
+            for k in range(offsets[i], offsets[i + 1]):
+                acc += values[k] * p[columns[k]]
+            q[i] = acc
+            pq += wp.dot(p[i], acc)
+        if pq <= f64(0.0):
+            break
+        alpha = rz / pq
+        rr = f64(0.0)
+        for i in range(n):
+            x[i] = x[i] + alpha * p[i]
+            r[i] = r[i] - alpha * q[i]
+            rr += wp.dot(r[i], r[i])
+        sgs_apply(offsets, columns, values, diag_index, inv_diag, r, z)
+        rz_new = f64(0.0)
+        for i in range(n):
+            rz_new += wp.dot(r[i], z[i])
+        beta = rz_new / rz
+        rz = rz_new
+        for i in range(n):
+            p[i] = z[i] + beta * p[i]
+        it += 1
+    result[0] = f64(it)
+    result[1] = wp.sqrt(rr / wp.max(bb, f64(1.0e-300)))
+
+
+@wp.kernel
+def apply_block_jacobi(
+    inv_diag: wp.array(dtype=mat33),
+    x: wp.array(dtype=vec3),
+    y: wp.array(dtype=vec3),
+    z: wp.array(dtype=vec3),
+    alpha: f64,
+    beta: f64,
+):
+    """z = alpha blockdiag^-1 x + beta y (the preconditioner of :func:`warp.optim.linear.cg`)."""
+    i = wp.tid()
+    z[i] = alpha * (inv_diag[i] * x[i]) + beta * y[i]
+
+
+def block_topology(tets: np.ndarray, n_vertices: int):
+    """Sparsity of the stiffness matrix: CSR ``offsets`` (V+1,), block ``columns`` (nnz,), the block slot of
+    every (tet, a, b) pair ``block_index`` (T, 16) and of every diagonal block ``diag_index`` (V,)."""
+    rows = np.repeat(tets, 4, axis=1)  # (T, 16): a repeated
+    cols = np.tile(tets, (1, 4))  # (T, 16): b cycling
+    keys = rows.astype(np.int64) * n_vertices + cols
+    unique, inverse = np.unique(keys.ravel(), return_inverse=True)
+    urows, ucols = np.divmod(unique, n_vertices)
+    offsets = np.zeros(n_vertices + 1, np.int64)
+    np.cumsum(np.bincount(urows, minlength=n_vertices), out=offsets[1:])
+    diag_index = np.searchsorted(unique, np.arange(n_vertices, dtype=np.int64) * (n_vertices + 1))
+    return (
+        offsets.astype(np.int32),
+        ucols.astype(np.int32),
+        inverse.reshape(-1, 16).astype(np.int32),
+        diag_index.astype(np.int32),
+    )
+
+
+def serial_pcg_solver(
+    offsets, columns, values, diag_index, inv_diag, b, d, work, result, tol, max_iter, device
+):
+    """``solve(atol) -> CG steps`` for ``H d = b`` by :func:`pcg_serial` (one thread); ``offsets``,
+    ``columns``, ``values``, ``diag_index``, ``inv_diag`` are the Warp arrays of the pattern and the blocks,
+    ``work`` the four (V,) vec3 scratch arrays (r, z, p, q), ``result`` a (2,) f64 array."""
+    r, z, p, q = work
+
+    def solve(atol: float) -> int:
+        wp.launch(
+            pcg_serial,
+            1,
+            [
+                offsets,
+                columns,
+                values,
+                diag_index,
+                inv_diag,
+                b,
+                f64(tol),
+                f64(atol),
+                max_iter,
+                d,
+                r,
+                z,
+                p,
+                q,
+                result,
+            ],
+            device=device,
+        )
+        return int(result.numpy()[0])
+
+    return solve
+
+
+def bsr_cg_solver(
+    offsets: np.ndarray, columns: np.ndarray, columns_wp, inv_diag, b, d, tol, max_iter, device
+):
+    """``(values, solve)``: a :mod:`warp.sparse` BSR matrix with the pattern ``offsets``/``columns`` (whose
+    ``values`` array the caller fills with the Hessian blocks) and ``solve(atol) -> CG steps`` for
+    ``H d = b`` by :func:`warp.optim.linear.cg` with block-Jacobi (``inv_diag``)."""
+    import warp.optim.linear as wpl
+    import warp.sparse as wps
+
+    n = len(offsets) - 1
+    rows = np.repeat(np.arange(n, dtype=np.int32), np.diff(offsets))
+    matrix = wps.bsr_zeros(n, n, block_type=mat33, device=device)
+    wps.bsr_set_from_triplets(
+        matrix,
+        wp.array(rows, dtype=wp.int32, device=device),
+        columns_wp,
+        wp.zeros(len(columns), dtype=mat33, device=device),
+        prune_numerical_zeros=False,
+    )
+    if not (
+        np.array_equal(matrix.offsets.numpy()[: n + 1], offsets)
+        and np.array_equal(matrix.columns.numpy()[: len(columns)], columns)
+    ):
+        raise RuntimeError("warp.sparse reordered the stiffness pattern; block_topology must match it")
+
+    def precondition(x, y, z, alpha, beta):
+        wp.launch(apply_block_jacobi, n, [inv_diag, x, y, z, f64(alpha), f64(beta)], device=device)
+
+    jacobi = wpl.LinearOperator((3 * n, 3 * n), mat33, device, precondition)
+    state = wpl.cg(matrix, b, d, tol=tol, maxiter=max_iter, M=jacobi, use_cuda_graph=False, run=False)
+
+    def solve(atol: float) -> int:  # the tolerance is relative only: the state fixes atol at creation
+        iterations, _, _ = state()
+        return int(iterations)
+
+    return matrix.values, solve

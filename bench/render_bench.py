@@ -23,7 +23,7 @@ import torch
 from neural.asset import load_asset, load_field
 from neural.data import load_dataset
 from neural.device import pick_device
-from neural.render.narrowband import NarrowBandConfig, ShellIntersector
+from neural.render.narrowband import ShellIntersector
 from neural.render.view import fitted_occupancy_grid, full_ray_sampler, narrow_band_sampler, occupancy_sampler
 from neural.train import evaluate
 
@@ -41,14 +41,13 @@ def main() -> None:
     device = pick_device(args.device)
     asset = load_asset(args.asset)
     field = load_field(asset, device)
-    downscale = int(asset.meta.get("training", {}).get("downscale", 1))
-    background = tuple(asset.meta.get("background", (1.0, 1.0, 1.0)))
-    data = load_dataset(args.data, downscale=downscale, background=background)
+    background = asset.background
+    data = load_dataset(args.data, downscale=asset.training_downscale, background=background)
     views = np.asarray(data.test_idx)[: args.views]
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
     intersector = ShellIntersector(asset.outer_mesh(), asset.inner_mesh())
     samplers = {
-        "narrow_band": narrow_band_sampler(intersector, NarrowBandConfig(**asset.meta["narrowband"])),
+        "narrow_band": narrow_band_sampler(intersector, asset.narrowband_config()),
         "occupancy_grid": occupancy_sampler(fitted_occupancy_grid(field), field),
         "full_ray": full_ray_sampler(field),
     }

@@ -91,6 +91,25 @@ class Asset:
         return np.asarray(self.meta.get("up", [0.0, 0.0, 1.0]), dtype=np.float64)
 
     @property
+    def background(self) -> tuple[float, float, float]:
+        """Colour behind the object (the training background)."""
+        return tuple(float(c) for c in self.meta.get("background", (1.0, 1.0, 1.0)))
+
+    @property
+    def training_downscale(self) -> int:
+        """The image downscale the asset was trained at (its held-out views are evaluated at it)."""
+        return int(self.meta.get("training", {}).get("downscale", 1))
+
+    def narrowband_config(self):
+        """The :class:`~neural.render.narrowband.NarrowBandConfig` stored with the asset (world units)."""
+        from .render.narrowband import NarrowBandConfig
+
+        try:
+            return NarrowBandConfig(**self.meta.get("narrowband", {}))
+        except (TypeError, ValueError) as err:
+            raise InputError(f"{self.root / 'asset.json'}: invalid narrowband settings ({err})") from None
+
+    @property
     def cage_path(self) -> Path:
         return self.root / CAGE_FILE
 

@@ -22,8 +22,13 @@ from .data import SceneData, pixel_to_ray
 from .field import ShellField
 from .metrics import psnr, ssim
 from .render.fullray import render_rays
-from .render.occupancy import OccupancyGrid
-from .render.view import field_box, narrow_band_sampler, occupancy_sampler, render_camera
+from .render.view import (
+    field_occupancy_grid,
+    narrow_band_sampler,
+    occupancy_sampler,
+    render_camera,
+    sdf_kernel_fn,
+)
 
 log = logging.getLogger(__name__)
 
@@ -173,20 +178,6 @@ def evaluate(field: ShellField, data: SceneData, views, sampler, background: tor
     }
 
 
-def new_occupancy_grid(field: ShellField, resolution: int) -> OccupancyGrid:
-    """Occupancy grid over the field's domain (the unit cube in world coordinates), not yet probed."""
-    lo, hi = field_box(field)
-    return OccupancyGrid(lo, hi, resolution, device=lo.device)
-
-
-def _sdf_kernel(field: ShellField):
-    def fn(x):
-        geo = field.geometry(x)
-        return geo.sdf, geo.inv_s
-
-    return fn
-
-
 def _psnr(color: torch.Tensor, target: torch.Tensor) -> float:
     """PSNR of a training batch (for the progress bar)."""
     return -10.0 * math.log10(max(float(((color.detach() - target) ** 2).mean()), 1e-10))
@@ -220,7 +211,7 @@ def train_stage1(
     torch.manual_seed(config.seed)
     ckpt = Path(out_dir) / "checkpoints" / "stage1.safetensors"
     optimizer = make_optimizer(field, config.lr_encoding, config.lr_network)
-    grid = new_occupancy_grid(field, config.occupancy_resolution)
+    grid = field_occupancy_grid(field, config.occupancy_resolution)
     background = torch.as_tensor(data.background, dtype=torch.float32, device=device)
     start, n_rays, final = 0, config.initial_rays, None
     if ckpt.is_file():
@@ -238,7 +229,7 @@ def train_stage1(
     for step in range(start, config.steps):
         if step % config.occupancy_every == 0:
             with torch.no_grad():
-                grid.update(_sdf_kernel(field), step)
+                grid.update(sdf_kernel_fn(field), step)
         set_learning_rate(optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor)
         origins, dirs, target = pixels.sample(n_rays)
         samples = sampler(origins, dirs)

@@ -69,7 +69,7 @@ class DeformedRenderer:
 
     def __init__(self, asset, field, cage, device: str = "cpu", config=None):
         from neural.device import warp_device
-        from neural.render.narrowband import NarrowBandConfig, ShellIntersector
+        from neural.render.narrowband import ShellIntersector
 
         self.outer, self.inner = asset.outer_mesh(), asset.inner_mesh()
         for name, mesh in (("outer", self.outer), ("inner", self.inner)):
@@ -83,9 +83,8 @@ class DeformedRenderer:
         self.cage = cage
         self.device = torch.device(device)
         self.warp_device = warp_device(str(device))
-        self.config = NarrowBandConfig(**asset.meta.get("narrowband", {})) if config is None else config
-        background = asset.meta.get("background", (1.0, 1.0, 1.0))
-        self.background = torch.as_tensor(background, dtype=torch.float32, device=self.device)
+        self.config = asset.narrowband_config() if config is None else config
+        self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
         self._rest = _Frame(ShellIntersector(self.outer, self.inner), None)
 
     def deformed_shells(self, positions):

@@ -11,8 +11,8 @@ from scenes import write_sphere_scene
 from neural.data import load_dataset
 from neural.field import FieldConfig, HashGridConfig
 from neural.pipeline import build_field
-from neural.render.view import occupancy_sampler
-from neural.train import Stage1Config, evaluate, new_occupancy_grid, train_stage1
+from neural.render.view import field_occupancy_grid, occupancy_sampler
+from neural.train import Stage1Config, evaluate, train_stage1
 from shellsim.cli import main
 
 SMALL_FIELD = FieldConfig(hashgrid=HashGridConfig(log2_table_size=14, max_resolution=256))
@@ -41,7 +41,7 @@ def test_stage1_improves_psnr_on_a_rendered_sphere(sphere_data, tmp_path):
     torch.manual_seed(0)
     field = build_field(sphere_data, SMALL_FIELD, "cpu")
     config = small_stage1(150)
-    grid = new_occupancy_grid(field, config.occupancy_resolution)
+    grid = field_occupancy_grid(field, config.occupancy_resolution)
     background = torch.ones(3)
     before = evaluate(field, sphere_data, sphere_data.test_idx, occupancy_sampler(grid, field), background)
     result = train_stage1(field, sphere_data, tmp_path, config, "cpu")

@@ -16,7 +16,7 @@ import torch
 
 from ..data import Cameras, camera_rays
 from .fullray import ray_aabb, render_rays, stepped_samples
-from .occupancy import OccupancyGrid
+from .occupancy import OccupancyConfig, OccupancyGrid
 
 DEFAULT_STEP = 2.0 * np.sqrt(3.0) / 512  # marching step in the field's unit space (Instant-NGP's)
 
@@ -66,19 +66,29 @@ def narrow_band_sampler(intersector, config):
     return sample
 
 
-def fitted_occupancy_grid(field, resolution: int = 128) -> OccupancyGrid:
-    """An occupancy grid over the field's box with every cell probed once (for rendering a trained field)."""
-    from .occupancy import OccupancyConfig
-
-    lo, hi = field_box(field)
-    grid = OccupancyGrid(lo, hi, resolution, OccupancyConfig(jitter=False), device=lo.device)
+def sdf_kernel_fn(field):
+    """``fn(x (N, 3)) -> (sdf (N,), inv_s (N,))`` of ``field``, the probe an occupancy grid updates from."""
 
     def fn(x):
         geo = field.geometry(x)
         return geo.sdf, geo.inv_s
 
+    return fn
+
+
+def field_occupancy_grid(
+    field, resolution: int = 128, config: OccupancyConfig | None = None
+) -> OccupancyGrid:
+    """An occupancy grid over the field's box (the unit cube in world coordinates), not yet probed."""
+    lo, hi = field_box(field)
+    return OccupancyGrid(lo, hi, resolution, config, device=lo.device)
+
+
+def fitted_occupancy_grid(field, resolution: int = 128) -> OccupancyGrid:
+    """An occupancy grid over the field's box with every cell probed once (for rendering a trained field)."""
+    grid = field_occupancy_grid(field, resolution, OccupancyConfig(jitter=False))
     with torch.no_grad():
-        grid.update(fn, step=0)
+        grid.update(sdf_kernel_fn(field), step=0)
     return grid
 
 

@@ -34,19 +34,19 @@ def run(args: argparse.Namespace) -> None:
     from neural.data import load_dataset
     from neural.device import pick_device
     from neural.metrics import lpips_status
-    from neural.render.narrowband import NarrowBandConfig, ShellIntersector
+    from neural.render.narrowband import ShellIntersector
     from neural.render.view import full_ray_sampler, narrow_band_sampler
     from neural.train import evaluate
 
     asset = load_asset(args.asset)
     device = pick_device(args.device)
-    downscale = args.downscale or int(asset.meta.get("training", {}).get("downscale", 1))
-    background = tuple(asset.meta.get("background", (1.0, 1.0, 1.0)))
+    downscale = args.downscale or asset.training_downscale
+    background = asset.background
     data = load_dataset(args.data, downscale=downscale, background=background)
     views = np.asarray(data.test_idx)[: args.views]
     field = load_field(asset, device)
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
-    nb_config = NarrowBandConfig(**asset.meta.get("narrowband", {}))
+    nb_config = asset.narrowband_config()
     samplers = {
         "narrow_band": narrow_band_sampler(
             ShellIntersector(asset.outer_mesh(), asset.inner_mesh()), nb_config

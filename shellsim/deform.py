@@ -22,10 +22,11 @@ contains all content, so a renderer drops those samples.
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import warp as wp
+
+from neural.device import run_in_chunks
 
 from .embed import check_points, check_tets, interpolate
 
@@ -357,17 +358,8 @@ class InverseMap:
                 stream=stream,
             )
 
-        threads = 1 if self.device.is_cuda else max(1, min(self.cpu_threads, n // _MIN_CHUNK))
-        if n == 0:
-            return
-        if threads == 1:
-            launch(0, n)
-            return
-        bounds = np.linspace(0, n, threads + 1).astype(np.int64)
-        with ThreadPoolExecutor(threads, thread_name_prefix="inverse-map") as pool:
-            futures = [pool.submit(launch, int(bounds[k]), int(bounds[k + 1])) for k in range(threads)]
-            for future in futures:
-                future.result()
+        wp.load_module(_map_kernel.module, device=self.device)
+        run_in_chunks(n, launch, 1 if self.device.is_cuda else self.cpu_threads, _MIN_CHUNK)
 
 
 def _torch_points(name: str, a, device: str):

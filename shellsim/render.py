@@ -3,8 +3,9 @@
 For one frame with cage vertices ``p`` (V, 3), :class:`DeformedRenderer`
 
 1. **deforms the shells**: every ``M+`` / ``M-`` vertex is the barycentric interpolation of ``p`` in its
-   rest tet (:func:`shellsim.deform.deform_points`), and builds their Embree scenes and the Warp BVH of the
-   deformed tets (:class:`shellsim.deform.InverseMap`);
+   rest tet (:func:`shellsim.deform.deform_points`); the BVHs of their Warp meshes, built once from the rest
+   shells, are refitted (:class:`neural.render.narrowband.RefitShellIntersector`), and the Warp BVH of the
+   deformed tets is built (:class:`shellsim.deform.InverseMap`);
 2. **casts** the camera rays against the deformed shells and places samples in the deformed narrow band
    (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
 3. **maps** every sample back to rest space: ``x_rest = Phi^-1(x)``, the ray direction by finite
@@ -51,7 +52,7 @@ STAGES = ("build", "cast", "map", "field")
 class _Frame:
     """What one frame's rays are cast against and mapped through."""
 
-    intersector: object  # ShellIntersector of the (deformed) shells
+    intersector: object  # ShellIntersector of the rest shells or RefitShellIntersector of deformed ones
     inverse: object | None  # InverseMap of the deformed cage; None at rest
 
 
@@ -64,7 +65,8 @@ class DeformedRenderer:
     device : torch device of the field ("cpu", "cuda"); the inverse map runs on the matching Warp device
     config : narrow-band settings; None takes the asset's ``meta["narrowband"]`` (or the defaults)
 
-    State: the rest shells' faces and Embree scenes (built once), the field and the cage.
+    State: the rest shells and their Embree scenes (built once), the field, the cage, and Warp meshes of the
+    shells refitted to each deformed frame (built on the first one).
     """
 
     def __init__(self, asset, field, cage, device: str = "cpu", config=None):
@@ -86,23 +88,20 @@ class DeformedRenderer:
         self.config = asset.narrowband_config() if config is None else config
         self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
         self._rest = _Frame(ShellIntersector(self.outer, self.inner), None)
+        self._deformed = None  # RefitShellIntersector, built for the first deformed frame
 
-    def deformed_shells(self, positions):
-        """``M+`` and ``M-`` of cage vertices ``positions`` (V, 3): two ``trimesh.Trimesh`` (world)."""
-        import trimesh
-
+    def deformed_vertices(self, positions) -> tuple[np.ndarray, np.ndarray]:
+        """``M+`` and ``M-`` vertices (V+, 3), (V-, 3) float64 (world) for cage vertices ``positions`` (V, 3)."""
         from .deform import deform_points
 
         c = self.cage
-        outer = deform_points(positions, c.tets, c.outer_tet, c.outer_bary)
-        inner = deform_points(positions, c.tets, c.inner_tet, c.inner_bary)
         return (
-            trimesh.Trimesh(outer, self.outer.faces, process=False),
-            trimesh.Trimesh(inner, self.inner.faces, process=False),
+            deform_points(positions, c.tets, c.outer_tet, c.outer_bary),
+            deform_points(positions, c.tets, c.inner_tet, c.inner_bary),
         )
 
     def _frame(self, positions) -> _Frame:
-        from neural.render.narrowband import ShellIntersector
+        from neural.render.narrowband import RefitShellIntersector
 
         from .deform import InverseMap
 
@@ -113,9 +112,11 @@ class DeformedRenderer:
             raise ValueError(
                 f"positions: expected {self.cage.vertices.shape} like the cage, got {positions.shape}"
             )
-        outer, inner = self.deformed_shells(positions)
+        if self._deformed is None:
+            self._deformed = RefitShellIntersector(self.outer, self.inner, device=self.warp_device)
+        self._deformed.refit(*self.deformed_vertices(positions))
         inverse = InverseMap(positions, self.cage.tets, self.cage.vertices, device=self.warp_device)
-        return _Frame(ShellIntersector(outer, inner), inverse)
+        return _Frame(self._deformed, inverse)
 
     @torch.no_grad()
     def render_rays(
@@ -190,8 +191,8 @@ class DeformedRenderer:
 
     def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
         """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
-        (V, 3) (None: at rest), and stats: ``ms`` and per stage ``build_ms`` (shell deformation, Embree scenes
-        and the inverse map's BVH; Embree finishes its BVH on the first cast, counted in ``cast_ms``),
+        (V, 3) (None: at rest), and stats: ``ms`` and per stage ``build_ms`` (shell deformation, refitting
+        their BVHs (built on the first deformed frame) and building the inverse map's BVH),
         ``cast_ms`` (Procedure 3), ``map_ms`` (inverse map), ``field_ms`` (field and compositing);
         ``samples_per_pixel``, ``dropped_samples`` (outside the cage) and ``counts`` (H, W)."""
         from neural.data import camera_rays

@@ -7,6 +7,7 @@ import trimesh
 
 from neural.render.narrowband import (
     NarrowBandConfig,
+    RefitShellIntersector,
     ShellIntersector,
     intervals_from_hits,
     narrow_band_samples,
@@ -64,9 +65,12 @@ def ambiguous_rays(stats, dirs, config, n_rays):
     return flagged
 
 
-def assert_matches_reference(outer, inner, origins, dirs, config, near=0.0):
+def assert_matches_reference(outer, inner, origins, dirs, config, near=0.0, intersector=None):
+    """The fast sampler on ``intersector`` (default: Embree on ``outer``, ``inner``) against the per-ray
+    float64 twin on ``outer``, ``inner``."""
     n = len(origins)
-    fast, fast_stats = narrow_band_samples(ShellIntersector(outer, inner), origins, dirs, config, near=near)
+    intersector = ShellIntersector(outer, inner) if intersector is None else intersector
+    fast, fast_stats = narrow_band_samples(intersector, origins, dirs, config, near=near)
     ref, ref_stats = narrow_band_samples_reference(outer, inner, origins, dirs, config, near=near)
     skip = ambiguous_rays(fast_stats, dirs, config, n) | ambiguous_rays(ref_stats, dirs, config, n)
     assert skip.mean() < 0.02
@@ -111,6 +115,39 @@ def test_torus_matches_reference(rng):
     origins, dirs = rays_at_scene(rng, 300, 3.0, (1.5, 1.5, 0.5))
     _, stats = assert_matches_reference(outer, inner, origins, dirs, NarrowBandConfig(0.04, 0.03, 16, 8))
     assert np.bincount(stats.interval_rays).max() >= 2
+
+
+def bend(vertices):
+    """A smooth non-affine deformation (V, 3) -> (V, 3): a bend about the y axis, a twist about z, a shift."""
+    x, y, z = vertices.T
+    angle = 0.4 * z
+    x, y = x * np.cos(angle) - y * np.sin(angle), x * np.sin(angle) + y * np.cos(angle)
+    return np.column_stack([x + 0.15 * x**2, y, z + 0.2 * np.sin(x)]) + [0.1, -0.2, 0.05]
+
+
+@pytest.mark.parametrize("shells", [torus_shells, row_of_three])
+def test_refitted_warp_intersector_matches_reference_before_and_after_moving(rng, shells):
+    """Warp meshes built on the rest shells, then refitted to bent shells: the samples equal the brute-force
+    twin's on the bent meshes themselves (a fresh Embree build is not needed)."""
+    outer, inner = shells()
+    intersector = RefitShellIntersector(outer, inner, device="cpu", cpu_threads=2)
+    config = NarrowBandConfig(0.04, 0.03, 16, 8)
+    origins, dirs = rays_at_scene(rng, 400, 4.0, (2.0, 1.5, 0.6))
+    assert_matches_reference(outer, inner, origins, dirs, config, intersector=intersector)
+    bent = [trimesh.Trimesh(bend(m.vertices), m.faces, process=False) for m in (outer, inner)]
+    intersector.refit(bent[0].vertices, bent[1].vertices)
+    _, stats = assert_matches_reference(*bent, origins, dirs, config, intersector=intersector)
+    assert (stats.counts > 0).mean() > 0.3
+    # rays split over two threads find exactly the hits of one thread
+    many = rays_at_scene(rng, 10000, 4.0, (2.0, 1.5, 0.6))
+    split = intersector.all_hits("outer", *many, 8)
+    intersector.cpu_threads = 1
+    for a, b in zip(split, intersector.all_hits("outer", *many, 8), strict=True):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="outer_vertices: expected shape"):
+        intersector.refit(bent[0].vertices[:-1], bent[1].vertices)
+    with pytest.raises(ValueError, match="inner_vertices: contain NaN"):
+        intersector.refit(bent[0].vertices, np.full_like(bent[1].vertices, np.nan))
 
 
 def test_origins_inside_outer_and_inner_match_reference(rng):

@@ -6,6 +6,8 @@ in-shell intervals; an interval's exit is clipped at ``d_M-`` and the ray stops 
 solid. An interval of width ``w`` gets ``N = min(ceil(max(w - w_s, 0) / delta_s) + 1, N_max)`` samples at
 ``linspace(d_enter, d_exit, N + 2)[1:-1]`` (Procedure 3, line 19-20). All rays are handled at once: one
 Embree cast per depth-peeling round for all still-active rays, then pure numpy packing into ``RaySamples``.
+Shells that move (deformed rendering, paper Sec. 5) are cast by :class:`RefitShellIntersector` instead: Warp
+meshes whose BVHs are refitted to new vertex positions rather than rebuilt.
 
 Rules where Procedure 3 leaves a case open (they only matter for origins inside M+ or for meshes that are
 not closed and nested) are followed alike by :func:`narrow_band_samples` and its per-ray twin
@@ -20,17 +22,22 @@ not closed and nested) are followed alike by :func:`narrow_band_samples` and its
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 import trimesh
+import warp as wp
 
+from neural.device import run_in_chunks
 from neural.render.samples import RaySamples
 
 # Step past a hit before casting again, relative to the scene's bounding-box diagonal: far above float32
 # rounding of the centred coordinates (~3e-8), far below any shell width worth sampling.
 _STEP_REL = 1e-5
+#: Fewest rays per CPU thread of a Warp cast.
+_MIN_CAST_CHUNK = 4096
 
 
 @dataclass(frozen=True)
@@ -101,20 +108,24 @@ def _as_rays(origins, dirs) -> tuple[np.ndarray, np.ndarray]:
     return origins, dirs
 
 
-def _mesh_arrays(name: str, mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vertices (V, 3) float64, faces (F, 3) int64 and unnormalised facet normals (F, 3) float64 of a shell;
-    rejects an empty or inward-wound one."""
+def _mesh_arrays(name: str, mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) float64 and faces (F, 3) int64 of a shell; rejects an empty or inward-wound one."""
     if not isinstance(mesh, trimesh.Trimesh):
         raise TypeError(f"{name} must be a trimesh.Trimesh, got {type(mesh).__name__}")
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if len(faces) == 0:
         raise ValueError(f"{name} has no faces")
-    a, b, c = (vertices[faces[:, k]] for k in range(3))
-    normals = np.cross(b - a, c - a)
-    if np.einsum("ij,ij->", a, normals) < 0:  # 6 x signed volume (cheaper than mesh.volume)
+    if np.einsum("ij,ij->", vertices[faces[:, 0]], _facet_normals(vertices, faces)) < 0:
         raise ValueError(f"{name} encloses a negative volume: its faces are wound inward (see mesh.invert())")
-    return vertices, faces, normals
+    return vertices, faces
+
+
+def _facet_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unnormalised facet normals (F, 3) of ``faces`` (F, 3) into ``vertices`` (V, 3); summed against the
+    first corners they give 6 x the signed volume (cheaper than ``mesh.volume``)."""
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    return np.cross(b - a, c - a)
 
 
 class ShellIntersector:
@@ -123,32 +134,35 @@ class ShellIntersector:
     Meshes must be closed (not checked: it costs more than the build) with outward facet normals
     (counter-clockwise winding seen from outside; an inward-wound mesh is rejected): a hit enters a mesh
     where ``dot(dir, normal) < 0`` and exits otherwise. Geometry is centred on the scene's bounding box
-    before conversion to Embree's float32, keeping rounding small in world units. Building costs 1-3 us
-    of CPU per face (embreex copies buffers element by element), Embree's BVH build a third of that on the
-    first cast; the binding has no vertex update, so deformed shells need a new
-    intersector per frame.
+    before conversion to float32, keeping rounding small in world units. Building costs 1-3 us of CPU per
+    face (embreex copies buffers element by element), Embree's BVH build a third of that on the first
+    cast; the binding has no vertex update: for shells that move, :class:`RefitShellIntersector` refits.
     """
 
     def __init__(self, outer: trimesh.Trimesh, inner: trimesh.Trimesh):
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-
         arrays = {"outer": _mesh_arrays("outer", outer), "inner": _mesh_arrays("inner", inner)}
-        points = np.concatenate([vertices for vertices, _, _ in arrays.values()])
+        points = np.concatenate([vertices for vertices, _ in arrays.values()])
         lo, hi = points.min(axis=0), points.max(axis=0)
         self.center = 0.5 * (lo + hi)  # (3,) float64
         self.step = _STEP_REL * max(float(np.linalg.norm(hi - lo)), 1e-12)  # world units
-        self._scenes = {}
-        self._normals = {}  # (F, 3) float64 facet normals, unnormalised: only their sign against dirs counts
-        for which, (vertices, faces, normals) in arrays.items():
-            scene = rtcore_scene.EmbreeScene(robust=True)
-            TriangleMesh(
-                scene=scene,
-                vertices=np.ascontiguousarray(vertices - self.center, dtype=np.float32),
-                indices=np.ascontiguousarray(faces, dtype=np.int32),
+        self._vertices = {which: vertices for which, (vertices, _) in arrays.items()}  # (V, 3) float64
+        self._faces = {which: faces for which, (_, faces) in arrays.items()}  # (F, 3) int64
+        self._scenes = {
+            which: self._build(
+                np.ascontiguousarray(vertices - self.center, dtype=np.float32),
+                np.ascontiguousarray(faces, dtype=np.int32),
             )
-            self._scenes[which] = scene
-            self._normals[which] = normals
+            for which, (vertices, faces) in arrays.items()
+        }
+
+    def _build(self, vertices: np.ndarray, faces: np.ndarray):
+        """The scene of one mesh: centred ``vertices`` (V, 3) float32, ``faces`` (F, 3) int32."""
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
+        scene = rtcore_scene.EmbreeScene(robust=True)
+        TriangleMesh(scene=scene, vertices=vertices, indices=faces)
+        return scene
 
     def _scene(self, mesh_which: str):
         if mesh_which not in self._scenes:
@@ -196,7 +210,6 @@ class ShellIntersector:
         and ``entering`` (H,) bool (``dot(dir, facet normal) < 0``).
         """
         scene = self._scene(mesh_which)
-        normals = self._normals[mesh_which]
         origins, dirs = _as_rays(origins, dirs)
         if int(max_hits) != max_hits or max_hits < 1:
             raise ValueError(f"max_hits must be an integer >= 1, got {max_hits}")
@@ -245,8 +258,95 @@ class ShellIntersector:
         prim = np.concatenate(found_prim) if found_prim else np.zeros(0, dtype=np.int64)
         order = np.argsort(ray_idx, kind="stable")  # rounds are in t order along each ray
         ray_idx, t, prim = ray_idx[order], t[order], prim[order]
-        entering = np.einsum("ij,ij->i", units[ray_idx], normals[prim]) < 0
+        normals = _facet_normals(self._vertices[mesh_which], self._faces[mesh_which][prim])
+        entering = np.einsum("ij,ij->i", units[ray_idx], normals) < 0
         return ray_idx, t / norms[ray_idx], entering
+
+
+@wp.kernel
+def _cast_kernel(
+    mesh: wp.uint64,
+    starts: wp.array(dtype=wp.vec3),
+    units: wp.array(dtype=wp.vec3),
+    reach: wp.array(dtype=wp.float32),
+    prim: wp.array(dtype=wp.int64),
+    dist: wp.array(dtype=wp.float32),
+):
+    """First hit of each ray on a Warp mesh within ``reach``: face (-1 on a miss) and distance."""
+    i = wp.tid()
+    query = wp.mesh_query_ray(mesh, starts[i], units[i], reach[i])
+    if query.result:
+        prim[i] = wp.int64(query.face)
+        dist[i] = query.t
+    else:
+        prim[i] = wp.int64(-1)
+        dist[i] = wp.inf
+
+
+class RefitShellIntersector(ShellIntersector):
+    """:class:`ShellIntersector` on Warp meshes whose vertices can move: :meth:`refit` takes new vertex
+    positions (same faces) and refits the BVHs in linear time, so deformed shells (paper Sec. 5) are cast
+    without a rebuild per frame (refitting 440k faces takes ~12 ms on a CPU core, building them into Embree
+    ~600 ms). Casts run on ``device`` ("cpu", "cuda:0"; None: Warp's preferred), on the CPU split over
+    ``cpu_threads`` threads (None: all cores). Centre and peeling step stay those of the shells given here.
+    """
+
+    def __init__(
+        self,
+        outer: trimesh.Trimesh,
+        inner: trimesh.Trimesh,
+        device: str | None = None,
+        cpu_threads: int | None = None,
+    ):
+        self.device = wp.get_device(device)
+        self.cpu_threads = 1 if self.device.is_cuda else (cpu_threads or os.cpu_count() or 1)
+        super().__init__(outer, inner)
+
+    def _build(self, vertices: np.ndarray, faces: np.ndarray) -> wp.Mesh:
+        return wp.Mesh(
+            points=wp.array(vertices, dtype=wp.vec3, device=self.device),
+            indices=wp.array(faces.ravel(), dtype=wp.int32, device=self.device),
+        )
+
+    def refit(self, outer_vertices, inner_vertices) -> None:
+        """Move the shells' vertices to ``outer_vertices`` (V+, 3) and ``inner_vertices`` (V-, 3) (world, in
+        the order of the meshes given at construction) and refit both BVHs."""
+        for which, vertices in (("outer", outer_vertices), ("inner", inner_vertices)):
+            vertices = np.asarray(vertices, dtype=np.float64)
+            if vertices.shape != self._vertices[which].shape:
+                raise ValueError(
+                    f"{which}_vertices: expected shape {self._vertices[which].shape}, got {vertices.shape}"
+                )
+            if not np.isfinite(vertices).all():
+                raise ValueError(f"{which}_vertices: contain NaN or infinity")
+            self._vertices[which] = vertices
+            mesh = self._scenes[which]
+            mesh.points.assign(wp.array(vertices - self.center, dtype=wp.vec3, device=self.device))
+            mesh.refit()
+
+    def _cast(
+        self, scene: wp.Mesh, starts: np.ndarray, units: np.ndarray, reach: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        n = len(starts)
+        dev = self.device
+        arrays = [
+            wp.array(np.ascontiguousarray(starts - self.center, dtype=np.float32), dtype=wp.vec3, device=dev),
+            wp.array(np.ascontiguousarray(units, dtype=np.float32), dtype=wp.vec3, device=dev),
+            wp.array(
+                np.full(n, np.inf, np.float32) if reach is None else np.asarray(reach, dtype=np.float32),
+                dtype=wp.float32,
+                device=dev,
+            ),
+            wp.empty(n, dtype=wp.int64, device=dev),
+            wp.empty(n, dtype=wp.float32, device=dev),
+        ]
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(_cast_kernel, dim=hi - lo, inputs=[scene.id, *(a[lo:hi] for a in arrays)], device=dev)
+
+        wp.load_module(_cast_kernel.module, device=dev)
+        run_in_chunks(n, launch, self.cpu_threads, _MIN_CAST_CHUNK)
+        return arrays[3].numpy(), arrays[4].numpy().astype(np.float64)
 
 
 def intervals_from_hits(

@@ -4,9 +4,9 @@ For each view (a camera orbiting the asset, evenly spaced in azimuth) it renders
 (narrow-band rendering of the rest shells, Sec. 3.4) and with its cage deformed (shells deformed by
 barycentric interpolation, cast in deformed space, every sample mapped back to rest space), and prints the
 median milliseconds per frame of each, the split of a deformed frame (build: shell deformation, BVH refit
-and the inverse map's BVH; casting, inverse map, field) and the ratio deformed / rest (target: at most 2). The deformation is a frame of the
-analytic wind (``--motion wind``, :mod:`shellsim.wind`) or a twist of the cage about the up axis growing
-with height (``--motion twist``). Wall times: run on a quiet machine.
+and the inverse map's BVH; casting, inverse map, field) and the ratio deformed / rest (target: at most 2).
+The deformation is a frame of the analytic wind (``--motion wind``, :mod:`shellsim.wind`) or a twist of the
+cage about the up axis growing with height (``--motion twist``). Wall times: run on a quiet machine.
 
     python bench/deformed_render_bench.py                          # assets/lego, 200x200, 4 views
     python bench/deformed_render_bench.py --asset PATH --size 100 --views 2 --motion twist

@@ -91,7 +91,7 @@ class DeformedRenderer:
         self._deformed = None  # RefitShellIntersector, built for the first deformed frame
 
     def deformed_vertices(self, positions) -> tuple[np.ndarray, np.ndarray]:
-        """Deformed ``M+``, ``M-`` vertices (V+, 3), (V-, 3) float64 for cage vertices ``positions`` (V, 3)."""
+        """Deformed ``M+``, ``M-`` vertices (V+, 3), (V-, 3) float64 of cage vertices ``positions`` (V, 3)."""
         from .deform import deform_points
 
         c = self.cage

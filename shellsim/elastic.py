@@ -182,6 +182,32 @@ def deformation_gradient(x: wp.array(dtype=vec3), tet: wp.array2d(dtype=wp.int32
     return Ds * dm_inv
 
 
+@wp.func
+def damping_block(Fp: mat33, damp_mu: f64, damp_lam: f64, ga: vec3, gb: vec3) -> mat33:
+    """Block (a, b) of the Kelvin-Voigt damping Hessian per unit volume (``Fp`` = F at the substep start)."""
+    if damp_mu == f64(0.0) and damp_lam == f64(0.0):
+        return mat33()
+    Ky = damp_mu * (wp.dot(ga, gb) * wp.identity(n=3, dtype=f64) + wp.outer(gb, ga)) + damp_lam * wp.outer(
+        ga, gb
+    )
+    return Fp * Ky * wp.transpose(Fp)
+
+
+@wp.func
+def add_block(
+    values: wp.array(dtype=mat33),
+    block_index: wp.array2d(dtype=wp.int32),
+    t: int,
+    a: int,
+    b: int,
+    block: mat33,
+):
+    """Add the Hessian block (a, b) of tet ``t`` and, for a != b, its transpose, block (b, a)."""
+    wp.atomic_add(values, block_index[t, 4 * a + b], block)
+    if b != a:
+        wp.atomic_add(values, block_index[t, 4 * b + a], wp.transpose(block))
+
+
 @wp.kernel
 def tet_terms(
     x: wp.array(dtype=vec3),
@@ -204,7 +230,7 @@ def tet_terms(
 ):
     """Tet ``t``: V (Psi(F) + D(A)) (``damp_* = beta/h * Lamé``) and min det F; from ``order`` FORCE on the
     forces ``-V P g_a`` and from HESSIAN on the 16 Hessian blocks ``V g_a^T H g_b`` (+ damping blocks) of
-    its free vertices."""
+    its free vertices (10 computed, 6 their transposes)."""
     t = wp.tid()
     Dinv = dm_inv[t]
     F = deformation_gradient(x, tets, t, Dinv)
@@ -220,38 +246,35 @@ def tet_terms(
         return
     S = f64(2.0) * damp_mu * symA + damp_lam * trA * wp.identity(n=3, dtype=f64)
     P = vol * (snh_stress(F, mu, lam) + Fp * S)
+    for a in range(4):
+        ia = tets[t, a]
+        if pinned[ia] == 0:
+            wp.atomic_sub(force, ia, P * shape_gradient(Dinv, a))
+    if order != HESSIAN:
+        return
     # Definiteness: where the smallest eigenvalue of d2Psi/dF2 is >= -shift_limit mu, the exact blocks plus
     # a shift of (-eigenvalue) mu-like identity (PSD, cheap); beyond, the eigen-projected Hessian (SVD).
-    shift = f64(0.0)
-    exact = True
+    shift = wp.max(-snh_min_eigenvalue(F, mu, lam), f64(0.0))
+    exact = shift <= shift_limit * mu
     H = mat99()
-    if order == HESSIAN:
-        shift = wp.max(-snh_min_eigenvalue(F, mu, lam), f64(0.0))
-        exact = shift <= shift_limit * mu
-        if not exact:
-            H = vol * snh_hessian_psd(F, mu, lam)
+    if not exact:
+        H = snh_hessian_psd(F, mu, lam)
     cof = det_gradient(F)
     k = lam * (wp.determinant(F) - f64(1.0)) - mu
     for a in range(4):
-        ia = tets[t, a]
-        if pinned[ia] != 0:
+        if pinned[tets[t, a]] != 0:
             continue
         ga = shape_gradient(Dinv, a)
-        wp.atomic_sub(force, ia, P * ga)
-        for b in range(4):
-            if order != HESSIAN or pinned[tets[t, b]] != 0:
-                continue
-            gb = shape_gradient(Dinv, b)
-            block = mat33()
-            if exact:
-                block = vol * snh_block(F, cof, mu + shift, lam, k, ga, gb)
-            else:
-                block = contract(H, ga, gb)
-            if damp_mu > f64(0.0) or damp_lam > f64(0.0):
-                Ky = damp_mu * (wp.dot(ga, gb) * wp.identity(n=3, dtype=f64) + wp.outer(gb, ga))
-                Ky += damp_lam * wp.outer(ga, gb)
-                block += vol * (Fp * Ky * wp.transpose(Fp))
-            wp.atomic_add(values, block_index[t, 4 * a + b], block)
+        for b in range(a, 4):
+            if pinned[tets[t, b]] == 0:
+                gb = shape_gradient(Dinv, b)
+                block = mat33()
+                if exact:
+                    block = snh_block(F, cof, mu + shift, lam, k, ga, gb)
+                else:
+                    block = contract(H, ga, gb)
+                block += damping_block(Fp, damp_mu, damp_lam, ga, gb)
+                add_block(values, block_index, t, a, b, vol * block)
 
 
 def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:

@@ -298,6 +298,7 @@ class Simulator:
             "_z",
             "_p",
             "_q",
+            "_t",
         )
         for name in vecs:
             setattr(self, name, wp.zeros(len(rest), dtype=vec3, device=dev))
@@ -404,17 +405,22 @@ class Simulator:
         )
         terms = dict(h=h, contact=contact)
 
-        # start from the inertial prediction unless it inverts a tet
-        wp.copy(self._x_trial, self._x_tilde)
-        energy, min_det, _ = self._evaluate(self._x_trial, terms, ENERGY)
-        if min_det > 0 and math.isfinite(energy):
-            wp.copy(self._x, self._x_trial)
+        # start from the inertial prediction plus the previous substep's correction, or from the prediction
+        # alone, whichever has the lower energy and inverts no tet (else from x^n)
+        start_energy = math.inf
+        for weight in (1.0, 0.0):
+            wp.launch(step_positions, n, [self._x_tilde, self._correction, weight, self._x_trial], device=dev)
+            energy, min_det, _ = self._evaluate(self._x_trial, terms, ENERGY)
+            if min_det > 0 and energy < start_energy:
+                wp.copy(self._x, self._x_trial)
+                start_energy = energy
         # Newton stops once the step is below tol; H >= M / h^2 bounds |d| <= |force| h^2 / m_min
         tol = s.newton_tol * self.size * h
         force_tol = tol * self._min_free_mass / (h * h)
         converged = False
         iterations = 0
-        for iterations in range(1, s.newton_iterations + 1):
+        while iterations < s.newton_iterations:
+            iterations += 1
             energy, min_det, force_norm = self._evaluate(self._x, terms, FORCE)
             if not math.isfinite(energy):
                 return "the energy became non-finite"
@@ -422,10 +428,7 @@ class Simulator:
                 converged = True
                 break
             self._evaluate(self._x, terms, HESSIAN)
-            if iterations == 1:
-                wp.copy(self._d, self._correction)
-            else:
-                self._d.zero_()
+            self._d.zero_()
             stats.cg_iterations += self._solve(0.1 * force_tol)
             self._scalars.zero_()
             wp.launch(max_length, n, [self._d, self._scalars], device=dev)
@@ -553,7 +556,7 @@ class Simulator:
                 self._inv_diag,
                 self._force,
                 self._d,
-                (self._r, self._z, self._p, self._q),
+                (self._r, self._z, self._p, self._q, self._t),
                 self._cg_result,
                 s.cg_tol,
                 s.cg_iterations,

@@ -19,29 +19,71 @@ f64 = wp.float64
 
 
 @wp.func
-def sgs_apply(
+def residual(
+    offsets: wp.array(dtype=wp.int32),
+    columns: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=mat33),
+    b: wp.array(dtype=vec3),
+    x: wp.array(dtype=vec3),
+    r: wp.array(dtype=vec3),
+) -> f64:
+    """r = b - A x; returns |r|^2."""
+    rr = f64(0.0)
+    for i in range(b.shape[0]):
+        acc = b[i]
+        for k in range(offsets[i], offsets[i + 1]):
+            acc -= values[k] * x[columns[k]]
+        r[i] = acc
+        rr += wp.dot(acc, acc)
+    return rr
+
+
+@wp.func
+def upper_solve(
     offsets: wp.array(dtype=wp.int32),
     columns: wp.array(dtype=wp.int32),
     values: wp.array(dtype=mat33),
     diag_index: wp.array(dtype=wp.int32),
     inv_diag: wp.array(dtype=mat33),
-    r: wp.array(dtype=vec3),
-    z: wp.array(dtype=vec3),
+    p: wp.array(dtype=vec3),
+    t: wp.array(dtype=vec3),
 ):
-    """z = M^-1 r for the symmetric Gauss-Seidel preconditioner M = (D + L) D^-1 (D + L^T)."""
-    n = r.shape[0]
-    for i in range(n):  # (D + L) y = r
-        acc = r[i]
-        for k in range(offsets[i], diag_index[i]):
-            acc -= values[k] * z[columns[k]]
-        z[i] = inv_diag[i] * acc
-    for j in range(n):  # (D + L^T) z = D y
+    """t = (D + U)^-1 p (backward substitution over the upper blocks)."""
+    n = p.shape[0]
+    for j in range(n):
         i = n - 1 - j
-        acc = vec3(f64(0.0), f64(0.0), f64(0.0))
+        acc = p[i]
         for k in range(diag_index[i] + 1, offsets[i + 1]):
-            acc += values[k] * z[columns[k]]
-        z[i] = z[i] - inv_diag[i] * acc
+            acc -= values[k] * t[columns[k]]
+        t[i] = inv_diag[i] * acc
     return 0
+
+
+@wp.func
+def lower_solve(
+    offsets: wp.array(dtype=wp.int32),
+    columns: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=mat33),
+    diag_index: wp.array(dtype=wp.int32),
+    inv_diag: wp.array(dtype=mat33),
+    p: wp.array(dtype=vec3),
+    t: wp.array(dtype=vec3),
+    s: wp.array(dtype=vec3),
+    q: wp.array(dtype=vec3),
+) -> f64:
+    """s = (D + L)^-1 (p - D t) (forward substitution over the lower blocks) and q = t + s; returns p . q."""
+    pq = f64(0.0)
+    for i in range(p.shape[0]):
+        d = diag_index[i]
+        acc = p[i] - values[d] * t[i]
+        for k in range(offsets[i], d):
+            acc -= values[k] * s[columns[k]]
+        si = inv_diag[i] * acc
+        s[i] = si
+        qi = t[i] + si
+        q[i] = qi
+        pq += wp.dot(p[i], qi)
+    return pq
 
 
 @wp.kernel
@@ -60,54 +102,58 @@ def pcg_serial(
     z: wp.array(dtype=vec3),
     p: wp.array(dtype=vec3),
     q: wp.array(dtype=vec3),
+    t: wp.array(dtype=vec3),
     result: wp.array(dtype=f64),
 ):
     """Symmetric-Gauss-Seidel preconditioned CG for ``A x = b`` from the guess in ``x``, the whole loop in one
-    thread (a serial preconditioner costs nothing extra there).
+    thread, with Eisenstat's trick: with the blocks ``A = L + D + U`` and ``M = (D + L) D^-1 (D + U)``, CG
+    runs on ``K = (D + L)^-1 A (D + U)^-1`` preconditioned by ``D^-1`` (the same iterates), whose product
+    ``K p = t + (D + L)^-1 (p - D t)``, ``t = (D + U)^-1 p``, is one sweep over the blocks, where a product
+    with ``A`` and the two sweeps of ``M^-1`` are two; ``x`` moves by ``t`` per unit of the transformed step.
 
-    Stops when ``|r| <= max(tol |b|, atol)``; ``result`` = (iterations, |r| / |b|)."""
+    ``r`` holds ``(D + L)^-1 (b - A x)``, so ``r . z = (b - A x)^T M^-1 (b - A x)``; that times the ratio
+    ``|b - A x|^2 / r . z`` of the last exact residual estimates ``|b - A x|^2``, and an exact residual (one
+    product with ``A``) confirms ``|b - A x| <= max(tol |b|, atol)`` before it stops.
+    ``result`` = (iterations, |b - A x| / |b|)."""
     n = b.shape[0]
     bb = f64(0.0)
-    rr = f64(0.0)
     for i in range(n):
-        acc = b[i]
-        for k in range(offsets[i], offsets[i + 1]):
-            acc -= values[k] * x[columns[k]]
-        r[i] = acc
         bb += wp.dot(b[i], b[i])
-        rr += wp.dot(acc, acc)
-    sgs_apply(offsets, columns, values, diag_index, inv_diag, r, z)
+        t[i] = vec3(f64(0.0), f64(0.0), f64(0.0))
+    rr = residual(offsets, columns, values, b, x, q)
+    lower_solve(offsets, columns, values, diag_index, inv_diag, q, t, r, z)
     rz = f64(0.0)
     for i in range(n):
-        p[i] = z[i]
-        rz += wp.dot(r[i], z[i])
+        zi = values[diag_index[i]] * r[i]
+        z[i] = zi
+        p[i] = zi
+        rz += wp.dot(r[i], zi)
+    ratio = rr / wp.max(rz, f64(1.0e-300))
     threshold = wp.max(tol * tol * bb, atol * atol)
     it = int(0)  # noqa: UP018 (a mutable Warp variable, not a constant)
     while it < max_iter and rr > threshold:
-        pq = f64(0.0)
-        for i in range(n):
-            acc = vec3(f64(0.0), f64(0.0), f64(0.0))
-            for k in range(offsets[i], offsets[i + 1]):
-                acc += values[k] * p[columns[k]]
-            q[i] = acc
-            pq += wp.dot(p[i], acc)
+        upper_solve(offsets, columns, values, diag_index, inv_diag, p, t)
+        pq = lower_solve(offsets, columns, values, diag_index, inv_diag, p, t, z, q)
         if pq <= f64(0.0):
             break
         alpha = rz / pq
-        rr = f64(0.0)
-        for i in range(n):
-            x[i] = x[i] + alpha * p[i]
-            r[i] = r[i] - alpha * q[i]
-            rr += wp.dot(r[i], r[i])
-        sgs_apply(offsets, columns, values, diag_index, inv_diag, r, z)
         rz_new = f64(0.0)
         for i in range(n):
-            rz_new += wp.dot(r[i], z[i])
+            x[i] = x[i] + alpha * t[i]
+            ri = r[i] - alpha * q[i]
+            r[i] = ri
+            zi = values[diag_index[i]] * ri
+            z[i] = zi
+            rz_new += wp.dot(ri, zi)
+        it += 1
+        rr = ratio * rz_new
+        if rr <= threshold:
+            rr = residual(offsets, columns, values, b, x, q)
+            ratio = rr / wp.max(rz_new, f64(1.0e-300))
         beta = rz_new / rz
         rz = rz_new
         for i in range(n):
             p[i] = z[i] + beta * p[i]
-        it += 1
     result[0] = f64(it)
     result[1] = wp.sqrt(rr / wp.max(bb, f64(1.0e-300)))
 
@@ -150,8 +196,8 @@ def serial_pcg_solver(
 ):
     """``solve(atol) -> CG steps`` for ``H d = b`` by :func:`pcg_serial` (one thread); ``offsets``,
     ``columns``, ``values``, ``diag_index``, ``inv_diag`` are the Warp arrays of the pattern and the blocks,
-    ``work`` the four (V,) vec3 scratch arrays (r, z, p, q), ``result`` a (2,) f64 array."""
-    r, z, p, q = work
+    ``work`` the five (V,) vec3 scratch arrays (r, z, p, q, t), ``result`` a (2,) f64 array."""
+    r, z, p, q, t = work
 
     def solve(atol: float) -> int:
         wp.launch(
@@ -172,6 +218,7 @@ def serial_pcg_solver(
                 z,
                 p,
                 q,
+                t,
                 result,
             ],
             device=device,

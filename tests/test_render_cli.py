@@ -71,6 +71,26 @@ def error_line(capsys) -> str:
     return err[0]
 
 
+def test_simulate_video_renders_a_new_motion_anew_and_resume_keeps_its_frames(tmp_path, asset_dir):
+    """``simulate --video`` run again with other settings must not reuse the earlier motion's frames."""
+    video, frames = tmp_path / "drop.mp4", tmp_path / "drop_frames"
+    base = ["simulate", "--asset", str(asset_dir), "--frames", "3", "--out", str(tmp_path / "drop.npz")]
+    base += ["--video", str(video), "--video-size", "16x12"]
+
+    def images():
+        return {p.name: np.asarray(Image.open(p)) for p in sorted(frames.iterdir())}
+
+    assert main([*base, "--drop-height", "0"]) == 0
+    low = images()
+    assert main([*base, "--drop-height", "0.5"]) == 0
+    high = images()
+    assert sorted(low) == sorted(high) == ["00000.png", "00001.png", "00002.png"]
+    assert all(not np.array_equal(low[k], high[k]) for k in low)
+    stamps = {p.name: p.stat().st_mtime_ns for p in frames.iterdir()}
+    assert main([*base, "--drop-height", "0.5", "--resume"]) == 0
+    assert {p.name: p.stat().st_mtime_ns for p in frames.iterdir()} == stamps
+
+
 def test_rest_render_writes_one_png_per_camera(tmp_path, asset_dir, capsys):
     cams = write_cameras(tmp_path / "cams.json", 3, with_size=False)
     out = tmp_path / "views"

@@ -124,7 +124,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tets", type=int, help="target cage tet count when the cage is built")
     p.add_argument("--out", help="motion file (default NAME_sim.npz)")
     p.add_argument("--resume", action="store_true", help="continue OUT after its last frame")
-    p.add_argument("--video", help="then render the motion (orbiting camera) to this MP4; needs --asset")
+    p.add_argument(
+        "--video",
+        help="then render the motion (orbiting camera) to this MP4 and its frames to VIDEO_frames/; needs "
+        "--asset; frames already there are kept with --resume, rendered anew otherwise",
+    )
     p.add_argument("--video-size", default="200x200", help="WxH of the rendered frames (default 200x200)")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda (default auto)")
     p.set_defaults(func=run)
@@ -141,8 +145,15 @@ def run(args: argparse.Namespace) -> None:
 
         video = Path(args.video)
         frames_dir = video.with_name(video.stem + "_frames")
-        summary = render_motion(
-            args.asset, out, frames_dir, orbit=True, size=size, video=video, device=args.device
+        summary = render_motion(  # a new motion's frames replace any earlier ones; --resume keeps them
+            args.asset,
+            out,
+            frames_dir,
+            orbit=True,
+            size=size,
+            video=video,
+            overwrite=not args.resume,
+            device=args.device,
         )
         log.info(
             "rendered %d frames (%d already there) to %s and the video %s",

@@ -70,8 +70,8 @@ class Stage2Config:
     """Stage-2 narrow-band fine-tuning (Procedure 4 lines 8-13): color loss only."""
 
     steps: int = 1000
-    rays: int = 8192
-    lr_encoding: float = 2e-3
+    rays: int = 16384
+    lr_encoding: float = 4e-3
     lr_network: float = 5e-4
     final_lr_factor: float = 0.3
     eval_every: int = 500

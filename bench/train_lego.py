@@ -3,7 +3,7 @@
 Trains stage 1 on ``../shared/data/lego`` at downscale 4 (200x200) on every 8th-view-held-out split and
 prints held-out PSNR/SSIM (all held-out views, rendered with the training occupancy grid: within 0.01 dB of
 full-ray rendering on lego), minutes, steps per minute and peak memory. Target on a 2-core CPU: PSNR >= 27
-dB within 20 minutes (measured: 26.66 dB after 5000 steps in 18.8 minutes).
+dB within 20 minutes (measured: 27.36 dB after 5000 steps in 19.4 minutes).
 
     python bench/train_lego.py [--steps N] [--data DIR] [--out DIR] [--device cpu|cuda] [--resume]
 """

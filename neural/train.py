@@ -59,6 +59,7 @@ class Stage1Config:
     max_samples_per_ray: int = 1024
     occupancy_resolution: int = 128
     occupancy_every: int = 16
+    random_background: bool = True  # see PixelSampler; only for images with alpha
     eval_every: int = 1000
     eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
     checkpoint_every: int = 250
@@ -74,6 +75,7 @@ class Stage2Config:
     lr_encoding: float = 4e-3
     lr_network: float = 5e-4
     final_lr_factor: float = 0.3
+    random_background: bool = True  # see PixelSampler; only for images with alpha
     eval_every: int = 500
     eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
     checkpoint_every: int = 250
@@ -105,26 +107,41 @@ def set_learning_rate(
 
 
 class PixelSampler:
-    """Random training pixels with their colours (uniform over all pixels of the training views)."""
+    """Random training pixels with their colours (uniform over all pixels of the training views).
 
-    def __init__(self, data: SceneData, device: str, seed: int):
+    With ``random_background`` and images that have alpha, every pixel is recomposited on its own uniformly
+    random colour, which the render then uses as its background (Instant-NGP's practice): a transparent pixel
+    only matches when its ray stays empty, so the field cannot hide floaters in background-coloured space.
+    """
+
+    def __init__(self, data: SceneData, device: str, seed: int, random_background: bool = False):
         self.data = data
         self.cameras = data.cameras
         idx = np.asarray(data.train_idx)
         self.views = torch.as_tensor(idx, device=device)
         self.images = torch.as_tensor(data.images[idx], device=device)  # (N, H, W, 3)
+        self.alphas = None
+        if random_background and data.alphas is not None:
+            self.alphas = torch.as_tensor(data.alphas[idx], device=device)  # (N, H, W)
+        self.background = torch.as_tensor(data.background, dtype=torch.float32, device=device)
         self.height, self.width = self.images.shape[1:3]
         self.device = device
         self.generator = torch.Generator(device="cpu").manual_seed(seed)
 
-    def sample(self, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """n random pixels -> origins (n, 3), dirs (n, 3), rgb (n, 3)."""
+    def sample(self, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """n random pixels -> origins (n, 3), dirs (n, 3), rgb (n, 3), background (3,) or (n, 3)."""
         g = self.generator
         k = torch.randint(0, len(self.views), (n,), generator=g).to(self.device)
         py = torch.randint(0, self.height, (n,), generator=g).to(self.device)
         px = torch.randint(0, self.width, (n,), generator=g).to(self.device)
         origins, dirs = pixel_to_ray(self.cameras, self.views[k], px + 0.5, py + 0.5)
-        return origins, dirs, self.images[k, py, px]
+        rgb = self.images[k, py, px]
+        if self.alphas is None:
+            return origins, dirs, rgb, self.background
+        background = torch.rand((n, 3), generator=g).to(self.device)
+        # the images hold fg a + bg0 (1 - a); swap bg0 for the new colour
+        rgb = rgb + (1.0 - self.alphas[k, py, px])[:, None] * (background - self.background)
+        return origins, dirs, rgb, background
 
 
 def finite_difference_gradient(field: ShellField, x: torch.Tensor, eps: float) -> torch.Tensor:
@@ -219,7 +236,7 @@ def train_stage1(
         grid.load_state(extra)
         start, n_rays, final = int(meta["step"]), int(meta["n_rays"]), meta.get("final")
         log.info("resuming stage 1 from %s at step %d", ckpt, start)
-    pixels = PixelSampler(data, device, config.seed + start)
+    pixels = PixelSampler(data, device, config.seed + start, config.random_background)
     reg_gen = torch.Generator().manual_seed(config.seed + 7 + start)
     sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray, perturb=True)
     eval_sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray)
@@ -231,14 +248,14 @@ def train_stage1(
             with torch.no_grad():
                 grid.update(sdf_kernel_fn(field), step)
         set_learning_rate(optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor)
-        origins, dirs, target = pixels.sample(n_rays)
+        origins, dirs, target, ray_background = pixels.sample(n_rays)
         samples = sampler(origins, dirs)
         n_samples = len(samples.ray_indices)
         if n_samples == 0:
             bar.update(1)
             continue
         anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
-        out = render_rays(field, origins, dirs, samples, background, cos_anneal=anneal)
+        out = render_rays(field, origins, dirs, samples, ray_background, cos_anneal=anneal)
         loss_c = (out["color"] - target).abs().mean()  # Eq. 9
         k = max(1, int(n_samples * config.reg_fraction))
         pick = torch.randperm(n_samples, generator=reg_gen)[:k].to(origins.device)
@@ -302,14 +319,14 @@ def train_stage2(
         start, final = int(meta["step"]), meta.get("final")
         log.info("resuming stage 2 from %s at step %d", ckpt, start)
     sampler = narrow_band_sampler(ShellIntersector(outer, inner), narrowband)
-    pixels = PixelSampler(data, device, config.seed + start)
+    pixels = PixelSampler(data, device, config.seed + start, config.random_background)
     bar = _progress(config.steps, start, "stage 2")
     history = []
     for step in range(start, config.steps):
         set_learning_rate(optimizer, step, config.steps, 1, config.final_lr_factor)
-        origins, dirs, target = pixels.sample(config.rays)
+        origins, dirs, target, ray_background = pixels.sample(config.rays)
         samples = sampler(origins, dirs)
-        out = render_rays(field, origins, dirs, samples, background)
+        out = render_rays(field, origins, dirs, samples, ray_background)
         loss = (out["color"] - target).abs().mean()  # Eq. 9 only: no regularisers in stage 2
         optimizer.zero_grad(set_to_none=True)
         loss.backward()

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
+import numpy as np
 import pytest
 import torch
 from scenes import write_sphere_scene
@@ -12,7 +14,7 @@ from neural.data import load_dataset
 from neural.field import FieldConfig, HashGridConfig
 from neural.pipeline import build_field
 from neural.render.view import field_occupancy_grid, occupancy_sampler
-from neural.train import Stage1Config, evaluate, train_stage1
+from neural.train import PixelSampler, Stage1Config, evaluate, train_stage1
 from shellsim.cli import main
 
 SMALL_FIELD = FieldConfig(hashgrid=HashGridConfig(log2_table_size=14, max_resolution=256))
@@ -35,6 +37,32 @@ def small_stage1(steps: int) -> Stage1Config:
 def sphere_data(tmp_path_factory):
     root = write_sphere_scene(tmp_path_factory.mktemp("sphere"), n_views=24, size=32)
     return load_dataset(root, bound=1.0)
+
+
+def test_random_background_recomposites_the_straight_colour(sphere_data):
+    # every pixel: straight colour c with coverage a, stored composited on white as the loader does
+    c, a = np.array([0.2, 0.5, 0.9], np.float32), 0.3
+    white = np.ones(3, np.float32)
+    n, h, w = sphere_data.images.shape[:3]
+    data = dataclasses.replace(
+        sphere_data,
+        images=np.broadcast_to(c * a + white * (1 - a), (n, h, w, 3)).copy(),
+        alphas=np.full((n, h, w), a, np.float32),
+        background=white,
+    )
+    _, _, rgb, background = PixelSampler(data, "cpu", seed=3, random_background=True).sample(4096)
+    assert background.shape == (4096, 3) and 0 <= background.min() and background.max() <= 1
+    assert background.std(0).min() > 0.25  # uniform on [0, 1]: std 0.289
+    expected = torch.as_tensor(c * a) + (1 - a) * background
+    torch.testing.assert_close(rgb, expected, atol=1e-6, rtol=0)
+
+    _, _, rgb, background = PixelSampler(data, "cpu", seed=3, random_background=False).sample(64)
+    torch.testing.assert_close(background, torch.as_tensor(white))
+    torch.testing.assert_close(rgb, torch.as_tensor(c * a + white * (1 - a)).expand(64, 3))
+
+    opaque = dataclasses.replace(data, alphas=None)
+    _, _, rgb, background = PixelSampler(opaque, "cpu", seed=3, random_background=True).sample(64)
+    assert background.shape == (3,)  # without alpha the images' own background is the truth
 
 
 def test_stage1_improves_psnr_on_a_rendered_sphere(sphere_data, tmp_path):

@@ -21,7 +21,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--downscale", type=int, default=1, help="image downscale factor (default 1)")
     p.add_argument("--steps", type=int, default=None, help="stage-1 steps (default 6000)")
     p.add_argument("--stage2-steps", type=int, default=None, help="stage-2 steps (default 1000)")
-    p.add_argument("--background", default="white", help="white, black or r,g,b (default white)")
+    p.add_argument(
+        "--background",
+        default="white",
+        help="colour behind the asset: white, black or r,g,b (default white); training recomposites images "
+        "that have alpha on random colours",
+    )
     p.add_argument(
         "--bound",
         type=float,

@@ -63,6 +63,7 @@ def test_random_background_recomposites_the_straight_colour(sphere_data):
     opaque = dataclasses.replace(data, alphas=None)
     _, _, rgb, background = PixelSampler(opaque, "cpu", seed=3, random_background=True).sample(64)
     assert background.shape == (3,)  # without alpha the images' own background is the truth
+    torch.testing.assert_close(rgb, torch.as_tensor(c * a + white * (1 - a)).expand(64, 3))
 
 
 def test_stage1_improves_psnr_on_a_rendered_sphere(sphere_data, tmp_path):

@@ -3,8 +3,8 @@
 Trains stage 1 on ``../shared/data/lego`` at downscale 4 (200x200) on every 8th-view-held-out split and
 prints held-out PSNR/SSIM (all held-out views, rendered with the training occupancy grid: within 0.01 dB of
 full-ray rendering on lego), minutes, steps per minute and peak memory. Target on a 2-core CPU: PSNR >= 27
-dB within 20 minutes (measured: 26.74 dB after 5000 steps in 21.3 minutes with random backgrounds;
-27.36 dB in 19.4 minutes before them, when the field could hide white floaters).
+dB within 20 minutes (measured: 27.32 dB after 5000 steps in 22.1 minutes; 27.36 dB in 19.4 minutes in an
+earlier run; 26.74 dB with ``random_background``).
 
     python bench/train_lego.py [--steps N] [--data DIR] [--out DIR] [--device cpu|cuda] [--resume]
 """

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -229,14 +231,24 @@ def load_field(asset: Asset, device: str = "cpu"):
 
 
 def replace_shells(asset: Asset, outer, inner, shell_meta: dict) -> None:
-    """Swap in new shells (written to temporary files, then renamed) and record their settings."""
+    """Swap in new shells (written to temporary files, then renamed) and record their settings; metrics that
+    depend on the shells (all but ``stage1_full_ray``) move to ``metrics["earlier_shells"]``."""
     for key, mesh in (("shell_outer", outer), ("shell_inner", inner)):
         target = asset.file(key)
         tmp = target.with_name(target.stem + ".tmp.ply")
         mesh.export(tmp)
         os.replace(tmp, target)
     asset.meta["shell"] = shell_meta
+    metrics = asset.meta.setdefault("metrics", {})
+    stale = {k: metrics.pop(k) for k in list(metrics) if k not in ("stage1_full_ray", "earlier_shells")}
+    if stale:
+        metrics["earlier_shells"] = {**metrics.get("earlier_shells", {}), **stale}
     write_meta(asset.root, asset.meta)
+
+
+def command_line() -> str:
+    """The ``shellsim`` command this process runs, shell-quoted (recorded in ``asset.json``)."""
+    return " ".join(shlex.quote(a) for a in ["shellsim", *sys.argv[1:]])
 
 
 def write_meta(root: Path, meta: dict) -> None:

@@ -9,15 +9,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import shlex
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
-from .asset import save_asset
+from .asset import command_line, save_asset
 from .data import SceneData, load_dataset
 from .errors import InputError
 from .field import FieldConfig, ShellField
@@ -91,7 +89,7 @@ def train_asset(
         "narrowband": dataclasses.asdict(narrowband),
         "shell": {**dataclasses.asdict(config.shell), **shells.stats},
         "training": {
-            "command": " ".join(shlex.quote(a) for a in ["shellsim", *sys.argv[1:]]),
+            "command": command_line(),
             "data": str(data_dir),
             "downscale": config.downscale,
             "device": device,

@@ -59,7 +59,7 @@ class Stage1Config:
     max_samples_per_ray: int = 1024
     occupancy_resolution: int = 128
     occupancy_every: int = 16
-    random_background: bool = True  # see PixelSampler; only for images with alpha
+    random_background: bool = False  # see PixelSampler; only for images with alpha
     eval_every: int = 1000
     eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
     checkpoint_every: int = 250
@@ -75,7 +75,7 @@ class Stage2Config:
     lr_encoding: float = 4e-3
     lr_network: float = 5e-4
     final_lr_factor: float = 0.3
-    random_background: bool = True  # see PixelSampler; only for images with alpha
+    random_background: bool = False  # see PixelSampler; only for images with alpha
     eval_every: int = 500
     eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
     checkpoint_every: int = 250
@@ -109,9 +109,11 @@ def set_learning_rate(
 class PixelSampler:
     """Random training pixels with their colours (uniform over all pixels of the training views).
 
-    With ``random_background`` and images that have alpha, every pixel is recomposited on its own uniformly
-    random colour, which the render then uses as its background (Instant-NGP's practice): a transparent pixel
-    only matches when its ray stays empty, so the field cannot hide floaters in background-coloured space.
+    With ``random_background`` and images that have alpha, every fully transparent pixel (alpha 0) gets its
+    own uniformly random colour, which the render then uses as its background (Instant-NGP's practice): an
+    empty pixel only matches when its ray stays empty, so the field cannot hide floaters in
+    background-coloured space. Pixels with any coverage keep the images' background: a partly covered edge
+    pixel stays a composite that an opaque surface crossing the pixel can match.
     """
 
     def __init__(self, data: SceneData, device: str, seed: int, random_background: bool = False):
@@ -138,9 +140,11 @@ class PixelSampler:
         rgb = self.images[k, py, px]
         if self.alphas is None:
             return origins, dirs, rgb, self.background
-        background = torch.rand((n, 3), generator=g).to(self.device)
-        # the images hold fg a + bg0 (1 - a); swap bg0 for the new colour
-        rgb = rgb + (1.0 - self.alphas[k, py, px])[:, None] * (background - self.background)
+        alpha = self.alphas[k, py, px]
+        colours = torch.rand((n, 3), generator=g).to(self.device)
+        background = torch.where((alpha == 0)[:, None], colours, self.background)
+        # the images hold fg a + bg0 (1 - a) = bg0 where a = 0: swap bg0 for the new colour there
+        rgb = torch.where((alpha == 0)[:, None], background, rgb)
         return origins, dirs, rgb, background
 
 

@@ -299,7 +299,7 @@ def test_samples_per_interval_and_packing():
 def test_config_validation_and_scaling():
     config = NarrowBandConfig(delta_s=0.005, w_s=0.01).scaled(3.0)
     assert config.delta_s == pytest.approx(0.015) and config.w_s == pytest.approx(0.03)
-    assert config.n_max == 16 and config.max_peel == 8
+    assert config.n_max == 16 and config.max_peel == 16
     for kwargs, word in [({"delta_s": 0}, "delta_s"), ({"w_s": -1}, "w_s"), ({"n_max": 0}, "n_max"),
                          ({"max_peel": 2.5}, "max_peel")]:  # fmt: skip
         with pytest.raises(ValueError, match=word):

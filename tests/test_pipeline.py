@@ -77,17 +77,31 @@ def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     data, asset_dir = fuzzy
     out = tmp_path / "eval.json"
     assert (
-        main(["eval", "--asset", str(asset_dir), "--data", str(data), "--views", "1", "--json", str(out)])
+        main(
+            ["eval", "--asset", str(asset_dir), "--data", str(data), "--views", "1", "--json", str(out)]
+            + ["--record"]
+        )
         == 0
     )
     report = json.loads(out.read_text())
+    recorded = load_asset(asset_dir).meta["metrics"]
+    assert recorded["eval"]["narrow_band"] == report["narrow_band"] and "command" in recorded["eval"]
     nb, full = report["narrow_band"], report["full_ray"]
     assert nb["samples_per_pixel"] < full["samples_per_pixel"] / 5
     assert abs(nb["psnr"] - full["psnr"]) < 3.0
     before = load_asset(asset_dir).outer_mesh().vertices.copy()
-    assert main(["extract", "--asset", str(asset_dir), "--resolution", "48", "--sigma-min", "0.05"]) == 0
+    extract = ["extract", "--asset", str(asset_dir), "--resolution", "48", "--sigma-min", "0.05"]
+    assert main(extract + ["--max-peel", "6"]) == 0
     asset = load_asset(asset_dir)
     assert asset.meta["shell"]["resolution"] == 48 and asset.meta["shell"]["sigma_min"] == 0.05
+    assert asset.narrowband_config().max_peel == 6
+    # figures measured with the old shells are kept apart; stage 1's do not depend on the shells
+    metrics = asset.meta["metrics"]
+    assert set(metrics) == {"stage1_full_ray", "earlier_shells"}
+    assert metrics["earlier_shells"]["eval"]["narrow_band"] == report["narrow_band"]
+    assert "stage2_narrow_band" in metrics["earlier_shells"]
     assert len(asset.outer_mesh().vertices) != len(before)
     assert main(["extract", "--asset", str(asset_dir), "--v-max", "-1"]) == 2
     assert "shell parameters" in capsys.readouterr().err
+    assert main(["extract", "--asset", str(asset_dir), "--max-peel", "0"]) == 2
+    assert "--max-peel" in capsys.readouterr().err

@@ -258,6 +258,25 @@ def test_meshes_close_at_the_grid_border_and_sit_at_origin_plus_index_spacing():
     assert np.allclose(sphere.vertices.mean(0), origin + center, atol=1e-2)
 
 
+def test_small_parts_are_dropped_with_their_inner_shell():
+    n = 48
+    big, h, _ = sphere_grid(n, 0.45, center=(-0.3, 0.0, 0.0))
+    tiny, _, _ = sphere_grid(n, 0.09, center=(0.7, 0.0, 0.0))  # 0.8% of the big sphere's volume
+    both = torch.minimum(big, tiny)
+    s = torch.full_like(big, 0.3 * h)
+    alone = extract_shells(big, s, [-1.0] * 3, h)
+    dropped = extract_shells(both, s, [-1.0] * 3, h)  # default min_part_fraction 0.05
+    for got, want in ((dropped.outer, alone.outer), (dropped.inner, alone.inner)):
+        np.testing.assert_array_equal(got.faces, want.faces)
+        np.testing.assert_allclose(got.vertices, want.vertices, atol=1e-6)
+    kept = extract_shells(both, s, [-1.0] * 3, h, ShellConfig(min_part_fraction=0.0))
+    check_nested_closed_shells(kept)
+    assert len(kept.outer.split(only_watertight=False)) == 2 == len(kept.inner.split(only_watertight=False))
+    assert kept.outer.volume > alone.outer.volume + 0.5 * 4 / 3 * math.pi * 0.09**3
+    with pytest.raises(ValueError, match="min_part_fraction"):
+        ShellConfig(min_part_fraction=1.5)
+
+
 def test_empty_level_set_gives_empty_meshes():
     f = torch.ones(12, 12, 12)
     result = extract_shells(f, torch.full_like(f, 0.01), [0.0] * 3, 0.1)

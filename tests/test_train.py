@@ -39,31 +39,37 @@ def sphere_data(tmp_path_factory):
     return load_dataset(root, bound=1.0)
 
 
-def test_random_background_recomposites_the_straight_colour(sphere_data):
-    # every pixel: straight colour c with coverage a, stored composited on white as the loader does
-    c, a = np.array([0.2, 0.5, 0.9], np.float32), 0.3
+def test_random_background_only_behind_empty_pixels(sphere_data):
+    # straight colour c with coverage a per pixel (0 on the left half, 0.3 or 1 on the right), stored
+    # composited on white as the loader does
+    c = np.array([0.2, 0.5, 0.9], np.float32)
     white = np.ones(3, np.float32)
     n, h, w = sphere_data.images.shape[:3]
-    data = dataclasses.replace(
-        sphere_data,
-        images=np.broadcast_to(c * a + white * (1 - a), (n, h, w, 3)).copy(),
-        alphas=np.full((n, h, w), a, np.float32),
-        background=white,
-    )
+    alphas = np.zeros((n, h, w), np.float32)
+    alphas[:, : h // 2, w // 2 :] = 0.3
+    alphas[:, h // 2 :, w // 2 :] = 1.0
+    stored = c * alphas[..., None] + white * (1 - alphas[..., None])
+    data = dataclasses.replace(sphere_data, images=stored, alphas=alphas, background=white)
     _, _, rgb, background = PixelSampler(data, "cpu", seed=3, random_background=True).sample(4096)
+    # the same seed draws the same pixels: their stored colours tell empty, edge and solid pixels apart
+    _, _, stored_rgb, _ = PixelSampler(data, "cpu", seed=3, random_background=False).sample(4096)
+    white_t = torch.as_tensor(white)
+    kinds = {
+        a: (stored_rgb - torch.as_tensor(c * a + white * (1 - a))).abs().max(1).values < 1e-6
+        for a in (0, 0.3, 1)
+    }
+    assert all(m.sum() > 500 for m in kinds.values()) and sum(m.long() for m in kinds.values()).eq(1).all()
+    empty, covered = kinds[0], ~kinds[0]
     assert background.shape == (4096, 3) and 0 <= background.min() and background.max() <= 1
-    assert background.std(0).min() > 0.25  # uniform on [0, 1]: std 0.289
-    expected = torch.as_tensor(c * a) + (1 - a) * background
-    torch.testing.assert_close(rgb, expected, atol=1e-6, rtol=0)
-
-    _, _, rgb, background = PixelSampler(data, "cpu", seed=3, random_background=False).sample(64)
-    torch.testing.assert_close(background, torch.as_tensor(white))
-    torch.testing.assert_close(rgb, torch.as_tensor(c * a + white * (1 - a)).expand(64, 3))
+    assert background[empty].std(0).min() > 0.25  # uniform on [0, 1]: std 0.289
+    torch.testing.assert_close(rgb[empty], background[empty])  # nothing in front: the new colour itself
+    torch.testing.assert_close(background[covered], white_t.expand(int(covered.sum()), 3))
+    torch.testing.assert_close(rgb[covered], stored_rgb[covered])  # edges and solids keep their composite
 
     opaque = dataclasses.replace(data, alphas=None)
-    _, _, rgb, background = PixelSampler(opaque, "cpu", seed=3, random_background=True).sample(64)
+    _, _, rgb, background = PixelSampler(opaque, "cpu", seed=3, random_background=True).sample(4096)
     assert background.shape == (3,)  # without alpha the images' own background is the truth
-    torch.testing.assert_close(rgb, torch.as_tensor(c * a + white * (1 - a)).expand(64, 3))
+    torch.testing.assert_close(rgb, stored_rgb)
 
 
 def test_stage1_improves_psnr_on_a_rendered_sphere(sphere_data, tmp_path):

@@ -19,6 +19,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", type=int, default=None, help="evaluate only the first N held-out views")
     p.add_argument("--no-full-ray", action="store_true", help="skip the (slow) full-ray reference")
     p.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    p.add_argument(
+        "--record",
+        action="store_true",
+        help="also record the figures and this command in the asset's asset.json (metrics.eval)",
+    )
     p.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
     p.set_defaults(func=run)
 
@@ -30,7 +35,7 @@ def run(args: argparse.Namespace) -> None:
     import numpy as np
     import torch
 
-    from neural.asset import load_asset, load_field
+    from neural.asset import command_line, load_asset, load_field, write_meta
     from neural.data import load_dataset
     from neural.device import pick_device
     from neural.metrics import lpips_status
@@ -75,3 +80,6 @@ def run(args: argparse.Namespace) -> None:
     print(report["lpips"])
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1))
+    if args.record:
+        asset.meta.setdefault("metrics", {})["eval"] = {**report, "command": command_line()}
+        write_meta(asset.root, asset.meta)

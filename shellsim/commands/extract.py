@@ -20,6 +20,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sigma-min", type=float, help="voxel opacity below which dilation stops (Eq. 6)")
     p.add_argument("--beta-e", type=float, help="erosion speed coefficient (Eq. 7)")
     p.add_argument("--v-max", type=float, help="speed cap, voxels per unit time")
+    p.add_argument(
+        "--min-part-fraction",
+        type=float,
+        help="drop M+ parts smaller than this fraction of the largest (default 0.05; 0 keeps all)",
+    )
+    p.add_argument(
+        "--max-peel",
+        type=int,
+        help="also set the depth-peeling cap dp_max of the asset's narrow-band renderer (default 16)",
+    )
     p.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
     p.set_defaults(func=run)
 
@@ -29,7 +39,7 @@ def run(args: argparse.Namespace) -> None:
     import logging
     import time
 
-    from neural.asset import load_asset, load_field, replace_shells
+    from neural.asset import command_line, load_asset, load_field, replace_shells
     from neural.device import pick_device
     from neural.errors import InputError
     from neural.shell import ShellConfig
@@ -41,17 +51,24 @@ def run(args: argparse.Namespace) -> None:
     stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}
     overrides = {
         name: getattr(args, name)
-        for name in ("resolution", "steps", "beta_d", "sigma_min", "beta_e", "v_max")
+        for name in ("resolution", "steps", "beta_d", "sigma_min", "beta_e", "v_max", "min_part_fraction")
         if getattr(args, name) is not None
     }
     try:
         config = ShellConfig(**{**stored, **overrides})
     except (TypeError, ValueError) as err:
         raise InputError(f"shell parameters: {err}") from None
+    if args.max_peel is not None:
+        try:
+            narrowband = dataclasses.replace(asset.narrowband_config(), max_peel=args.max_peel)
+        except ValueError as err:
+            raise InputError(f"--max-peel: {err}") from None
+        asset.meta["narrowband"] = dataclasses.asdict(narrowband)
     field = load_field(asset, device)
     start = time.perf_counter()
     shells = extract_field_shells(field, config, device)
-    replace_shells(asset, shells.outer, shells.inner, {**dataclasses.asdict(config), **shells.stats})
+    shell_meta = {**dataclasses.asdict(config), **shells.stats, "command": command_line()}
+    replace_shells(asset, shells.outer, shells.inner, shell_meta)
     logging.getLogger("shellsim").info(
         "%s: new shells in %.1f s: M+ %d faces, M- %d faces, mean width %.4g",
         asset.root,

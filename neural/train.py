@@ -122,9 +122,9 @@ class PixelSampler:
         idx = np.asarray(data.train_idx)
         self.views = torch.as_tensor(idx, device=device)
         self.images = torch.as_tensor(data.images[idx], device=device)  # (N, H, W, 3)
-        self.alphas = None
+        self.empty = None  # (N, H, W) bool, alpha == 0: the pixels that get a random background
         if random_background and data.alphas is not None:
-            self.alphas = torch.as_tensor(data.alphas[idx], device=device)  # (N, H, W)
+            self.empty = torch.as_tensor(data.alphas[idx] == 0, device=device)
         self.background = torch.as_tensor(data.background, dtype=torch.float32, device=device)
         self.height, self.width = self.images.shape[1:3]
         self.device = device
@@ -138,14 +138,12 @@ class PixelSampler:
         px = torch.randint(0, self.width, (n,), generator=g).to(self.device)
         origins, dirs = pixel_to_ray(self.cameras, self.views[k], px + 0.5, py + 0.5)
         rgb = self.images[k, py, px]
-        if self.alphas is None:
+        if self.empty is None:
             return origins, dirs, rgb, self.background
-        alpha = self.alphas[k, py, px]
+        empty = self.empty[k, py, px, None]
         colours = torch.rand((n, 3), generator=g).to(self.device)
-        background = torch.where((alpha == 0)[:, None], colours, self.background)
-        # the images hold fg a + bg0 (1 - a) = bg0 where a = 0: swap bg0 for the new colour there
-        rgb = torch.where((alpha == 0)[:, None], background, rgb)
-        return origins, dirs, rgb, background
+        # the images hold fg a + bg0 (1 - a) = bg0 where a = 0: the new colour is the pixel's colour there
+        return origins, dirs, torch.where(empty, colours, rgb), torch.where(empty, colours, self.background)
 
 
 def finite_difference_gradient(field: ShellField, x: torch.Tensor, eps: float) -> torch.Tensor:

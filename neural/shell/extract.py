@@ -33,6 +33,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _SLAB_NODES = 1 << 22  # nodes per slab when mapping a function over a whole grid
+# Grid values within this fraction of a voxel of zero count as outside (no vertex exactly on a node).
+_SNAP_REL = 1e-3
 
 
 @dataclass
@@ -212,7 +214,7 @@ def erode(f: torch.Tensor, s: torch.Tensor, spacing: float, config: ShellConfig)
 
 def _inside(field: np.ndarray, spacing: float) -> np.ndarray:
     """Nodes :func:`marching_cubes_mesh` treats as inside: ``field <= -1e-3 spacing`` (bool, same shape)."""
-    return field <= -1e-3 * float(spacing)
+    return field <= -_SNAP_REL * float(spacing)
 
 
 def drop_small_parts(
@@ -250,7 +252,7 @@ def marching_cubes_mesh(field: np.ndarray, origin: Sequence[float], spacing: flo
 
     h = float(spacing)
     vol = np.pad(np.asarray(field, dtype=np.float32), 1, constant_values=h)
-    vol[~_inside(vol, h) & (vol < 1e-3 * h)] = 1e-3 * h
+    vol[~_inside(vol, h) & (vol < _SNAP_REL * h)] = _SNAP_REL * h
     if not (vol < 0).any():
         return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
     verts, faces, _, _ = marching_cubes(vol, level=0.0, spacing=(h, h, h), gradient_direction="descent")

@@ -31,8 +31,9 @@ started from the previous substep's correction. On CPU one Warp kernel runs the 
 symmetric Gauss-Seidel preconditioner (Warp runs CPU kernels on one thread, so launch overhead would
 dominate and a serial preconditioner costs nothing in parallelism: 3x fewer iterations than block-Jacobi);
 on CUDA :func:`warp.optim.linear.cg` with block-Jacobi. A backtracking line search on ``E`` keeps the energy
-decreasing and the tets uninverted. A frame whose state inverts a tet, turns non-finite or
-exceeds ``max_speed`` is redone with more substeps, then raises :class:`SimulationError`.
+decreasing and the tets uninverted. A frame whose state squeezes a tet below ``min_volume_ratio``
+(:data:`shellsim.validity.MIN_VOLUME_RATIO`: inverted or near-degenerate), turns non-finite or exceeds
+``max_speed`` is redone with more substeps, then raises :class:`SimulationError`.
 """
 
 from __future__ import annotations
@@ -64,13 +65,35 @@ from .elastic import (
 from .embed import check_tets
 from .linsolve import block_topology, bsr_cg_solver, serial_pcg_solver
 from .materials import Material
+from .validity import MIN_VOLUME_RATIO
 
 log = logging.getLogger(__name__)
 wp.set_module_options({"enable_backward": False})  # no autodiff here; halves compile time
 
 
 class SimulationError(ShellsimError):
-    """The simulation left the physically valid regime (inverted tets, NaN, runaway speed)."""
+    """A frame left the valid regime with every substep count tried.
+
+    kind : "collapse" (min det F below ``SimSettings.min_volume_ratio``), "speed" (above ``max_speed``)
+    or "nonfinite"; value : that min det F or speed [m/s] (nan for "nonfinite"); time : the frame's start
+    [s]; substeps : the counts tried; frame : its index in the motion, set by :func:`simulate`.
+    """
+
+    def __init__(self, kind: str, value: float, limit: float, time: float, substeps: tuple[int, ...]):
+        super().__init__(kind, value, limit, time, substeps)
+        self.kind, self.value, self.limit, self.time, self.substeps = kind, value, limit, time, substeps
+        self.frame: int | None = None
+
+    def __str__(self) -> str:
+        what = {
+            "collapse": f"the smallest tet volume ratio (det F) fell to {self.value:.3g}, "
+            f"below {self.limit:g}",
+            "speed": f"a vertex reached {self.value:.3g} m/s, above max_speed {self.limit:g} m/s",
+            "nonfinite": "positions became non-finite",
+        }[self.kind]
+        tried = ", ".join(str(n) for n in self.substeps)
+        frame = "" if self.frame is None else f"frame {self.frame} "
+        return f"{frame}(t = {self.time:.3f} s) is invalid with {tried} substeps: {what}"
 
 
 @dataclass
@@ -95,6 +118,7 @@ class SimSettings:
     cg_iterations: int = 500
     max_speed: float = 100.0  # [m/s]; faster means the simulation exploded
     retry_factors: tuple[int, ...] = (2, 4)  # substep multipliers tried after a failed frame
+    min_volume_ratio: float = MIN_VOLUME_RATIO  # smallest det F a frame may reach (near-degenerate tets)
     linear_solver: str = "auto"  # "serial" (one-kernel SGS-PCG), "cg" (warp.optim.linear.cg), "auto"
 
     def __post_init__(self):
@@ -115,6 +139,8 @@ class SimSettings:
             raise ValueError(f"SimSettings.up must be a non-zero 3-vector, got {self.up!r}")
         if self.ground is not None and not math.isfinite(self.ground):
             raise ValueError(f"SimSettings.ground must be finite or None, got {self.ground}")
+        if not 0 <= self.min_volume_ratio < 1:
+            raise ValueError(f"SimSettings.min_volume_ratio must lie in [0, 1), got {self.min_volume_ratio}")
         if any(int(f) < 2 for f in self.retry_factors):
             raise ValueError(f"SimSettings.retry_factors must be integers >= 2, got {self.retry_factors}")
         if self.linear_solver not in ("auto", "serial", "cg"):
@@ -345,7 +371,9 @@ class Simulator:
     # -- stepping ------------------------------------------------------------------------------------------
 
     def step(self) -> StepStats:
-        """Advance one frame (``settings.dt``); redo it with more substeps if the state turns invalid."""
+        """Advance one frame (``settings.dt``); redo it with more substeps if the state turns invalid
+        (a tet's det F below ``min_volume_ratio``, non-finite positions, a speed above ``max_speed``), and
+        raise :class:`SimulationError` with the state of the frame's start restored if every count fails."""
         s = self.settings
         start = time.perf_counter()
         wp.copy(self._x0, self._x)
@@ -361,20 +389,19 @@ class Simulator:
             problem = self._run_frame(stats)
             if problem is None:
                 stats.seconds = time.perf_counter() - start
-                stats.notes = failures
+                stats.notes = [f"{n} substeps: {kind} {value:.3g}" for n, (kind, value, _) in failures]
                 return stats
-            failures.append(f"{stats.substeps} substeps: {problem}")
+            failures.append((stats.substeps, problem))
             log.debug("frame at t=%.4f s failed with %d substeps: %s", t0, stats.substeps, problem)
         wp.copy(self._x, self._x0)
         wp.copy(self._v, self._v0)
         self.time = t0
-        raise SimulationError(
-            f"simulation became invalid at t={t0:.3f} s ({'; '.join(failures)}); try more --substeps, a "
-            "lower --drop-height or a stiffer material"
-        )
+        kind, value, limit = failures[-1][1]
+        raise SimulationError(kind, value, limit, t0, tuple(n for n, _ in failures))
 
-    def _run_frame(self, stats: StepStats) -> str | None:
-        """Run ``stats.substeps`` substeps; return why the state is invalid, or None."""
+    def _run_frame(self, stats: StepStats) -> tuple[str, float, float] | None:
+        """Run ``stats.substeps`` substeps; return why the state is invalid, as (kind, value, limit) of
+        :class:`SimulationError`, or None."""
         h = self.settings.dt / stats.substeps
         for _ in range(stats.substeps):
             problem = self._substep(h, stats)
@@ -383,7 +410,7 @@ class Simulator:
                 return problem
         return None
 
-    def _substep(self, h: float, stats: StepStats) -> str | None:
+    def _substep(self, h: float, stats: StepStats) -> tuple[str, float, float] | None:
         s = self.settings
         dev = self.device
         n, nt = self.n_vertices, self.n_tets
@@ -423,7 +450,7 @@ class Simulator:
             iterations += 1
             energy, min_det, force_norm = self._evaluate(self._x, terms, FORCE)
             if not math.isfinite(energy):
-                return "the energy became non-finite"
+                return ("nonfinite", math.nan, math.nan)
             if force_norm <= force_tol:
                 converged = True
                 break
@@ -453,11 +480,11 @@ class Simulator:
         energy, min_det, _ = self._evaluate(self._x, terms, ENERGY)
         stats.min_volume_ratio, stats.max_speed = min_det, speed
         if not (math.isfinite(energy) and math.isfinite(speed)):
-            return "positions became non-finite"
-        if min_det <= 0:
-            return f"a tet inverted (min det F = {min_det:.3g})"
+            return ("nonfinite", math.nan, math.nan)
+        if not min_det >= s.min_volume_ratio:
+            return ("collapse", min_det, s.min_volume_ratio)
         if speed > s.max_speed:
-            return f"speed {speed:.3g} m/s exceeds max_speed {s.max_speed:g} m/s"
+            return ("speed", speed, s.max_speed)
         return None
 
     def _line_search(self, energy: float, min_det: float, terms: dict) -> bool:
@@ -645,8 +672,10 @@ def simulate(sim: Simulator, frames: int, writer, world: WorldMap = WorldMap(), 
 
     An empty ``writer`` first gets the current state as frame 0. Before each append ``writer.motion.meta``
     gets ``state`` (frame velocities in world units per second, :func:`encode_velocities`, so ``--resume``
-    can continue exactly) and ``stats``. The writer is flushed on every exit, so a
-    :class:`SimulationError` or an interrupt keeps every frame made. Returns the list of :class:`StepStats`.
+    can continue exactly) and ``stats``. A frame that :meth:`Simulator.step` finds invalid (e.g. a tet
+    squeezed below ``min_volume_ratio``) is not written: the :class:`SimulationError` gets its index as
+    ``frame``. The writer is flushed on every exit, so an error or an interrupt keeps every frame made
+    before. Returns the list of :class:`StepStats`.
     """
     from tqdm.auto import tqdm
 
@@ -684,7 +713,11 @@ def simulate(sim: Simulator, frames: int, writer, world: WorldMap = WorldMap(), 
             record(None)
         with tqdm(total=frames, disable=not progress, unit="frame", desc="simulate") as bar:
             for _ in range(frames):
-                stats = sim.step()
+                try:
+                    stats = sim.step()
+                except SimulationError as err:
+                    err.frame = writer.n_frames
+                    raise
                 history.append(stats)
                 record(stats)
                 bar.set_postfix(newton=stats.newton_iterations, cg=stats.cg_iterations, retries=stats.retries)

@@ -63,6 +63,19 @@ class Material:
         return {"name": self.name, "youngs": self.youngs, "poisson": self.poisson, "density": self.density}
 
 
+# Valid ranges of user overrides, (low, high, ends) with ends "[]", "()", ...: Young's modulus from below the
+# softest gels (1 kPa) to above diamond (about 1.1 TPa); densities from aerogel to above osmium (22.6 t/m^3).
+RANGES: dict[str, tuple[float, float, str]] = {
+    "youngs": (1.0e2, 2.0e12, "[]"),
+    "poisson": (-1.0, 0.5, "()"),
+    "density": (1.0, 1.0e5, "[]"),
+}
+_NAMES = {
+    "youngs": ("Young's modulus", " Pa"),
+    "poisson": ("Poisson ratio", ""),
+    "density": ("density", " kg/m^3"),
+}
+
 PRESETS: dict[str, Material] = {
     m.name: m
     for m in (
@@ -81,7 +94,7 @@ def get_material(
 ) -> Material:
     """The preset ``name`` with any of ``youngs`` [Pa], ``poisson``, ``density`` [kg/m^3] overriding it.
 
-    Unknown names and out-of-range values raise :class:`InputError`.
+    Unknown names and values outside :data:`RANGES` raise :class:`InputError`.
     """
     key = str(name).strip().lower()
     if key not in PRESETS:
@@ -91,4 +104,10 @@ def get_material(
         for k, v in (("youngs", youngs), ("poisson", poisson), ("density", density))
         if v is not None
     }
+    for k, v in overrides.items():
+        low, high, ends = RANGES[k]
+        if not ((v > low if ends[0] == "(" else v >= low) and (v < high if ends[1] == ")" else v <= high)):
+            what, unit = _NAMES[k]
+            span = f"{ends[0]}{low:g}, {high:g}{ends[1]}{unit}"
+            raise InputError(f"{what} {v:g}{unit}: expected a value in {span}")
     return replace(PRESETS[key], **overrides)

@@ -20,6 +20,12 @@ No simulation: the object is treated as a cantilever anchored at its base and lo
   (e.g. ``"z<0.05"``: everything below is fixed, the object stands on it) or ``"AXIS>VALUE"`` (it hangs
   from it); None anchors the lowest ``base_fraction`` of the cage along ``up``.
 
+- **Limit.** The second-order drop leaves a tet the volume ratio ``1 - slope^2 / 2``, and turbulence
+  compresses the cage along the wind: where a frame would squeeze a tet below
+  :data:`shellsim.validity.MIN_VOLUME_RATIO`, :func:`animate_wind` scales that frame's tip deflection down
+  until none does (:func:`limited_wind_displacement`): a gust too strong for the cage bends it as far as it
+  can go. ``strength`` itself is at most 1 (:data:`RANGES`).
+
 Frame 0 of :func:`animate_wind` is the rest cage when ``ramp_seconds > 0``. Plain numpy; no torch.
 """
 
@@ -28,6 +34,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import numbers
 import re
 import time
 from dataclasses import asdict, dataclass
@@ -35,6 +42,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from neural.errors import InputError
+
+from .validity import MIN_VOLUME_RATIO, volumes6
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +73,14 @@ def parse_anchor(spec: str) -> Anchor:
     return Anchor("xyz".index(match.group(1).lower()), 1.0 if match.group(2) == "<" else -1.0, value)
 
 
+def _plain(v) -> str:
+    """A vector or number as the user would type it: ``"0, 0, 1"``, ``"0.5"``."""
+    try:
+        return ", ".join(f"{float(c):g}" for c in np.ravel(np.asarray(v, dtype=np.float64)))
+    except (TypeError, ValueError):
+        return repr(v)
+
+
 def _unit(name: str, v) -> tuple[float, float, float]:
     try:
         arr = np.asarray(v, dtype=np.float64)
@@ -71,8 +88,31 @@ def _unit(name: str, v) -> tuple[float, float, float]:
         arr = np.full(1, np.nan)
     norm = float(np.linalg.norm(arr)) if arr.shape == (3,) else math.nan
     if not (math.isfinite(norm) and norm > 0):
-        raise InputError(f"wind {name}: expected a non-zero finite vector x, y, z, got {v!r}")
+        raise InputError(f"wind {name}: expected a non-zero finite vector x, y, z, got {_plain(v)}")
     return tuple(float(c) for c in arr / norm)
+
+
+# Valid ranges [low, high] of the numeric settings. strength <= 1: a mean tip deflection of the object's
+# height is already where the bending folds the cage (a uniform rod's tip slope is 4/3 strength and its
+# tets keep the volume ratio 1 - slope^2 / 2, below MIN_VOLUME_RATIO from strength 0.95 on); gust <= 1:
+# the gusts modulate the wind's speed and do not reverse it; turbulence <= 1: |n| <= 1, the same bound.
+RANGES: dict[str, tuple[float, float]] = {
+    "strength": (0, 1),
+    "gust": (0, 1),
+    "frequency": (0, 10),  # Hz; also at most max_frequency(fps)
+    "turbulence": (0, 1),
+    "wavelength": (0.05, 100),  # / L
+    "base_fraction": (0, 0.95),
+    "thinness": (0, 8),
+    "ramp_seconds": (0, 3600),
+    "seed": (0, 2**32 - 1),
+}
+
+
+def max_frequency(fps: float) -> float:
+    """Largest gust frequency [Hz] that frames at ``fps`` can show: the fastest turbulence mode (``_MODES``
+    times the frequency) stays below the Nyquist rate ``fps / 2``."""
+    return fps / (2 * _MODES)
 
 
 @dataclass
@@ -95,26 +135,18 @@ class WindSettings:
     def __post_init__(self):
         self.direction = _unit("direction", self.direction)
         self.up = _unit("up", self.up)
-        checks = {
-            "strength": self.strength >= 0,
-            "gust": self.gust >= 0,
-            "frequency": self.frequency >= 0,
-            "turbulence": self.turbulence >= 0,
-            "wavelength": self.wavelength > 0,
-            "base_fraction": 0 <= self.base_fraction < 1,
-            "thinness": self.thinness >= 0,
-            "ramp_seconds": self.ramp_seconds >= 0,
-        }
-        for name, ok in checks.items():
+        for name, (low, high) in RANGES.items():
             value = getattr(self, name)
-            if not (ok and math.isfinite(value)):
-                raise InputError(f"wind {name}: invalid value {value!r}")
+            ok = isinstance(value, numbers.Integral if name == "seed" else numbers.Real)
+            if not (ok and low <= value <= high):  # NaN fails too
+                raise InputError(f"wind {name}: expected {low} <= {name} <= {high}, got {_plain(value)}")
         if self.anchor is not None:
             parse_anchor(self.anchor)
         axis = self.bending_axis()
         if abs(float(np.dot(self.direction, axis))) > 1 - 1e-6:
             raise InputError(
-                f"wind direction {self.direction} is along the object's axis {tuple(axis)}: nothing bends"
+                f"wind direction {_plain(self.direction)} is along the object's bending axis "
+                f"{_plain(axis)}: nothing bends; give it a component across that axis"
             )
 
     def bending_axis(self) -> np.ndarray:
@@ -194,9 +226,16 @@ def wind_displacement(rest_vertices, t: float, settings: WindSettings) -> np.nda
     rest_vertices : (V, 3) float
     returns : (V, 3) float64; exactly zero at anchored vertices, and everywhere when ``strength == 0``
     """
-    rest = _as_vertices(rest_vertices)
+    bend, sink = _bend_and_sink(_as_vertices(rest_vertices), t, settings)
+    return bend - sink
+
+
+def _bend_and_sink(rest: np.ndarray, t: float, settings: WindSettings) -> tuple[np.ndarray, np.ndarray]:
+    """The two parts of the displacement at ``t``, (V, 3) each: the lateral bending, linear in the tip
+    deflection ``A``, and the inextensibility drop along ``-a``, quadratic in it. The displacement with
+    ``A`` scaled by ``s`` is ``s bend - s^2 sink``."""
     if settings.strength == 0:
-        return np.zeros_like(rest)
+        return np.zeros_like(rest), np.zeros_like(rest)
     axis = settings.bending_axis()
     wind = np.asarray(settings.direction) - np.dot(settings.direction, axis) * axis
     wind /= np.linalg.norm(wind)
@@ -215,9 +254,44 @@ def wind_displacement(rest_vertices, t: float, settings: WindSettings) -> np.nda
     tip = settings.strength * length
     lateral = tip * np.interp(h, grid, w)
     sink = tip**2 * (bend**2 + flutter**2) * np.interp(h, grid, drop)
-    out = (lateral * bend)[:, None] * wind + (lateral * flutter)[:, None] * side - sink[:, None] * axis
-    out[h <= 0] = 0.0
-    return out
+    bent = (lateral * bend)[:, None] * wind + (lateral * flutter)[:, None] * side
+    sunk = sink[:, None] * axis
+    bent[h <= 0] = 0.0
+    sunk[h <= 0] = 0.0
+    return bent, sunk
+
+
+def limited_wind_displacement(
+    rest_vertices, tets, t: float, settings: WindSettings, floor: float = MIN_VOLUME_RATIO
+) -> tuple[np.ndarray, float, float]:
+    """:func:`wind_displacement` with the tip deflection scaled down where it would fold the cage.
+
+    The displacement ``s bend - s^2 sink`` (:func:`_bend_and_sink`) keeps the shape of the bent rod and
+    its length; ``s`` is 1 when every tet keeps a volume ratio ``>= floor``, else the largest ``s`` in
+    [0, 1) found by bisection for which every tet does (``s = 0`` is the rest cage, ratio 1). In a gust
+    too strong for the cage the object bends as far as it can and stays there until the gust passes.
+
+    rest_vertices : (V, 3) float; tets : (T, 4) int, positively oriented
+    returns : displacement (V, 3) float64, the scale ``s`` and the smallest volume ratio of the frame
+    """
+    rest = _as_vertices(rest_vertices)
+    tets = np.asarray(tets, dtype=np.int64)
+    rest6 = volumes6(rest, tets)
+    if not (rest6 > 0).all():
+        raise ValueError(f"tets: {(rest6 <= 0).sum()} of {len(tets)} are not positively oriented at rest")
+    bend, sink = _bend_and_sink(rest, t, settings)
+
+    def worst(s: float) -> float:
+        return float((volumes6(rest + s * bend - s * s * sink, tets) / rest6).min())
+
+    scale, ratio = 1.0, worst(1.0)
+    if not ratio >= floor:
+        low, high = 0.0, 1.0  # worst(low) >= floor > worst(high)
+        for _ in range(24):
+            mid = 0.5 * (low + high)
+            low, high = (mid, high) if worst(mid) >= floor else (low, mid)
+        scale, ratio = low, worst(low) if low > 0 else 1.0
+    return scale * bend - scale * scale * sink, scale, ratio
 
 
 def _turbulence(rest: np.ndarray, t: float, wind: np.ndarray, length: float, settings: WindSettings):
@@ -247,21 +321,18 @@ def wind_meta(settings: WindSettings, fps: float) -> dict:
     }
 
 
-def _volumes6(v: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """(T,) six times the signed tet volumes."""
-    e = v[tets[:, 1:]] - v[tets[:, :1]]
-    return np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2]))
-
-
 def animate_wind(
     rest_vertices, tets, settings: WindSettings, frames: int, fps: float, writer, progress: bool = True
 ) -> None:
     """Append wind frames ``writer.n_frames .. frames - 1`` (times ``i / fps``) to a
     :class:`shellsim.motion.MotionWriter` made with :func:`wind_meta` (fresh or resumed).
 
-    rest_vertices : (V, 3) float; tets : (T, 4) int, positively oriented. Records in ``meta["stats"]`` the
-    smallest ratio of deformed to rest tet volume (<= 0: some tet inverted; lower ``strength``) and the
-    wall time. Resuming a file made with other settings or another cage is an :class:`InputError`.
+    rest_vertices : (V, 3) float; tets : (T, 4) int, positively oriented. Every frame is
+    :func:`limited_wind_displacement`: no tet's volume ratio goes below ``MIN_VOLUME_RATIO``. Records in
+    ``meta["stats"]`` the smallest volume ratio, the frames whose bending was scaled down
+    (``limited_frames``) and the smallest scale (``min_bend_scale``), and the wall time. A ``frequency``
+    above :func:`max_frequency` of ``fps``, or resuming a file made with other settings or another cage, is
+    an :class:`InputError`.
     """
     from tqdm import tqdm
 
@@ -269,6 +340,12 @@ def animate_wind(
     tets = np.asarray(tets, dtype=np.int64)
     if not (isinstance(frames, int) and frames >= 1) or not (fps > 0 and math.isfinite(fps)):
         raise ValueError(f"frames >= 1 and fps > 0 expected, got frames={frames!r} fps={fps!r}")
+    if settings.frequency > max_frequency(fps):
+        raise InputError(
+            f"wind frequency {settings.frequency:g} Hz: frames at {fps:g} fps show at most "
+            f"{max_frequency(fps):g} Hz (the fastest turbulence mode, {_MODES} x the frequency, must stay "
+            "below half the frame rate)"
+        )
     meta = writer.motion.meta
     wanted = wind_meta(settings, fps)
     if writer.n_frames and (meta.get("settings") != wanted["settings"] or meta.get("fps") != wanted["fps"]):
@@ -282,12 +359,21 @@ def animate_wind(
     meta.update(wanted)
     stats = meta.setdefault("stats", {})
     start, wall = time.perf_counter(), float(stats.get("wall_seconds", 0.0))
-    rest_volumes = _volumes6(rest, tets)
+    limited = 0
     for i in tqdm(range(writer.n_frames, frames), desc="wind", unit="frame", disable=not progress):
-        positions = rest + wind_displacement(rest, i / fps, settings)
-        ratio = float((_volumes6(positions, tets) / rest_volumes).min())
-        if ratio <= 0 and stats.get("min_volume_ratio", 1.0) > 0:
-            log.warning("frame %d inverts cage tets (volume ratio %.3g): lower the wind strength", i, ratio)
+        u, scale, ratio = limited_wind_displacement(rest, tets, i / fps, settings)
+        if scale < 1:
+            limited += 1
+            stats["limited_frames"] = stats.get("limited_frames", 0) + 1
+            stats["min_bend_scale"] = min(stats.get("min_bend_scale", 1.0), scale)
         stats["min_volume_ratio"] = min(stats.get("min_volume_ratio", 1.0), ratio)
         stats["wall_seconds"] = wall + time.perf_counter() - start
-        writer.append(positions, i / fps)
+        writer.append(rest + u, i / fps)
+    if limited:
+        log.warning(
+            "the wind would fold the cage in %d frames: their bending was scaled down (to %.0f%% at worst) "
+            "to keep every tet's volume ratio >= %g; a lower strength, gust or turbulence avoids it",
+            limited,
+            100 * stats["min_bend_scale"],
+            MIN_VOLUME_RATIO,
+        )

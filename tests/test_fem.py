@@ -9,6 +9,7 @@ from shellsim.elastic import elastic_energy, snh_energy_reference
 from shellsim.fem import SimSettings, SimulationError, Simulator, simulate, tet_volumes
 from shellsim.materials import Material, get_material
 from shellsim.motion import MotionWriter, load_motion
+from shellsim.validity import MIN_VOLUME_RATIO
 
 G = 9.81
 
@@ -201,14 +202,47 @@ def test_runaway_simulation_is_retried_then_raises_keeping_the_frames(tmp_path):
     writer = MotionWriter(path, v, t, {"producer": "test"}, flush_seconds=1e9)
     with pytest.raises(SimulationError, match="max_speed") as err:
         simulate(sim, 60, writer, progress=False)
-    assert "2 substeps" in str(err.value) and "8 substeps" in str(err.value)  # it was retried
+    assert "with 2, 4, 8 substeps" in str(err.value)  # it was retried
     motion = load_motion(path)
     assert motion.n_frames == 8  # frame 0 and the 7 frames below max_speed
+    assert err.value.kind == "speed" and err.value.frame == 8 and str(err.value).startswith("frame 8 ")
     np.testing.assert_allclose(motion.positions[0], v, atol=1e-6)
     speed = np.linalg.norm(motion.positions[-1] - motion.positions[-2], axis=1).max() * 30
     assert 50 < speed <= 100
     assert motion.meta["state"]["frame"] == motion.n_frames - 1
     # the simulator is left at the last good frame
+    np.testing.assert_allclose(sim.positions, motion.positions[-1], atol=1e-5)
+
+
+def _ratios(rest, positions, tets):
+    """(T,) deformed / rest tet volumes from 3x3 determinants."""
+
+    def det(x):
+        return np.linalg.det(np.stack([x[tets[:, k]] - x[tets[:, 0]] for k in (1, 2, 3)], axis=2))
+
+    return det(positions) / det(rest)
+
+
+def test_a_collapsing_body_stops_before_the_first_crushed_frame(tmp_path):
+    """A 0.3 m block of 1 kPa rubber cannot carry its own weight (rho g L / E = 3): it slumps on the ground
+    until some tet is squeezed below MIN_VOLUME_RATIO (the line search keeps det F > 0, so nothing ever
+    inverts). That frame is refused; every frame written before it is a valid cage."""
+    v, t = box_tets((4, 3, 2), (0.3, 0.2, 0.15), origin=(0.0, 0.0, 0.1))
+    s = SimSettings(ground=0.0, substeps=2, retry_factors=(2,))
+    sim = Simulator(v, t, Material("limp", 1.0e3, 0.45, 1100.0), s, device="cpu")
+    path = tmp_path / "motion.npz"
+    writer = MotionWriter(path, v, t, {"producer": "test"}, flush_seconds=1e9)
+    collapse = r"smallest tet volume ratio \(det F\) fell to 0\.\d+, below 0\.2"
+    with pytest.raises(SimulationError, match=collapse) as err:
+        simulate(sim, 60, writer, progress=False)
+    motion = load_motion(path)
+    assert err.value.kind == "collapse" and err.value.frame == motion.n_frames > 2
+    assert err.value.value < MIN_VOLUME_RATIO and err.value.substeps == (2, 4)
+    assert str(err.value).startswith(f"frame {motion.n_frames} (t = {(motion.n_frames - 1) / 30:.3f} s)")
+    ratios = [_ratios(v, p.astype(np.float64), t).min() for p in motion.positions]
+    assert min(ratios) >= MIN_VOLUME_RATIO - 1e-3  # float32 positions
+    assert ratios[-1] < 0.9  # it was slumping
+    # the simulator is left at the last written frame
     np.testing.assert_allclose(sim.positions, motion.positions[-1], atol=1e-5)
 
 
@@ -236,3 +270,72 @@ def test_serial_pcg_matches_warp_optim_cg():
         results.append(sim.positions)
     assert results[0][:, 2].min() < 0  # in contact with the ground
     np.testing.assert_allclose(results[0], results[1], atol=1e-8)
+
+
+@pytest.fixture
+def cube_mesh(tmp_path, monkeypatch):
+    """A closed cube mesh file; tetrahedralising it gives a 48-tet Kuhn box (no fTetWild)."""
+    import types
+
+    import trimesh
+
+    path = tmp_path / "cube.stl"
+    trimesh.creation.box((1, 1, 1)).export(path)
+
+    def build_cage(outer, inner, config=None, what=""):
+        verts, tets, _ = kuhn_grid(0.0, 1.0, 2)
+        return types.SimpleNamespace(vertices=verts + outer.bounds[0], tets=tets)
+
+    monkeypatch.setattr("shellsim.cage.build_cage", build_cage)
+    return path
+
+
+def _cli_error(argv, capsys):
+    from shellsim.cli import main
+
+    capsys.readouterr()
+    assert main(argv) == 2
+    stderr = capsys.readouterr().err
+    err = stderr.strip().splitlines()[-1]  # after the progress bar
+    assert err.startswith("shellsim: error: ") and "Traceback" not in stderr
+    return err[len("shellsim: error: ") :]
+
+
+def test_cli_reports_the_collapsing_frame_in_one_line_keeping_the_frames_before(tmp_path, cube_mesh, capsys):
+    out = tmp_path / "limp.npz"
+    argv = ["simulate", "--mesh", str(cube_mesh), "--youngs", "1000", "--substeps", "2", "--frames", "30"]
+    err = _cli_error([*argv, "--out", str(out), "--device", "cpu"], capsys)
+    motion = load_motion(out)
+    assert 2 < motion.n_frames < 30
+    assert err.startswith(f"frame {motion.n_frames} (t = ")
+    assert "smallest tet volume ratio (det F) fell to 0." in err and "below 0.2" in err
+    assert f"frames 0-{motion.n_frames - 1} are kept in {out}" in err
+    assert "--youngs; now 1000 Pa" in err and "--size" in err
+
+
+@pytest.mark.parametrize(
+    "option, message",
+    [
+        (["--substeps", "100000000"], "--substeps: expected an integer in [1, 1000], got 100000000"),
+        (["--substeps", "0"], "--substeps: expected an integer in [1, 1000], got 0"),
+        (["--frames", "0"], "--frames: expected an integer in [1, 10000], got 0"),
+        (["--fps", "-30"], "--fps: expected a number of frames per second in (0, 1000], got -30"),
+        (["--youngs", "1"], "--youngs: expected a Young's modulus in Pa in [100, 2e+12], got 1"),
+        (["--youngs", "nan"], "--youngs: expected a Young's modulus in Pa in [100, 2e+12], got nan"),
+        (["--poisson", "0.5"], "--poisson: expected a Poisson ratio in (-1, 0.5), got 0.5"),
+        (["--density", "0"], "--density: expected a density in kg/m^3 in [1, 100000], got 0"),
+        (["--size", "0"], "--size: expected a length in metres in [0.001, 1000], got 0"),
+        (["--drop-height", "-1"], "--drop-height: expected a height in metres in [0, 100], got -1"),
+        (["--friction", "inf"], "--friction: expected a Coulomb coefficient in [0, 10], got inf"),
+        (["--damping", "-0.1"], "--damping: expected a time in seconds in [0, 10], got -0.1"),
+        (["--tets", "5"], "--tets: expected an integer in [10, 1000000], got 5"),
+        (["--velocity", "300,0,0"], "--velocity: expected a speed in m/s"),
+        (["--spin", "0,0,1000"], "--spin: expected an angular speed in rad/s at --size 0.3 in [0, 333.333)"),
+        (["--sphere", "0,0,0,-1"], "--sphere: expected a radius in (0, inf), got -1"),
+        (["--box", "0,0,0,1,0,1"], "--box: expected half extents in (0, inf), got 0"),
+    ],
+)
+def test_cli_refuses_out_of_range_numbers_at_once(tmp_path, capsys, option, message):
+    """Refused with the valid range before the mesh is read: the mesh does not even exist."""
+    err = _cli_error(["simulate", "--mesh", str(tmp_path / "missing.ply"), *option], capsys)
+    assert err.startswith(message)

@@ -45,6 +45,9 @@ def test_unknown_names_list_the_known_ones():
         ({"poisson": -1.0}, "Poisson"),
         ({"density": 0.0}, "density"),
         ({"youngs": float("nan")}, "Young"),
+        ({"youngs": 1.0}, r"Young's modulus 1 Pa: expected a value in \[100, 2e\+12\] Pa"),
+        ({"poisson": 0.5}, r"Poisson ratio 0.5: expected a value in \(-1, 0.5\)"),
+        ({"density": 1e6}, r"density 1e\+06 kg/m\^3: expected a value in \[1, 100000\] kg/m\^3"),
     ],
 )
 def test_out_of_range_values_are_input_errors(kw, what):

@@ -1,6 +1,7 @@
 """shellsim.wind: invariants (zero wind, fixed anchor, monotone bending), the cantilever closed form, the
 inextensible-rod drop, the anchor parser, the motion file and the CLI."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -9,6 +10,7 @@ from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError
 from shellsim.motion import MotionWriter, load_motion
+from shellsim.validity import MIN_VOLUME_RATIO
 from shellsim.wind import (
     WindSettings,
     animate_wind,
@@ -177,12 +179,18 @@ def test_anchor_parser_rejects_junk(spec):
 
 
 def test_settings_are_validated():
-    with pytest.raises(InputError, match="strength"):
+    with pytest.raises(InputError, match=r"strength: expected 0 <= strength <= 1, got -1$"):
         WindSettings(strength=-1.0)
+    with pytest.raises(InputError, match=r"strength: expected 0 <= strength <= 1, got 5$"):
+        WindSettings(strength=5.0)
+    with pytest.raises(InputError, match=r"gust: expected 0 <= gust <= 1, got nan$"):
+        WindSettings(gust=float("nan"))
+    with pytest.raises(InputError, match="seed"):
+        WindSettings(seed=-1)
     with pytest.raises(InputError, match="direction"):
         WindSettings(direction=(0.0, 0.0, 0.0))
-    with pytest.raises(InputError, match="along the object's axis"):
-        WindSettings(direction=(0.0, 0.0, 2.0))
+    with pytest.raises(InputError, match=r"direction 0, 0, 1 is along the object's bending axis 0, 0, 1:"):
+        WindSettings(direction=np.array([0.0, 0.0, 2.0]))
     with pytest.raises(InputError, match="anchor"):
         WindSettings(anchor="z<<1")
     verts, _ = column()
@@ -225,6 +233,61 @@ def test_animate_wind_writes_a_motion_file(tmp_path):
     assert load_motion(short).n_frames == 10
 
 
+def _ratios(rest, positions, tets):
+    """(T,) deformed / rest tet volumes from 3x3 determinants."""
+
+    def det(x):
+        return np.linalg.det(np.stack([x[tets[:, k]] - x[tets[:, 0]] for k in (1, 2, 3)], axis=2))
+
+    return det(positions) / det(rest)
+
+
+def test_a_wind_too_strong_for_the_cage_is_limited_never_folds_it(tmp_path):
+    """Full strength, gusts and turbulence fold a column's tets (volume ratio 1 - slope^2 / 2 < 0 at the
+    top); every written frame keeps them above the floor, the frames that fit are the analytic wind, and
+    a limited frame is the analytic wind of a lower strength: the same bent shape, scaled."""
+    verts, tets = column(n_xy=2, n_z=6, width=0.2, height=1.0)
+    settings = WindSettings(strength=1.0, gust=1.0, turbulence=1.0, frequency=1.0, direction=(1.0, 0.3, 0.0))
+    fps, frames = 10.0, 24
+    path = tmp_path / "wind.npz"
+    with MotionWriter(path, verts, tets, wind_meta(settings, fps)) as writer:
+        animate_wind(verts, tets, settings, frames, fps, writer, progress=False)
+    motion = load_motion(path)
+    assert motion.n_frames == frames
+    unlimited = [
+        _ratios(verts, verts + wind_displacement(verts, i / fps, settings), tets).min() for i in range(frames)
+    ]
+    assert min(unlimited) < 0  # the analytic wind inverts tets in some frames
+    written = np.array([_ratios(verts, p.astype(np.float64), tets).min() for p in motion.positions])
+    assert written.min() >= MIN_VOLUME_RATIO - 1e-4  # float32 positions
+    stats = motion.meta["stats"]
+    assert stats["limited_frames"] == sum(r < MIN_VOLUME_RATIO for r in unlimited) > 0
+    top = np.argmax(verts[:, 2])
+    wind_hat = np.array([1.0, 0.3, 0.0]) / np.linalg.norm([1.0, 0.3, 0.0])
+    for i in range(frames):
+        t = i / fps
+        full = wind_displacement(verts, t, settings)
+        u = motion.positions[i].astype(np.float64) - verts
+        if unlimited[i] >= MIN_VOLUME_RATIO:
+            np.testing.assert_allclose(u, full, atol=1e-6)
+            continue
+        scale = (u[top] @ wind_hat) / (full[top] @ wind_hat)
+        assert 0 < scale < 1
+        weaker = wind_displacement(verts, t, dataclasses.replace(settings, strength=scale))
+        np.testing.assert_allclose(u, weaker, atol=1e-5)
+        # bent as far as the floor allows, not further back
+        assert written[i] < MIN_VOLUME_RATIO + 2e-3
+    assert stats["min_bend_scale"] < 1 and stats["min_volume_ratio"] >= MIN_VOLUME_RATIO - 1e-9
+
+
+def test_gusts_faster_than_the_frames_can_show_are_refused(tmp_path):
+    verts, tets = column()
+    settings = WindSettings(frequency=2.0)
+    with MotionWriter(tmp_path / "w.npz", verts, tets, wind_meta(settings, 10.0)) as writer:
+        with pytest.raises(InputError, match=r"frequency 2 Hz: frames at 10 fps show at most 1.66667 Hz"):
+            animate_wind(verts, tets, settings, 5, 10.0, writer, progress=False)
+
+
 def _write_asset(root):
     """A minimal asset: asset.json, a placeholder field file and closed cylinder shells (z up)."""
     import trimesh
@@ -244,6 +307,42 @@ def test_cli_rejects_a_junk_anchor(tmp_path, capsys):
     assert "anchor" in capsys.readouterr().err
     assert main(["wind", "--asset", str(asset), "--direction", "1,0"]) == 2
     assert "--direction" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "option, message",
+    [
+        (["--strength", "5"], "--strength: expected a tip deflection / height in [0, 1], got 5"),
+        (["--strength", "-1"], "--strength: expected a tip deflection / height in [0, 1], got -1"),
+        (["--gust", "1.5"], "--gust: expected a relative amplitude in [0, 1], got 1.5"),
+        (["--turbulence", "nan"], "--turbulence: expected a relative amplitude in [0, 1], got nan"),
+        (["--seed", "-3"], "--seed: expected an integer in [0, 4294967295], got -3"),
+        (["--frames", "0"], "--frames: expected an integer in [1, 10000], got 0"),
+        (["--frames", "100000000"], "--frames: expected an integer in [1, 10000], got 100000000"),
+        (["--fps", "0"], "--fps: expected a number of frames per second in (0, 1000], got 0"),
+        (
+            ["--fps", "12", "--frequency", "2.5"],
+            "--frequency: expected a number of Hz in [0, 10] and at most 2 ",
+        ),
+        (["--fps", "2"], "--frequency: expected a number of Hz in [0, 10] and at most 0.3333 "),
+    ],
+)
+def test_cli_refuses_out_of_range_numbers_before_loading(tmp_path, capsys, option, message):
+    """Refused with the valid range before the asset is read: the asset does not even exist."""
+    from shellsim.cli import main
+
+    assert main(["wind", "--asset", str(tmp_path / "missing"), *option]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"shellsim: error: {message}") and "\n" not in err
+
+
+def test_cli_direction_along_the_axis_reads_plain_numbers(tmp_path, capsys):
+    from shellsim.cli import main
+
+    asset = _write_asset(tmp_path / "rod")
+    assert main(["wind", "--asset", str(asset), "--direction", "0,0,1"]) == 2
+    err = capsys.readouterr().err
+    assert "direction 0, 0, 1 is along the object's bending axis 0, 0, 1" in err and "float64" not in err
 
 
 def test_cli_writes_and_resumes(tmp_path):

@@ -24,3 +24,22 @@ def parse_floats(flag: str, text: str, count: int) -> tuple[float, ...]:
     if len(values) != count or not all(math.isfinite(v) for v in values):
         raise InputError(f"{flag}: expected {count} comma-separated numbers, got {text!r}")
     return values
+
+
+MAX_FRAMES = 10_000  # frames of one motion (about 1 GB of positions for a 10,000-vertex cage)
+MAX_FPS = 1000.0
+
+
+def check_range(flag: str, value, low: float, high: float, what: str = "a number", open_ends: str = "[]"):
+    """InputError naming ``flag`` and the valid range unless ``low <= value <= high`` (NaN never is);
+    ``open_ends`` "()" / "(]" / "[)" excludes an end. Returns ``value``."""
+    above = value > low if open_ends[0] == "(" else value >= low
+    below = value < high if open_ends[1] == ")" else value <= high
+    if not (above and below):
+
+        def plain(x):
+            return str(x) if isinstance(x, int) else f"{x:g}"
+
+        span = f"{open_ends[0]}{plain(low)}, {plain(high)}{open_ends[1]}"
+        raise InputError(f"{flag}: expected {what} in {span}, got {plain(value)}")
+    return value

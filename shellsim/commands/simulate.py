@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.commands.args import parse_floats, parse_size
+from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats, parse_size
 
 log = logging.getLogger(__name__)
 
@@ -215,28 +215,64 @@ def _load_cage(args: argparse.Namespace):
     return cage.vertices, cage.tets, up
 
 
+MAX_SUBSTEPS = 1000  # per frame; a retried frame runs up to 4 times as many
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    """Every numeric option in its valid range, or an InputError naming it and the range."""
+    from shellsim.fem import SimSettings
+    from shellsim.materials import RANGES
+
+    check_range("--frames", args.frames, 1, MAX_FRAMES, "an integer")
+    check_range("--substeps", args.substeps, 1, MAX_SUBSTEPS, "an integer")
+    if args.tets is not None:
+        check_range("--tets", args.tets, 10, 1_000_000, "an integer")
+    check_range("--fps", args.fps, 0, MAX_FPS, "a number of frames per second", "(]")
+    check_range("--size", args.size, 1e-3, 1e3, "a length in metres")
+    check_range("--drop-height", args.drop_height, 0, 100, "a height in metres")  # lands below 45 m/s
+    check_range("--friction", args.friction, 0, 10, "a Coulomb coefficient")
+    check_range("--damping", args.damping, 0, 10, "a time in seconds")
+    for flag, value, what in (
+        ("--youngs", args.youngs, "a Young's modulus in Pa"),
+        ("--poisson", args.poisson, "a Poisson ratio"),
+        ("--density", args.density, "a density in kg/m^3"),
+    ):
+        if value is not None:
+            low, high, ends = RANGES[flag[2:]]
+            check_range(flag, value, low, high, what, ends)
+    max_speed = SimSettings.max_speed  # [m/s]: a faster vertex stops the simulation
+    if args.velocity:
+        speed = float(np.linalg.norm(parse_floats("--velocity", args.velocity, 3)))
+        check_range("--velocity", speed, 0, max_speed, "a speed in m/s (the simulator's limit)", "[)")
+    if args.spin:
+        rate = float(np.linalg.norm(parse_floats("--spin", args.spin, 3)))
+        what = f"an angular speed in rad/s at --size {args.size:g}"  # the rim below max_speed
+        check_range("--spin", rate, 0, max_speed / args.size, what, "[)")
+    for text in args.sphere:
+        check_range("--sphere", parse_floats("--sphere", text, 4)[3], 0, math.inf, "a radius", "()")
+    for text in args.box:
+        check_range("--box", min(parse_floats("--box", text, 6)[3:]), 0, math.inf, "half extents", "()")
+
+
+def _failure_line(err, out: Path, args: argparse.Namespace, material) -> str:
+    """The one line for a :class:`shellsim.fem.SimulationError`: the frame, the value, what to change."""
+    advice = {
+        "collapse": f"use a stiffer material (--material, --youngs; now {material.youngs:g} Pa), a smaller "
+        "--size or --drop-height, or more --damping",
+        "speed": "lower --drop-height, --velocity or --spin",
+        "nonfinite": "use more --substeps or a lower --drop-height",
+    }[err.kind]
+    return f"{err}; frames 0-{err.frame - 1} are kept in {out}; {advice}"
+
+
 def simulate_to_file(args: argparse.Namespace) -> Path:
     """Run the simulation the arguments describe; returns the motion file written."""
     from shellsim.contact import Box, Sphere
-    from shellsim.fem import SimSettings, Simulator, WorldMap, restore_state, simulate
+    from shellsim.fem import SimSettings, SimulationError, Simulator, WorldMap, restore_state, simulate
     from shellsim.materials import get_material
     from shellsim.motion import MotionWriter
 
-    for flag, value in (("--frames", args.frames), ("--substeps", args.substeps)):
-        if value < 1:
-            raise InputError(f"{flag}: expected a positive integer, got {value}")
-    if args.tets is not None and args.tets < 10:
-        raise InputError(f"--tets: expected at least 10, got {args.tets}")
-    for flag, value in (("--fps", args.fps), ("--size", args.size)):
-        if not (math.isfinite(value) and value > 0):
-            raise InputError(f"{flag}: expected a positive number, got {value}")
-    for flag, value in (
-        ("--drop-height", args.drop_height),
-        ("--friction", args.friction),
-        ("--damping", args.damping),
-    ):
-        if not (math.isfinite(value) and value >= 0):
-            raise InputError(f"{flag}: expected a number >= 0, got {value}")
+    _check_numbers(args)
     material = get_material(args.material, args.youngs, args.poisson, args.density)
     rules = [parse_pin(text) for text in args.pin]
     device = _device(args.device)
@@ -321,7 +357,10 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
         device,
     )
     with writer:
-        history = simulate(sim, max(remaining, 0), writer, world)
+        try:
+            history = simulate(sim, max(remaining, 0), writer, world)
+        except SimulationError as err:
+            raise InputError(_failure_line(err, out, args, material)) from None
     if history:
         substeps = sum(h.substeps for h in history)
         log.info(

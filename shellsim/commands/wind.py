@@ -59,14 +59,28 @@ def run(args: argparse.Namespace) -> None:
     from neural.asset import load_asset
     from neural.errors import InputError
     from shellsim.cage import load_or_build_cage
-    from shellsim.commands.args import parse_floats
+    from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats
     from shellsim.motion import MotionWriter
-    from shellsim.wind import WindSettings, animate_wind, wind_meta
+    from shellsim.wind import RANGES, WindSettings, animate_wind, max_frequency, wind_meta
 
-    if args.frames < 1:
-        raise InputError(f"--frames: expected a positive integer, got {args.frames}")
-    if not 0 < args.fps < float("inf"):
-        raise InputError(f"--fps: expected a positive number, got {args.fps}")
+    check_range("--frames", args.frames, 1, MAX_FRAMES, "an integer")
+    check_range("--fps", args.fps, 0, MAX_FPS, "a number of frames per second", "(]")
+    for name, what in (
+        ("strength", "a tip deflection / height"),
+        ("gust", "a relative amplitude"),
+        ("turbulence", "a relative amplitude"),
+        ("seed", "an integer"),
+    ):
+        if getattr(args, name) is not None:
+            check_range(f"--{name}", getattr(args, name), *RANGES[name], what)
+    frequency = WindSettings.frequency if args.frequency is None else args.frequency
+    low, high = RANGES["frequency"]
+    if not low <= frequency <= min(high, max_frequency(args.fps)):  # faster turbulence aliases
+        raise InputError(
+            f"--frequency: expected a number of Hz in [{low:g}, {high:g}] and at most "
+            f"{max_frequency(args.fps):.4g} (--fps / {args.fps / max_frequency(args.fps):g}: faster "
+            f"turbulence would alias), got {frequency:g}"
+        )
     asset = load_asset(args.asset)
     options = {
         "strength": args.strength,

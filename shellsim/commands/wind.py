@@ -24,22 +24,30 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
     p.add_argument(
-        "--strength", type=float, default=None, help=f"mean tip deflection / height (default {W.strength})"
+        "--strength",
+        type=float,
+        default=None,
+        help=f"mean tip deflection / height, 0-1 (default {W.strength})",
     )
     p.add_argument(
         "--direction",
         default=None,
         help=f"wind direction x,y,z (default {','.join(f'{c:g}' for c in W.direction)})",
     )
-    p.add_argument("--gust", type=float, default=None, help=f"relative gust amplitude (default {W.gust})")
     p.add_argument(
-        "--frequency", type=float, default=None, help=f"gust frequency in Hz (default {W.frequency})"
+        "--gust", type=float, default=None, help=f"relative gust amplitude, 0-1 (default {W.gust})"
+    )
+    p.add_argument(
+        "--frequency",
+        type=float,
+        default=None,
+        help=f"gust frequency in Hz, at most fps / 6 (default {W.frequency})",
     )
     p.add_argument(
         "--turbulence",
         type=float,
         default=None,
-        help=f"relative turbulence amplitude (default {W.turbulence})",
+        help=f"relative turbulence amplitude, 0-1 (default {W.turbulence})",
     )
     p.add_argument(
         "--anchor",

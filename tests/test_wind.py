@@ -10,7 +10,7 @@ from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError
 from shellsim.motion import MotionWriter, load_motion
-from shellsim.validity import MIN_VOLUME_RATIO
+from shellsim.validity import MIN_VOLUME_RATIO, volume_ratios
 from shellsim.wind import (
     WindSettings,
     animate_wind,
@@ -240,6 +240,13 @@ def _ratios(rest, positions, tets):
         return np.linalg.det(np.stack([x[tets[:, k]] - x[tets[:, 0]] for k in (1, 2, 3)], axis=2))
 
     return det(positions) / det(rest)
+
+
+def test_volume_ratios_are_det_F():
+    """Squashing along z by a half halves every tet's volume; a mirror image inverts every tet."""
+    verts, tets = column()
+    np.testing.assert_allclose(volume_ratios(verts, verts * [1.0, 1.0, 0.5], tets), 0.5, rtol=1e-12)
+    np.testing.assert_allclose(volume_ratios(verts, verts * [-1.0, 1.0, 1.0], tets), -1.0, rtol=1e-12)
 
 
 def test_a_wind_too_strong_for_the_cage_is_limited_never_folds_it(tmp_path):

@@ -13,8 +13,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "images may be absent) to OUT/<frame name>.png with narrow-band rendering (paper Sec. 3.4). With "
         "--motion: render each motion frame k, seen by the first camera of --cameras or by a camera "
         "orbiting the asset (--orbit), to OUT/<k:05d>.png, deforming the shells with the cage and mapping "
-        "every sample back to rest space (paper Sec. 5). PNGs already in OUT are kept, so an interrupted "
-        "render resumes; --overwrite renders them again.",
+        "every sample back to rest space (paper Sec. 5). Each PNG records what made it (motion frame, "
+        "camera, size, asset, renderer settings): one already in OUT is kept only when all of these match, "
+        "so an interrupted render resumes, and rendered again otherwise; --overwrite renders all again.",
     )
     p.add_argument("--asset", required=True, help="asset directory or shipped asset name")
     p.add_argument(
@@ -41,8 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
+    import math
+
     from neural.errors import InputError
-    from shellsim.render import render_motion, render_views
 
     size = None
     if args.width is not None or args.height is not None:
@@ -55,6 +57,14 @@ def run(args: argparse.Namespace) -> None:
         for flag in ("orbit", "frames", "video", "fps"):
             if getattr(args, flag) not in (None, False):
                 raise InputError(f"--{flag} needs --motion (without it every camera is rendered at rest)")
+    if args.fps is not None and not (args.fps > 0 and math.isfinite(args.fps)):
+        raise InputError(f"--fps: expected a positive number, got {args.fps}")
+    if args.device not in ("auto", "cpu", "cuda"):
+        raise InputError(f"--device: expected cpu, cuda or auto, got {args.device!r}")
+
+    from shellsim.render import render_motion, render_views  # torch: after the options are checked
+
+    if args.motion is None:
         summary = render_views(args.asset, args.cameras, args.out, size, args.device, args.overwrite)
     else:
         summary = render_motion(
@@ -70,7 +80,8 @@ def run(args: argparse.Namespace) -> None:
             device=args.device,
             overwrite=args.overwrite,
         )
-    line = f"{summary['rendered']} frames rendered to {summary['out']} ({summary['skipped']} already there)"
+    line = f"{summary['rendered']} frames rendered to {summary['out']} ({summary['skipped']} already there"
+    line += f", {summary['replaced']} replaced)" if summary["replaced"] else ")"
     if summary["rendered"]:
         line += (
             f": {summary['ms']:.0f} ms/frame (deform + build {summary['build_ms']:.0f}, cast "

@@ -231,3 +231,33 @@ def test_wind_run_again_continues_or_refuses(tmp_path, capsys):
     assert load_motion(out).n_frames == 5
     assert main([*args, "--frames", "2", "--strength", "0.2", "--overwrite"]) == 0
     assert load_motion(out).n_frames == 2
+
+
+def test_mesh_simulation_video_shows_the_mesh_moving(tmp_path, closed_mesh):
+    """simulate --mesh --video: the motion carries the mesh's surface (frame 0: the mesh file's own
+    vertices) and its frames show it moving."""
+    from PIL import Image
+
+    mesh, _ = closed_mesh
+    out, video = tmp_path / "cube.npz", tmp_path / "cube.mp4"
+    argv = [
+        "simulate",
+        "--mesh",
+        str(mesh),
+        "--frames",
+        "3",
+        "--substeps",
+        "2",
+        "--no-ground",
+        "--out",
+        str(out),
+    ]
+    argv += ["--velocity", "20,0,0", "--video", str(video), "--video-size", "32x24", "--device", "cpu"]
+    assert main(argv) == 0
+    motion = load_motion(out)
+    np.testing.assert_allclose(motion.surface_points(0), trimesh.load(mesh).vertices, atol=1e-9)
+    assert len(motion.surface.faces) == 12
+    frames = [np.asarray(Image.open(tmp_path / "cube_frames" / f"{k:05d}.png")) for k in range(3)]
+    assert all(f.shape == (24, 32, 3) and (f.min(axis=2) < 200).sum() > 20 for f in frames)
+    assert (np.abs(frames[2].astype(int) - frames[0]).max(axis=2) > 50).sum() > 20
+    assert video.is_file()

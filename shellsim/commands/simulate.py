@@ -137,8 +137,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--video",
-        help="then render the motion (orbiting camera) to this MP4 and its frames to VIDEO_frames/; frames "
-        "already there are kept only when they show the same motion frame, camera and size",
+        help="then render the motion (orbiting camera) to this MP4 and its frames to VIDEO_frames/ (with "
+        "--mesh: the mesh's surface, drawn with pyvista); frames already there are kept only when they show "
+        "the same motion frame, camera and size",
     )
     p.add_argument("--video-size", default="200x200", help="WxH of the rendered frames (default 200x200)")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda (default auto)")
@@ -146,19 +147,26 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    if args.video and not args.asset:
-        raise InputError("--video renders the neural asset: it needs --asset, not --mesh")
     size = parse_size("--video-size", args.video_size) if args.video else None
     out = simulate_to_file(args)
     log.info("motion written to %s", out)
     if args.video:
-        from shellsim.render import render_motion
-
         video = Path(args.video)
         frames_dir = video.with_name(video.stem + "_frames")
-        summary = render_motion(  # each frame is kept only if it records this motion frame and camera
-            args.asset, out, frames_dir, orbit=True, size=size, video=video, device=args.device
-        )
+        # each frame is kept only if it records this motion frame and camera
+        if args.asset:
+            from shellsim.render import render_motion
+
+            summary = render_motion(
+                args.asset, out, frames_dir, orbit=True, size=size, video=video, device=args.device
+            )
+        else:  # a mesh: its surface moved by the cage, drawn with pyvista
+            from shellsim.inspect import quiet_vtk
+            from shellsim.surface import render_surface_motion
+
+            if not args.verbose:
+                quiet_vtk()
+            summary = render_surface_motion(out, frames_dir, size=size, video=video)
         log.info(
             "rendered %d frames (%d already there) to %s and the video %s",
             summary["rendered"],
@@ -234,6 +242,18 @@ def _load_cage(args: argparse.Namespace):
     return cage.vertices, cage.tets, up
 
 
+def _mesh_surface(path: Path, vertices: np.ndarray, tets: np.ndarray):
+    """The surface of the mesh file ``path`` embedded in its cage (vertices (V, 3), tets (T, 4)), so the
+    motion file can show it: a :class:`shellsim.motion.Surface`."""
+    from neural.asset import load_mesh
+    from shellsim.embed import embed_points
+    from shellsim.motion import Surface
+
+    mesh = load_mesh(path)
+    tet, bary = embed_points(vertices, tets, np.asarray(mesh.vertices, np.float64))
+    return Surface(tet, bary, np.asarray(mesh.faces, np.int64))
+
+
 def simulate_to_file(args: argparse.Namespace) -> Path:
     """Run the simulation the arguments describe; returns the motion file written."""
     from shellsim.contact import Box, Sphere
@@ -282,6 +302,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
         log.info("resuming %s after frame %d", out, writer.n_frames - 1)
     else:
         vertices, tets, up = _load_cage(args)
+        surface = None if args.asset else _mesh_surface(Path(args.mesh), vertices, tets)
         if args.up is not None:
             up = parse_floats("--up", args.up, 3)
         params = _parameters(args, material, up)
@@ -328,7 +349,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
         }
         if out.exists():
             log.info("--overwrite: replacing %s", out)
-        writer = MotionWriter(out, vertices, tets, meta)
+        writer = MotionWriter(out, vertices, tets, meta, surface=surface)
     else:
         restore_state(sim, writer, world)
 

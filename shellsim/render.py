@@ -19,8 +19,10 @@ For one frame with cage vertices ``p`` (V, 3), :class:`DeformedRenderer`
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4).
 
 :func:`render_motion` renders a motion file frame by frame to ``DIR/00000.png ...`` (frame ``k`` of the
-motion is ``k:05d.png``), skipping frames already on disk so an interrupted render resumes, and optionally
-assembles an MP4; :func:`render_views` renders every camera of a camera file at rest.
+motion is ``k:05d.png``) and optionally assembles an MP4; :func:`render_views` renders every camera of a
+camera file at rest. Every PNG records what made it (:func:`frame_record`: the motion frame, camera, size,
+asset and renderer settings, as JSON in a PNG text chunk); a PNG already on disk is kept only when its record
+matches, so an interrupted render resumes and frames of another motion, camera or size are rendered again.
 """
 
 from __future__ import annotations

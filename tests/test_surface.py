@@ -104,3 +104,15 @@ def test_inspect_shows_a_mesh_motion_without_an_asset(tmp_path, capsys):
     assert np.abs(shots[0] - shots[1]).max(axis=2).astype(bool).sum() > 1000  # and moves
     assert main(["inspect", "--motion", str(path), "--color", "kernel", "--screenshot", "x.png"]) == 2
     assert "--color" in capsys.readouterr().err
+
+
+def test_render_cli_draws_a_motion_without_an_asset(tmp_path, capsys):
+    path = tmp_path / "cube.npz"
+    save_motion(path, cube_motion([(0, 0, 0), (0.3, 0, 0)]))
+    out = tmp_path / "frames"
+    argv = ["render", "--motion", str(path), "--orbit", "--out", str(out), "--width", "24", "--height", "20"]
+    assert main(argv) == 0
+    assert "2 frames rendered" in capsys.readouterr().out
+    assert [Image.open(p).size for p in sorted(out.iterdir())] == [(24, 20)] * 2
+    assert main(["render", "--motion", str(path), "--cameras", "c.json", "--out", str(out)]) == 2
+    assert "--asset" in capsys.readouterr().err

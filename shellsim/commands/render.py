@@ -17,7 +17,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "camera, size, asset, renderer settings): one already in OUT is kept only when all of these match, "
         "so an interrupted render resumes, and rendered again otherwise; --overwrite renders all again.",
     )
-    p.add_argument("--asset", required=True, help="asset directory or shipped asset name")
+    p.add_argument(
+        "--asset",
+        default=None,
+        help="asset directory or shipped asset name; without it, --motion --orbit draws the surface the "
+        "motion carries (e.g. from 'simulate --mesh') with pyvista",
+    )
     p.add_argument(
         "--motion", default=None, help="motion file (.npz) from 'shellsim simulate' or 'shellsim wind'"
     )
@@ -62,11 +67,25 @@ def run(args: argparse.Namespace) -> None:
     if args.device not in ("auto", "cpu", "cuda"):
         raise InputError(f"--device: expected cpu, cuda or auto, got {args.device!r}")
 
-    from shellsim.render import render_motion, render_views  # torch: after the options are checked
+    # the heavy imports (torch, pyvista) come after the options are checked
+    if args.asset is None:
+        if args.motion is None or not args.orbit:
+            raise InputError("--asset: needed, unless --motion and --orbit draw a motion's own surface")
+        from shellsim.inspect import quiet_vtk
+        from shellsim.surface import render_surface_motion
 
-    if args.motion is None:
+        if not args.verbose:
+            quiet_vtk()
+        summary = render_surface_motion(
+            args.motion, args.out, args.frames, size, args.video, args.fps, args.overwrite
+        )
+    elif args.motion is None:
+        from shellsim.render import render_views
+
         summary = render_views(args.asset, args.cameras, args.out, size, args.device, args.overwrite)
     else:
+        from shellsim.render import render_motion
+
         summary = render_motion(
             args.asset,
             args.motion,
@@ -80,13 +99,19 @@ def run(args: argparse.Namespace) -> None:
             device=args.device,
             overwrite=args.overwrite,
         )
+    _report(summary)
+
+
+def _report(summary: dict) -> None:
     line = f"{summary['rendered']} frames rendered to {summary['out']} ({summary['skipped']} already there"
     line += f", {summary['replaced']} replaced)" if summary["replaced"] else ")"
-    if summary["rendered"]:
+    if summary["rendered"] and "field_ms" in summary:
         line += (
             f": {summary['ms']:.0f} ms/frame (deform + build {summary['build_ms']:.0f}, cast "
             f"{summary['cast_ms']:.0f}, inverse map {summary['map_ms']:.0f}, field {summary['field_ms']:.0f})"
         )
+    elif summary["rendered"]:
+        line += f": {summary['ms']:.0f} ms/frame"
     print(line)
     if "video" in summary:
         print(f"video: {summary['video']}")

@@ -223,6 +223,35 @@ class MotionWriter:
         self.close()
 
 
+def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
+    """``--frames``: ``"a:b"`` (b exclusive; either may be left out), ``"k"`` or None (all) -> the frame
+    indices, checked against ``n_frames``; a malformed or out-of-range spec is an :class:`InputError`."""
+    if spec is None:
+        return range(n_frames)
+    text = str(spec).strip()
+    parts = text.split(":")
+    try:
+        if len(parts) == 1:
+            a = int(parts[0])
+            b = a + 1
+        elif len(parts) == 2:
+            a = int(parts[0]) if parts[0].strip() else 0
+            b = int(parts[1]) if parts[1].strip() else n_frames
+        else:
+            raise ValueError
+    except ValueError:
+        raise InputError(
+            f"--frames {text!r}: expected START:END (END exclusive, either optional) or one frame "
+            f"number, e.g. 0:60"
+        ) from None
+    if not 0 <= a < b <= n_frames:
+        raise InputError(
+            f"--frames {text!r}: {source} has {n_frames} frames (0..{n_frames - 1}); need "
+            f"0 <= START < END <= {n_frames}"
+        )
+    return range(a, b)
+
+
 def _flatten(values: dict, prefix: str = "") -> dict:
     out = {}
     for key, value in values.items():

@@ -110,7 +110,7 @@ def render_surface_motion(
     :func:`shellsim.render.render_motion` about the motion's up axis; ``frames``, ``size`` (default
     400 x 400), ``video``, ``fps`` and ``overwrite`` as there. Returns the same summary (counts, ``ms``,
     ``video``)."""
-    from .motion import load_motion
+    from .motion import load_motion, parse_frames
     from .render import (
         _digest,
         _motion_fps,
@@ -119,7 +119,6 @@ def render_surface_motion(
         motion_frame_ids,
         orbit_camera,
         orbit_framing,
-        parse_frames,
         write_video,
     )
 

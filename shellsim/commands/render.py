@@ -67,6 +67,10 @@ def run(args: argparse.Namespace) -> None:
     if args.device not in ("auto", "cpu", "cuda"):
         raise InputError(f"--device: expected cpu, cuda or auto, got {args.device!r}")
 
+    if args.motion is not None:
+        from shellsim.motion import load_motion, parse_frames
+
+        parse_frames(args.frames, load_motion(args.motion).n_frames, str(args.motion))
     # the heavy imports (torch, pyvista) come after the options are checked
     if args.asset is None:
         if args.motion is None or not args.orbit:

@@ -207,6 +207,12 @@ def test_cli_bad_options_are_one_line(ball, tmp_path, capsys, extra, message):
     assert message in err and len(err.splitlines()) == 1
 
 
+def test_cli_needs_an_asset_or_a_motion(capsys):
+    assert main(["inspect", "--screenshot", "x.png"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--asset" in err and "--motion" in err and len(err.splitlines()) == 1
+
+
 def test_cli_mismatching_motion_is_one_line(ball, tmp_path, capsys):
     asset, cage = ball
     verts, tets = box_cage(n=2)

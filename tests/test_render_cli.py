@@ -102,6 +102,11 @@ def test_rest_render_writes_one_png_per_camera(tmp_path, asset_dir, capsys):
         assert image.shape == (14, 20, 3)
         assert image.min() < 200 and image.max() == 255  # the ball on the white background
     assert "3 frames rendered" in capsys.readouterr().out
+    assert render(asset_dir, out, "--width", "20", "--height", "14", cameras=cams) == 0
+    assert "0 frames rendered" in capsys.readouterr().out
+    assert render(asset_dir, out, "--width", "16", cameras=cams) == 0  # another size: rendered again
+    assert "3 frames rendered" in capsys.readouterr().out
+    assert all(np.asarray(Image.open(p)).shape == (16, 16, 3) for p in out.iterdir())
 
 
 def test_motion_render_resumes_and_writes_the_video(tmp_path, asset_dir):

@@ -312,7 +312,7 @@ def save_png(path: Path, image: np.ndarray, record: dict | None = None) -> None:
     os.replace(tmp, path)
 
 
-def _digest(*parts) -> str:
+def digest(*parts) -> str:
     """Short SHA-256 of ``parts``: arrays (their dtype, shape and bytes), strings, bytes or files (Path)."""
     h = hashlib.sha256()
     for part in parts:
@@ -335,7 +335,7 @@ def asset_identity(asset, cage: bool) -> str:
     shells and (``cage``) its cage file."""
     meta = {k: asset.meta.get(k) for k in ("normalisation", "field")}
     files = [asset.file("field"), asset.file("shell_outer"), asset.file("shell_inner")]
-    return _digest(json.dumps(meta, sort_keys=True), *files, *([asset.cage_path] if cage else []))
+    return digest(json.dumps(meta, sort_keys=True), *files, *([asset.cage_path] if cage else []))
 
 
 def frame_record(motion: str, camera, asset: str, renderer: str) -> dict:
@@ -345,7 +345,7 @@ def frame_record(motion: str, camera, asset: str, renderer: str) -> dict:
     c = camera
     return {
         "motion": motion,
-        "camera": _digest(c.c2w, c.fx, c.fy, c.cx, c.cy, c.distortion),
+        "camera": digest(c.c2w, c.fx, c.fy, c.cx, c.cy, c.distortion),
         "size": f"{int(c.width[0])}x{int(c.height[0])}",
         "asset": asset,
         "renderer": renderer,
@@ -385,7 +385,7 @@ def stale_reason(path: Path, record: dict) -> str | None:
     return ", ".join(parts)
 
 
-def _render_frames(jobs, out_dir: Path, overwrite: bool, progress: bool, render_one) -> dict:
+def render_frames(jobs, out_dir: Path, overwrite: bool, progress: bool, render_one) -> dict:
     """Render ``jobs`` [(path, record, payload)] with ``render_one(payload) -> (image, stats)`` into PNGs,
     reusing a PNG only when its record matches (unless ``overwrite``); logs what was replaced and why.
     Returns the summary of :func:`_summary`."""
@@ -442,7 +442,7 @@ def write_video(frames: list[Path], path, fps: float) -> Path:
     return path
 
 
-def _motion_fps(motion) -> float:
+def motion_fps(motion) -> float:
     """Frames per second of a motion: its ``meta["fps"]``, else from its times, else 30."""
     fps = motion.meta.get("fps")
     if isinstance(fps, int | float) and fps > 0 and math.isfinite(fps):
@@ -487,7 +487,7 @@ def renderer_identity(asset) -> str:
     from dataclasses import asdict
 
     settings = {"narrowband": asdict(asset.narrowband_config()), "background": list(asset.background)}
-    return _digest("narrow band", json.dumps(settings, sort_keys=True))
+    return digest("narrow band", json.dumps(settings, sort_keys=True))
 
 
 def render_views(
@@ -521,13 +521,13 @@ def render_views(
         (out_dir / f"{names[i]}.png", frame_record("rest", cameras.subset([i]), identity, settings), i)
         for i in range(len(cameras))
     ]
-    return _render_frames(jobs, out_dir, overwrite, progress, lambda i: renderer.render(cameras, i))
+    return render_frames(jobs, out_dir, overwrite, progress, lambda i: renderer.render(cameras, i))
 
 
 def motion_frame_ids(motion) -> list[str]:
     """Digest of each frame of ``motion`` (its rest cage, tets and the frame's positions): (F,) strings."""
-    base = _digest(motion.rest_vertices, motion.tets)
-    return [_digest(base, p) for p in motion.positions]
+    base = digest(motion.rest_vertices, motion.tets)
+    return [digest(base, p) for p in motion.positions]
 
 
 def render_motion(
@@ -592,11 +592,11 @@ def render_motion(
             (out_dir / f"{k:05d}.png", frame_record(frame_ids[k], view, identity, settings), (view, k))
         )
     out_dir.mkdir(parents=True, exist_ok=True)
-    summary = _render_frames(
+    summary = render_frames(
         jobs, out_dir, overwrite, progress, lambda job: renderer.render(job[0], 0, motion.positions[job[1]])
     )
     if video is not None:
-        fps = _motion_fps(motion) if fps is None else fps
+        fps = motion_fps(motion) if fps is None else fps
         summary["video"] = str(write_video([path for path, _, _ in jobs], video, fps))
         log.info("wrote %s (%d frames at %g fps)", video, len(indices), fps)
     return summary

@@ -112,13 +112,13 @@ def render_surface_motion(
     ``video``)."""
     from .motion import load_motion, parse_frames
     from .render import (
-        _digest,
-        _motion_fps,
-        _render_frames,
+        digest,
         frame_record,
+        motion_fps,
         motion_frame_ids,
         orbit_camera,
         orbit_framing,
+        render_frames,
         write_video,
     )
 
@@ -130,8 +130,8 @@ def render_surface_motion(
     center, distance = orbit_framing(motion.positions)
     up = _motion_up(motion)
     s = motion.surface
-    drawn = _digest("surface", *((s.tet, s.bary, s.faces) if s is not None else ("cage boundary",)))
-    settings = _digest("pyvista surface", SURFACE_COLOR)
+    drawn = digest("surface", *((s.tet, s.bary, s.faces) if s is not None else ("cage boundary",)))
+    settings = digest("pyvista surface", SURFACE_COLOR)
     frame_ids = motion_frame_ids(motion)
     out_dir = Path(out_dir)
     jobs = []
@@ -141,13 +141,13 @@ def render_surface_motion(
     out_dir.mkdir(parents=True, exist_ok=True)
     renderer = SurfaceRenderer(motion, width, height)
     try:
-        summary = _render_frames(
+        summary = render_frames(
             jobs, out_dir, overwrite, progress, lambda job: renderer.render(job[0], 0, job[1])
         )
     finally:
         renderer.close()
     if video is not None:
-        fps = _motion_fps(motion) if fps is None else fps
+        fps = motion_fps(motion) if fps is None else fps
         summary["video"] = str(write_video([path for path, _, _ in jobs], video, fps))
         log.info("wrote %s (%d frames at %g fps)", video, len(indices), fps)
     return summary

@@ -283,7 +283,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     out = Path(args.out) if args.out else Path(f"{name}_sim.npz")
 
     writer = None
-    if out.exists() and not args.overwrite:  # same settings: continue the file; other settings: refuse
+    if out.is_file() and not args.overwrite:  # same settings: continue the file; other settings: refuse
         replace = "give --overwrite to start it anew, or another --out"
         try:
             writer = MotionWriter.resume(out)

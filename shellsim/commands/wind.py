@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> None:
     cage = load_or_build_cage(asset)  # the stored cage whatever its settings, else a default one
     out = Path(args.out) if args.out else Path(f"{asset.name}_wind.npz")
     meta = {**wind_meta(settings, args.fps), "asset": asset.name}
-    if out.exists() and not args.overwrite:
+    if out.is_file() and not args.overwrite:
         writer = _reopen(out, meta, cage, asset.name)
     else:
         if out.exists():

@@ -11,8 +11,9 @@ A ``.npz`` holding
   ``surface_tet`` (S,) int64, ``surface_bary`` (S, 4) float64 and ``surface_faces`` (F, 3) int64.
 
 :class:`MotionWriter` rewrites the file atomically (temporary file + rename) at most every
-``flush_seconds``, so a killed run keeps the frames written so far and ``--resume`` can continue.
-Loading never unpickles anything.
+``flush_seconds``, so a killed run keeps the frames written so far and a run with the same settings can
+continue it. Loading never unpickles anything. :func:`parse_frames` reads a ``--frames`` range of a motion;
+:func:`describe_changes` names the settings that differ between a file's meta and a new run's.
 """
 
 from __future__ import annotations

@@ -116,3 +116,21 @@ def test_render_cli_draws_a_motion_without_an_asset(tmp_path, capsys):
     assert [Image.open(p).size for p in sorted(out.iterdir())] == [(24, 20)] * 2
     assert main(["render", "--motion", str(path), "--cameras", "c.json", "--out", str(out)]) == 2
     assert "--asset" in capsys.readouterr().err
+
+
+def test_a_torn_surface_is_one_clear_error(tmp_path):
+    from neural.errors import InputError
+    from shellsim.motion import load_motion
+
+    motion = cube_motion([(0, 0, 0)])
+    path = tmp_path / "m.npz"
+    save_motion(path, motion)
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    np.savez(path, **{k: v for k, v in arrays.items() if k != "surface_bary"})
+    with pytest.raises(InputError, match="surface_tet, surface_faces but not all"):
+        load_motion(path)
+    arrays["surface_faces"] = arrays["surface_faces"] + 100  # indices past the 8 surface points
+    np.savez(path, **arrays)
+    with pytest.raises(InputError, match="surface_faces index its 8 points"):
+        load_motion(path)

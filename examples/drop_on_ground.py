@@ -6,7 +6,9 @@ onto a ground plane under gravity (along the asset's down axis) as a hyperelasti
 rendered by deforming the adaptive shells with the cage and mapping each sample back to the rest space
 of the field (:mod:`shellsim.render`), seen by a camera orbiting the motion's bounding box (the ground
 itself is not drawn). Writes ``OUT/drop.npz`` (the motion), ``OUT/frames/00000.png ...`` and
-``OUT/drop.mp4``. Re-running continues the simulation and the render where they stopped.
+``OUT/drop.mp4``. Re-running continues the simulation (refused, naming what changed, when it was made with
+other settings) and the render where they stopped (a frame is kept only when it records the same motion
+frame, camera and size).
 
     python examples/drop_on_ground.py                          # the shipped lego, rubber, 45 frames
     python examples/drop_on_ground.py --asset PATH --frames 10 --size 96 --material jelly
@@ -15,7 +17,6 @@ itself is not drawn). Writes ``OUT/drop.npz`` (the motion), ``OUT/frames/00000.p
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from neural.errors import InputError, ShellsimError
 from shellsim.cage import load_or_build_cage
 from shellsim.fem import SimSettings, Simulator, WorldMap, restore_state, simulate
 from shellsim.materials import PRESETS, get_material
-from shellsim.motion import MotionWriter
+from shellsim.motion import MotionWriter, describe_changes
 from shellsim.render import render_motion
 
 
@@ -69,8 +70,12 @@ class Example:
         if self.motion_path.is_file():
             self.writer = MotionWriter.resume(self.motion_path)
             stored = self.writer.motion.meta
-            if any(stored.get(k) != json.loads(json.dumps(v)) for k, v in meta.items()):
-                raise InputError(f"{self.motion_path}: made with other settings; use another --out")
+            changes = describe_changes({k: stored.get(k) for k in meta}, meta, {"world.scale": "--meters"})
+            if changes:
+                raise InputError(
+                    f"{self.motion_path}: made with other settings ({'; '.join(changes)}); use another --out "
+                    "or delete it"
+                )
             restore_state(self.sim, self.writer, self.world)
         else:
             self.writer = MotionWriter(self.motion_path, cage.vertices, cage.tets, meta)

@@ -3,9 +3,10 @@
 The asset's cage bends like a cantilever in a gusty wind (:mod:`shellsim.wind`); every frame is rendered by
 deforming the adaptive shells with the cage and mapping each sample back to the rest space of the field
 (:mod:`shellsim.render`), seen by a camera orbiting the asset. Writes ``OUT/wind.npz`` (the motion),
-``OUT/frames/00000.png ...`` and ``OUT/wind.mp4``. Re-running resumes the render: frames already in
-``OUT/frames`` are kept (the wind is analytic and recomputed every run), so use a new ``--out`` after
-changing the wind.
+``OUT/frames/00000.png ...`` and ``OUT/wind.mp4``. Re-running continues: the motion is kept when it was
+made with the same wind (else it is recomputed, with a log line saying what changed), and a frame in
+``OUT/frames`` is kept only when it records the same motion frame, camera and size (else it is rendered
+again).
 
     python examples/wind_animation.py                        # the shipped lego, 48 frames, 160x160
     python examples/wind_animation.py --asset PATH --frames 12 --size 96
@@ -17,12 +18,16 @@ import argparse
 import logging
 from pathlib import Path
 
+import numpy as np
+
 from neural.asset import load_asset
 from neural.errors import ShellsimError
 from shellsim.cage import load_or_build_cage
-from shellsim.motion import MotionWriter
+from shellsim.motion import MotionWriter, describe_changes
 from shellsim.render import render_motion
 from shellsim.wind import WindSettings, animate_wind, wind_meta
+
+log = logging.getLogger(__name__)
 
 
 class Example:
@@ -38,9 +43,26 @@ class Example:
         self.motion_path = self.out / "wind.npz"
 
     def animate(self) -> None:
-        """Write the motion file."""
+        """Write the motion file, continuing one made with the same wind, cage and at most ``frames``
+        frames; one made otherwise is replaced, with a log line naming what changed."""
         meta = {**wind_meta(self.settings, self.fps), "asset": self.asset.name}
-        with MotionWriter(self.motion_path, self.cage.vertices, self.cage.tets, meta) as writer:
+        writer = None
+        if self.motion_path.is_file():
+            old = MotionWriter.resume(self.motion_path)
+            changes = describe_changes({k: old.motion.meta.get(k) for k in meta}, meta)
+            if old.n_frames > self.frames:
+                changes.append(f"--frames: {old.n_frames} -> {self.frames}")
+            rest, tets = old.motion.rest_vertices, old.motion.tets
+            same_cage = rest.shape == self.cage.vertices.shape and np.array_equal(tets, self.cage.tets)
+            if not (same_cage and np.allclose(rest, self.cage.vertices)):
+                changes.append("the asset's cage")
+            if changes:
+                log.info("replacing %s, made with other settings (%s)", self.motion_path, "; ".join(changes))
+            else:
+                writer = old
+        if writer is None:
+            writer = MotionWriter(self.motion_path, self.cage.vertices, self.cage.tets, meta)
+        with writer:
             animate_wind(self.cage.vertices, self.cage.tets, self.settings, self.frames, self.fps, writer)
 
     def render(self, size: int, device: str) -> dict:

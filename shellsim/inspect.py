@@ -45,6 +45,8 @@ DEFAULT_SIZE = (1024, 768)
 OUTER_OPACITY = 0.35
 INNER_COLOR = "lightgray"
 CAGE_COLOR = "black"
+#: The colour bar's box (x, y, width, height) as fractions of the window, labels included; its title is above.
+BAR_BOX = (0.3, 0.04, 0.55, 0.08)
 
 
 def _pyvista():
@@ -55,6 +57,15 @@ def _pyvista():
             f"inspecting needs pyvista, which cannot be imported ({err}): pip install pyvista"
         ) from None
     return pyvista
+
+
+def quiet_vtk() -> None:
+    """Keep VTK's own warnings off stderr (e.g. "bad X server connection" when it falls back to off-screen
+    rendering without a display); its errors still show."""
+    from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
+
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
+    vtkObject.GlobalWarningDisplayOff()
 
 
 def check_motion(motion, cage, source: str = "motion") -> None:
@@ -226,14 +237,24 @@ def make_plotter(
         log_scale=color == "kernel",
         opacity=OUTER_OPACITY,
         smooth_shading=True,
-        scalar_bar_args={
-            "title": f"{scalars} (world units)",
+        scalar_bar_args={  # untitled: VTK sets a horizontal bar's title over its middle label
+            "title": "",
             "n_labels": 3,
             "fmt": "%.3g",
-            "position_x": 0.3,
-            "width": 0.55,
+            "position_x": BAR_BOX[0],
+            "position_y": BAR_BOX[1],
+            "width": BAR_BOX[2],
+            "height": BAR_BOX[3],
         },
     )
+    bar_title = plotter.add_text(  # centred over the bar's labels, 6 pixels above its box
+        f"{scalars} (world units)",
+        position=(BAR_BOX[0] + BAR_BOX[2] / 2, BAR_BOX[1] + BAR_BOX[3] + 6 / size[1]),
+        viewport=True,
+        font_size=12,
+        name="bar title",
+    )
+    bar_title.GetTextProperty().SetJustificationToCentered()
     plotter.add_mesh(scene["inner"], name="inner", color=INNER_COLOR, smooth_shading=True)
     plotter.add_mesh(
         scene["cage"], name="cage", style="wireframe", color=CAGE_COLOR, line_width=1, opacity=0.5
@@ -275,14 +296,33 @@ def _has_display() -> bool:
     )
 
 
+def check_display() -> None:
+    """A :class:`ShellsimError` unless a window can be opened (a display, or pyvista set off-screen)."""
+    if not _pyvista().OFF_SCREEN and not _has_display():
+        raise ShellsimError("no display to open a window on (DISPLAY is not set); use --screenshot OUT.png")
+
+
+def show_plotter(plotter) -> None:
+    """Open ``plotter``'s interactive window; returns when it is closed."""
+    check_display()
+    plotter.show()
+
+
+def save_screenshot(plotter, path) -> Path:
+    """Render the off-screen ``plotter`` to the PNG ``path`` and close it."""
+    try:
+        plotter.screenshot(str(path))
+    finally:
+        plotter.close()
+    return Path(path)
+
+
 def show(
     asset, cage, motion=None, frame: int = 0, color: str = "width", size=DEFAULT_SIZE, device="cpu"
 ) -> None:
     """Open an interactive window of the scene (a frame slider with a motion); returns when it is closed."""
-    pv = _pyvista()
-    if not pv.OFF_SCREEN and not _has_display():
-        raise ShellsimError("no display to open a window on (DISPLAY is not set); use --screenshot OUT.png")
-    make_plotter(asset, cage, motion, frame, color, size, slider=True, device=device).show()
+    check_display()  # before the scene is built
+    show_plotter(make_plotter(asset, cage, motion, frame, color, size, slider=True, device=device))
 
 
 def screenshot(
@@ -295,8 +335,4 @@ def screenshot(
     if not path.parent.is_dir():
         raise InputError(f"{path}: directory {path.parent} does not exist")
     plotter = make_plotter(asset, cage, motion, frame, color, size, off_screen=True, device=device)
-    try:
-        plotter.screenshot(str(path))
-    finally:
-        plotter.close()
-    return path
+    return save_screenshot(plotter, path)

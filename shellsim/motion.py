@@ -6,11 +6,14 @@ A ``.npz`` holding
 - ``tets`` (T, 4) int64: cage tetrahedra,
 - ``positions`` (F, V, 3) float32: cage vertices per frame; frame 0 is the initial state,
 - ``times`` (F,) float64: seconds,
-- ``meta``: a JSON string (what made it, parameters, solver statistics, wall time).
+- ``meta``: a JSON string (what made it, parameters, solver statistics, wall time),
+- optionally the surface of what moves (``simulate --mesh``: the mesh), embedded in the cage:
+  ``surface_tet`` (S,) int64, ``surface_bary`` (S, 4) float64 and ``surface_faces`` (F, 3) int64.
 
 :class:`MotionWriter` rewrites the file atomically (temporary file + rename) at most every
-``flush_seconds``, so a killed run keeps the frames written so far and ``--resume`` can continue.
-Loading never unpickles anything.
+``flush_seconds``, so a killed run keeps the frames written so far and a run with the same settings can
+continue it. Loading never unpickles anything. :func:`parse_frames` reads a ``--frames`` range of a motion;
+:func:`describe_changes` names the settings that differ between a file's meta and a new run's.
 """
 
 from __future__ import annotations
@@ -29,6 +32,17 @@ from .embed import check_tets
 from .npz import load_npz, save_npz
 
 KEYS = ("rest_vertices", "tets", "positions", "times", "meta")
+SURFACE_KEYS = ("surface_tet", "surface_bary", "surface_faces")
+
+
+@dataclass
+class Surface:
+    """A triangle surface carried by the cage: vertex ``i`` lies in tet ``tet[i]`` at barycentric coordinates
+    ``bary[i]``. Shapes: tet (S,), bary (S, 4), faces (F, 3)."""
+
+    tet: np.ndarray
+    bary: np.ndarray
+    faces: np.ndarray
 
 
 @dataclass
@@ -40,10 +54,18 @@ class Motion:
     positions: np.ndarray
     times: np.ndarray
     meta: dict = field(default_factory=dict)
+    surface: Surface | None = None
 
     @property
     def n_frames(self) -> int:
         return int(self.positions.shape[0])
+
+    def surface_points(self, k: int) -> np.ndarray:
+        """(S, 3) float64: the points of :attr:`surface` in frame ``k``."""
+        from .embed import interpolate
+
+        s = self.surface
+        return interpolate(np.asarray(self.positions[k], np.float64), self.tets, s.tet, s.bary)
 
 
 def save_motion(path: str | os.PathLike, motion: Motion) -> None:
@@ -55,13 +77,22 @@ def save_motion(path: str | os.PathLike, motion: Motion) -> None:
         positions=np.asarray(motion.positions, dtype=np.float32),
         times=np.asarray(motion.times, dtype=np.float64),
         meta=np.array(json.dumps(motion.meta)),
+        **(
+            {}
+            if motion.surface is None
+            else {
+                "surface_tet": np.asarray(motion.surface.tet, np.int64),
+                "surface_bary": np.asarray(motion.surface.bary, np.float64),
+                "surface_faces": np.asarray(motion.surface.faces, np.int64),
+            }
+        ),
     )
 
 
 def load_motion(path: str | os.PathLike) -> Motion:
     """Read and validate a motion file; any problem is an :class:`InputError` naming the file."""
     path = Path(path)
-    arrays = load_npz(path, KEYS, "motion")
+    arrays = load_npz(path, KEYS, "motion", optional=SURFACE_KEYS)
     rest, tets, pos, times = (arrays[k] for k in KEYS[:4])
     if rest.ndim != 2 or rest.shape[1] != 3:
         raise InputError(f"{path}: rest_vertices must be (V, 3), got {rest.shape}")
@@ -80,8 +111,37 @@ def load_motion(path: str | os.PathLike) -> Motion:
     except json.JSONDecodeError as err:
         raise InputError(f"{path}: meta is not valid JSON ({err})") from None
     return Motion(
-        rest.astype(np.float64), tets.astype(np.int64), pos.astype(np.float32), times.astype(np.float64), meta
+        rest.astype(np.float64),
+        tets.astype(np.int64),
+        pos.astype(np.float32),
+        times.astype(np.float64),
+        meta,
+        _load_surface(path, arrays, len(tets)),
     )
+
+
+def _load_surface(path: Path, arrays: dict, n_tets: int) -> Surface | None:
+    """The optional surface of a motion file, checked; None when the file has none."""
+    present = [k for k in SURFACE_KEYS if k in arrays]
+    if not present:
+        return None
+    if len(present) != len(SURFACE_KEYS):
+        raise InputError(f"{path}: has {', '.join(present)} but not all of {', '.join(SURFACE_KEYS)}")
+    tet, bary, faces = (arrays[k] for k in SURFACE_KEYS)
+    n = len(tet)
+    ok = (
+        tet.ndim == 1
+        and np.issubdtype(tet.dtype, np.integer)
+        and bary.shape == (n, 4)
+        and faces.ndim == 2
+        and faces.shape[1] == 3
+        and np.issubdtype(faces.dtype, np.integer)
+    )
+    if not ok or not (tet.size == 0 or (tet.min() >= 0 and tet.max() < n_tets)):
+        raise InputError(f"{path}: surface arrays must be tet (S,) < {n_tets}, bary (S, 4), faces (F, 3)")
+    if not (np.isfinite(bary).all() and (faces.size == 0 or (faces.min() >= 0 and faces.max() < n))):
+        raise InputError(f"{path}: surface_bary must be finite and surface_faces index its {n} points")
+    return Surface(tet.astype(np.int64), bary.astype(np.float64), faces.astype(np.int64))
 
 
 class MotionWriter:
@@ -89,10 +149,19 @@ class MotionWriter:
 
     ``append`` adds one frame (V, 3); the file is rewritten when ``flush_seconds`` have passed since the
     last write, and always by ``close`` (also on an exception inside a ``with`` block).
-    ``MotionWriter.resume(path)`` reopens an existing file to continue after its last frame.
+    ``MotionWriter.resume(path)`` reopens an existing file to continue after its last frame. ``surface``: the
+    optional :class:`Surface` the cage carries.
     """
 
-    def __init__(self, path, rest_vertices, tets, meta: dict, flush_seconds: float = 2.0):
+    def __init__(
+        self,
+        path,
+        rest_vertices,
+        tets,
+        meta: dict,
+        flush_seconds: float = 2.0,
+        surface: Surface | None = None,
+    ):
         self.path = Path(path)
         self.motion = Motion(
             np.asarray(rest_vertices, np.float64),
@@ -100,6 +169,7 @@ class MotionWriter:
             np.zeros((0, len(rest_vertices), 3), np.float32),
             np.zeros(0),
             dict(meta),
+            surface,
         )
         self._frames: list[np.ndarray] = []
         self._times: list[float] = []
@@ -109,7 +179,7 @@ class MotionWriter:
     @classmethod
     def resume(cls, path, flush_seconds: float = 2.0) -> MotionWriter:
         motion = load_motion(path)
-        writer = cls(path, motion.rest_vertices, motion.tets, motion.meta, flush_seconds)
+        writer = cls(path, motion.rest_vertices, motion.tets, motion.meta, flush_seconds, motion.surface)
         writer._frames = list(motion.positions)
         writer._times = list(motion.times)
         return writer
@@ -152,3 +222,70 @@ class MotionWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
+    """``--frames``: ``"a:b"`` (b exclusive; either may be left out), ``"k"`` or None (all) -> the frame
+    indices, checked against ``n_frames``; a malformed or out-of-range spec is an :class:`InputError`."""
+    if spec is None:
+        return range(n_frames)
+    text = str(spec).strip()
+    parts = text.split(":")
+    try:
+        if len(parts) == 1:
+            a = int(parts[0])
+            b = a + 1
+        elif len(parts) == 2:
+            a = int(parts[0]) if parts[0].strip() else 0
+            b = int(parts[1]) if parts[1].strip() else n_frames
+        else:
+            raise ValueError
+    except ValueError:
+        raise InputError(
+            f"--frames {text!r}: expected START:END (END exclusive, either optional) or one frame "
+            f"number, e.g. 0:60"
+        ) from None
+    if not 0 <= a < b <= n_frames:
+        raise InputError(
+            f"--frames {text!r}: {source} has {n_frames} frames (0..{n_frames - 1}); need "
+            f"0 <= START < END <= {n_frames}"
+        )
+    return range(a, b)
+
+
+def _flatten(values: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in values.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _show(value) -> str:
+    """A setting as a user typed it: 0.5, 1,0,0, z<0.1 (lists joined), "none" for None or an empty list."""
+    if value is None or value == []:
+        return "none"
+    if isinstance(value, bool) or isinstance(value, str):
+        return str(value)
+    if isinstance(value, int | float):
+        return f"{value:g}"
+    if isinstance(value, list | tuple):
+        joiner = "," if all(isinstance(v, int | float) and not isinstance(v, bool) for v in value) else " "
+        return joiner.join(_show(v) for v in value)
+    return str(value)
+
+
+def describe_changes(stored: dict, wanted: dict, names: dict[str, str] | None = None) -> list[str]:
+    """The settings that differ between a file's ``stored`` ones and the ``wanted`` ones, as
+    ``"--material: rubber -> jelly"`` (nested dicts compared key by key, ``a.b``). ``names`` maps a
+    (dotted) key to the option that sets it; others are shown as ``--key-with-dashes``."""
+    names = names or {}
+    old, new = _flatten(json.loads(json.dumps(stored))), _flatten(json.loads(json.dumps(wanted)))
+    changes = []
+    for key in [*new, *(k for k in old if k not in new)]:
+        if old.get(key) != new.get(key):
+            name = names.get(key, "--" + key.split(".")[-1].replace("_", "-"))
+            changes.append(f"{name}: {_show(old.get(key))} -> {_show(new.get(key))}")
+    return changes

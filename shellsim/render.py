@@ -19,12 +19,16 @@ For one frame with cage vertices ``p`` (V, 3), :class:`DeformedRenderer`
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4).
 
 :func:`render_motion` renders a motion file frame by frame to ``DIR/00000.png ...`` (frame ``k`` of the
-motion is ``k:05d.png``), skipping frames already on disk so an interrupted render resumes, and optionally
-assembles an MP4; :func:`render_views` renders every camera of a camera file at rest.
+motion is ``k:05d.png``) and optionally assembles an MP4; :func:`render_views` renders every camera of a
+camera file at rest. Every PNG records what made it (:func:`frame_record`: the motion frame, camera, size,
+asset and renderer settings, as JSON in a PNG text chunk); a PNG already on disk is kept only when its record
+matches, so an interrupted render resumes and frames of another motion, camera or size are rendered again.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import math
 import os
@@ -37,6 +41,8 @@ import torch
 
 from neural.errors import InputError
 
+from .motion import parse_frames
+
 log = logging.getLogger(__name__)
 
 #: Rays rendered at once (bounds the memory of one pass).
@@ -46,6 +52,8 @@ ORBIT_FOV_DEG = 40.0
 ORBIT_ELEVATION_DEG = 25.0
 #: Stages of a frame, in :meth:`DeformedRenderer.render`'s ``stats`` as ``<stage>_ms``.
 STAGES = ("build", "cast", "map", "field")
+#: PNG text chunk of a rendered frame holding its :func:`frame_record` as JSON.
+RECORD_CHUNK = "shellsim-frame"
 
 
 @dataclass
@@ -255,35 +263,6 @@ def orbit_framing(points) -> tuple[np.ndarray, float]:
     return 0.5 * (lo + hi), 1.05 * radius / math.sin(0.5 * math.radians(ORBIT_FOV_DEG))
 
 
-def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
-    """``--frames``: ``"a:b"`` (b exclusive; either may be left out), ``"k"`` or None (all) -> the frame
-    indices, checked against ``n_frames``; a malformed or out-of-range spec is an :class:`InputError`."""
-    if spec is None:
-        return range(n_frames)
-    text = str(spec).strip()
-    parts = text.split(":")
-    try:
-        if len(parts) == 1:
-            a = int(parts[0])
-            b = a + 1
-        elif len(parts) == 2:
-            a = int(parts[0]) if parts[0].strip() else 0
-            b = int(parts[1]) if parts[1].strip() else n_frames
-        else:
-            raise ValueError
-    except ValueError:
-        raise InputError(
-            f"--frames {text!r}: expected START:END (END exclusive, either optional) or one frame "
-            f"number, e.g. 0:60"
-        ) from None
-    if not 0 <= a < b <= n_frames:
-        raise InputError(
-            f"--frames {text!r}: {source} has {n_frames} frames (0..{n_frames - 1}); need "
-            f"0 <= START < END <= {n_frames}"
-        )
-    return range(a, b)
-
-
 def load_cage_for(asset):
     """The asset's cage (stored or built); failing to build one is an :class:`InputError` naming the file."""
     from .cage import load_or_build_cage
@@ -319,14 +298,125 @@ def check_motion(motion, cage, motion_path, asset) -> None:
 # --------------------------------------------------------------------------- files
 
 
-def save_png(path: Path, image: np.ndarray) -> None:
+def save_png(path: Path, image: np.ndarray, record: dict | None = None) -> None:
     """Write an (H, W, 3) float image in [0, 1] as an 8-bit PNG atomically (temporary file + rename), so a
-    PNG on disk is always complete."""
+    PNG on disk is always complete; ``record`` (see :func:`frame_record`) goes into its text chunk
+    ``RECORD_CHUNK`` as JSON."""
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    if record is not None:
+        info.add_text(RECORD_CHUNK, json.dumps(record, sort_keys=True))
+    tmp = path.with_name(path.stem + ".tmp.png")
+    Image.fromarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB").save(tmp, pnginfo=info)
+    os.replace(tmp, path)
+
+
+def digest(*parts) -> str:
+    """Short SHA-256 of ``parts``: arrays (their dtype, shape and bytes), strings, bytes or files (Path)."""
+    h = hashlib.sha256()
+    for part in parts:
+        if isinstance(part, Path):
+            with open(part, "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    h.update(block)
+        elif isinstance(part, bytes | str):
+            h.update(part.encode() if isinstance(part, str) else part)
+        else:
+            a = np.ascontiguousarray(part)
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(a.tobytes())
+        h.update(b"|")
+    return h.hexdigest()[:16]
+
+
+def asset_identity(asset, cage: bool) -> str:
+    """Digest of what an asset's images depend on: its field weights and configuration, normalisation,
+    shells and (``cage``) its cage file."""
+    meta = {k: asset.meta.get(k) for k in ("normalisation", "field")}
+    files = [asset.file("field"), asset.file("shell_outer"), asset.file("shell_inner")]
+    return digest(json.dumps(meta, sort_keys=True), *files, *([asset.cage_path] if cage else []))
+
+
+def frame_record(motion: str, camera, asset: str, renderer: str) -> dict:
+    """What makes a frame, stored in its PNG: ``motion`` (digest of the cage frame, "rest" without one),
+    ``camera`` (digest of the one camera of the ``Cameras`` ``camera``), ``size`` ("WxH"), ``asset``
+    (:func:`asset_identity` or another digest of what is drawn) and ``renderer`` (digest of its settings)."""
+    c = camera
+    return {
+        "motion": motion,
+        "camera": digest(c.c2w, c.fx, c.fy, c.cx, c.cy, c.distortion),
+        "size": f"{int(c.width[0])}x{int(c.height[0])}",
+        "asset": asset,
+        "renderer": renderer,
+    }
+
+
+#: How a record field that differs is named in the log.
+_RECORD_NAMES = {
+    "motion": "motion frame",
+    "camera": "camera",
+    "size": "size",
+    "asset": "asset",
+    "renderer": "renderer settings",
+}
+
+
+def stale_reason(path: Path, record: dict) -> str | None:
+    """None when the PNG ``path`` exists and was made as ``record`` says; else why it must be rendered:
+    "" (no such file) or what differs, e.g. "another size (32x32, now 48x48)"."""
     from PIL import Image
 
-    tmp = path.with_name(path.stem + ".tmp.png")
-    Image.fromarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB").save(tmp)
-    os.replace(tmp, path)
+    if not path.is_file():
+        return ""
+    try:
+        with Image.open(path) as image:
+            stored = json.loads(image.info[RECORD_CHUNK])
+    except (OSError, KeyError, ValueError):
+        return "no record of what made it"
+    if not isinstance(stored, dict):
+        return "no record of what made it"
+    differ = [k for k in record if stored.get(k) != record[k]]
+    if not differ:
+        return None
+    parts = [f"another {_RECORD_NAMES[k]}" for k in differ]
+    if "size" in differ:
+        parts[differ.index("size")] += f" ({stored.get('size')}, now {record['size']})"
+    return ", ".join(parts)
+
+
+def render_frames(jobs, out_dir: Path, overwrite: bool, progress: bool, render_one) -> dict:
+    """Render ``jobs`` [(path, record, payload)] with ``render_one(payload) -> (image, stats)`` into PNGs,
+    reusing a PNG only when its record matches (unless ``overwrite``); logs what was replaced and why.
+    Returns the summary of :func:`_summary`."""
+    from tqdm import tqdm
+
+    written, skipped, stats, replaced = [], 0, [], {}
+    bar = tqdm(jobs, desc="render", unit="frame", disable=not progress)
+    for path, record, payload in bar:
+        why = "" if overwrite else stale_reason(path, record)
+        if why is None:
+            skipped += 1
+            continue
+        if why:
+            replaced.setdefault(why, []).append(path.name)
+        image, frame_stats = render_one(payload)
+        save_png(path, image, record)
+        written.append(path)
+        stats.append(frame_stats)
+        bar.set_postfix(ms=f"{frame_stats['ms']:.0f}", spp=f"{frame_stats.get('samples_per_pixel', 0):.1f}")
+    for why, names in replaced.items():
+        log.info(
+            "%s: rendered %d frames again (%s..%s): they were made with %s",
+            out_dir,
+            len(names),
+            names[0],
+            names[-1],
+            why,
+        )
+    summary = _summary(out_dir, written, skipped, stats)
+    summary["replaced"] = sum(len(n) for n in replaced.values())
+    return summary
 
 
 def write_video(frames: list[Path], path, fps: float) -> Path:
@@ -352,7 +442,7 @@ def write_video(frames: list[Path], path, fps: float) -> Path:
     return path
 
 
-def _motion_fps(motion) -> float:
+def motion_fps(motion) -> float:
     """Frames per second of a motion: its ``meta["fps"]``, else from its times, else 30."""
     fps = motion.meta.get("fps")
     if isinstance(fps, int | float) and fps > 0 and math.isfinite(fps):
@@ -366,34 +456,38 @@ def _motion_fps(motion) -> float:
 # --------------------------------------------------------------------------- whole renders
 
 
-def _setup(asset_spec, device: str):
-    from neural.asset import load_asset, load_field
+def _field(asset, device: str):
+    """The torch device picked for ``device`` ("auto", "cpu", "cuda") and the asset's field on it."""
+    from neural.asset import load_field
     from neural.device import pick_device
 
-    asset = load_asset(asset_spec)
     device = pick_device(device)
-    return asset, device, load_field(asset, device)
+    return device, load_field(asset, device)
 
 
 def _summary(out_dir: Path, written: list, skipped: int, stats: list[dict]) -> dict:
+    """Counts and the mean of every ``*ms`` and ``samples_per_pixel`` figure of the frames' ``stats``."""
     summary = {"out": str(out_dir), "rendered": len(written), "skipped": skipped}
     if stats:
-        for key in ("ms", *(f"{s}_ms" for s in STAGES), "samples_per_pixel"):
-            summary[key] = float(np.mean([s[key] for s in stats]))
+        for key in stats[0]:
+            if key.endswith("ms") or key == "samples_per_pixel":
+                summary[key] = float(np.mean([s[key] for s in stats]))
         log.debug(
-            "%d frames rendered to %s (%d already there): %.0f ms/frame (build %.0f, cast %.0f, map %.0f, "
-            "field %.0f), %.2f samples/pixel",
+            "%d frames rendered to %s (%d already there): %s",
             len(written),
             out_dir,
             skipped,
-            summary["ms"],
-            summary["build_ms"],
-            summary["cast_ms"],
-            summary["map_ms"],
-            summary["field_ms"],
-            summary["samples_per_pixel"],
+            {k: round(v, 2) for k, v in summary.items() if isinstance(v, float)},
         )
     return summary
+
+
+def renderer_identity(asset) -> str:
+    """Digest of the narrow-band renderer's settings for ``asset`` (its sampling and background)."""
+    from dataclasses import asdict
+
+    settings = {"narrowband": asdict(asset.narrowband_config()), "background": list(asset.background)}
+    return digest("narrow band", json.dumps(settings, sort_keys=True))
 
 
 def render_views(
@@ -407,31 +501,33 @@ def render_views(
 ) -> dict:
     """Render every camera of a ``transforms*.json``-style camera file (images may be absent) at rest to
     ``out_dir/<frame name>.png`` (the listed image's name, else ``frame_<index>``); ``size`` = (W, H)
-    overrides the file's. PNGs already there are kept unless ``overwrite``. Returns a summary with the
-    mean ms per frame and per stage."""
-    from tqdm import tqdm
-
+    overrides the file's. A PNG already there is kept only when its record (:func:`frame_record`) says it
+    shows this asset from this camera at this size, unless ``overwrite``; others are rendered again.
+    Returns a summary with the mean ms per frame and per stage."""
+    from neural.asset import load_asset
     from neural.data import load_camera_file
 
-    asset, device, field = _setup(asset_spec, device)
     cameras = load_camera_file(cameras_path, *(size or (None, None)))
-    renderer = DeformedRenderer(asset, field, None, device)
     names = list(cameras.names)
     if len(set(names)) != len(names):
         names = [f"{i:05d}" for i in range(len(cameras))]
+    asset = load_asset(asset_spec)
+    identity, settings = asset_identity(asset, cage=False), renderer_identity(asset)
+    device, field = _field(asset, device)
+    renderer = DeformedRenderer(asset, field, None, device)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    written, skipped, stats = [], 0, []
-    for i in tqdm(range(len(cameras)), desc="render", unit="view", disable=not progress):
-        path = out_dir / f"{names[i]}.png"
-        if path.is_file() and not overwrite:
-            skipped += 1
-            continue
-        image, frame_stats = renderer.render(cameras, i)
-        save_png(path, image)
-        written.append(path)
-        stats.append(frame_stats)
-    return _summary(out_dir, written, skipped, stats)
+    jobs = [
+        (out_dir / f"{names[i]}.png", frame_record("rest", cameras.subset([i]), identity, settings), i)
+        for i in range(len(cameras))
+    ]
+    return render_frames(jobs, out_dir, overwrite, progress, lambda i: renderer.render(cameras, i))
+
+
+def motion_frame_ids(motion) -> list[str]:
+    """Digest of each frame of ``motion`` (its rest cage, tets and the frame's positions): (F,) strings."""
+    base = digest(motion.rest_vertices, motion.tets)
+    return [digest(base, p) for p in motion.positions]
 
 
 def render_motion(
@@ -454,16 +550,17 @@ def render_motion(
         for this asset's cage (else an :class:`InputError`)
     cameras : camera file (its first camera views every frame) or None with ``orbit``: a camera circling the
         bounding box of the cage over the whole motion about the asset's up axis, one revolution over the
-        whole motion (both depend on the motion's length: after a motion has grown, render with
-        ``overwrite`` for a smooth orbit)
+        whole motion
     frames : ``"a:b"`` spec of :func:`parse_frames` (None: all)
     size : (W, H); default the camera file's, or 400 x 400 for the orbit
     video : MP4 path assembled from the frames ``frames`` at ``fps`` (default: the motion's)
-    overwrite : re-render PNGs already on disk (default: keep them, so an interrupted render resumes)
+    overwrite : render every frame again; without it a PNG on disk is kept only when its record
+        (:func:`frame_record`: motion frame, camera, size, asset, renderer settings) matches, so an
+        interrupted render resumes and frames of another motion, camera or size are rendered again
+    The motion, ``frames`` and the camera file are checked before the asset and its field load.
     Returns a summary: counts, mean ms per frame and per stage, ``video``.
     """
-    from tqdm import tqdm
-
+    from neural.asset import load_asset
     from neural.data import load_camera_file
 
     from .motion import load_motion
@@ -472,36 +569,34 @@ def render_motion(
         raise ValueError("give exactly one of cameras and orbit=True")
     if fps is not None and not (fps > 0 and math.isfinite(fps)):
         raise InputError(f"--fps: expected a positive number, got {fps}")
-    asset, device, field = _setup(asset_spec, device)
     motion = load_motion(motion_path)
-    cage = load_cage_for(asset)
-    check_motion(motion, cage, motion_path, asset)
     indices = parse_frames(frames, motion.n_frames, source=str(motion_path))
     if orbit:
         width, height = size or (400, 400)
         center, distance = orbit_framing(motion.positions)
     else:
         view = load_camera_file(cameras, *(size or (None, None))).subset([0])
+    asset = load_asset(asset_spec)
+    cage = load_cage_for(asset)
+    check_motion(motion, cage, motion_path, asset)
+    identity, settings = asset_identity(asset, cage=True), renderer_identity(asset)
+    device, field = _field(asset, device)
     renderer = DeformedRenderer(asset, field, cage, device)
+    frame_ids = motion_frame_ids(motion)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    written, skipped, stats = [], 0, []
-    bar = tqdm(indices, desc="render", unit="frame", disable=not progress)
-    for k in bar:
-        path = out_dir / f"{k:05d}.png"
-        if path.is_file() and not overwrite:
-            skipped += 1
-            continue
+    jobs = []
+    for k in indices:
         if orbit:
             view = orbit_camera(center, distance, asset.up, 2 * math.pi * k / motion.n_frames, width, height)
-        image, frame_stats = renderer.render(view, 0, motion.positions[k])
-        save_png(path, image)
-        written.append(path)
-        stats.append(frame_stats)
-        bar.set_postfix(ms=f"{frame_stats['ms']:.0f}", spp=f"{frame_stats['samples_per_pixel']:.1f}")
-    summary = _summary(out_dir, written, skipped, stats)
+        jobs.append(
+            (out_dir / f"{k:05d}.png", frame_record(frame_ids[k], view, identity, settings), (view, k))
+        )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    summary = render_frames(
+        jobs, out_dir, overwrite, progress, lambda job: renderer.render(job[0], 0, motion.positions[job[1]])
+    )
     if video is not None:
-        fps = _motion_fps(motion) if fps is None else fps
-        summary["video"] = str(write_video([out_dir / f"{k:05d}.png" for k in indices], video, fps))
+        fps = motion_fps(motion) if fps is None else fps
+        summary["video"] = str(write_video([path for path, _, _ in jobs], video, fps))
         log.info("wrote %s (%d frames at %g fps)", video, len(indices), fps)
     return summary

@@ -207,6 +207,12 @@ def test_cli_bad_options_are_one_line(ball, tmp_path, capsys, extra, message):
     assert message in err and len(err.splitlines()) == 1
 
 
+def test_cli_needs_an_asset_or_a_motion(capsys):
+    assert main(["inspect", "--screenshot", "x.png"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--asset" in err and "--motion" in err and len(err.splitlines()) == 1
+
+
 def test_cli_mismatching_motion_is_one_line(ball, tmp_path, capsys):
     asset, cage = ball
     verts, tets = box_cage(n=2)
@@ -230,3 +236,50 @@ def test_importing_inspect_loads_no_heavy_module():
         "sys.exit(any(m in sys.modules for m in ('pyvista', 'vtk', 'torch', 'warp')))"
     )
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
+
+
+def test_screenshot_prints_nothing_from_vtk(ball, tmp_path):
+    """Without a display VTK warns 'bad X server connection' on stderr; inspect keeps it quiet."""
+    import os
+    import subprocess
+
+    asset, _ = ball
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    shot = tmp_path / "quiet.png"
+    argv = [sys.executable, "-m", "shellsim.cli", "inspect", "--asset", str(asset.root)]
+    result = subprocess.run(
+        [*argv, "--screenshot", str(shot), "--size", "64x48"], env=env, capture_output=True, text=True
+    )
+    assert result.returncode == 0 and shot.is_file()
+    assert "WARN" not in result.stderr and "X server" not in result.stderr, result.stderr
+    assert result.stdout == ""
+
+
+def test_colour_bar_title_clears_its_labels(ball):
+    """The rows of the title's text and of the labels above the bar are apart (VTK's own title used to
+    sit on the middle label). Only the bar and its text are drawn."""
+    asset, cage = ball
+    plotter = make_plotter(asset, cage, size=(640, 480), off_screen=True)
+    for name in ("outer", "inner", "cage", "title"):
+        plotter.remove_actor(name)
+    image = plotter.screenshot(return_img=True).astype(int)
+    plotter.close()
+    middle = image[240:, 300:440]  # below the centre, around the bar's middle label
+    inked = (middle.min(axis=2) < 128).any(axis=1)
+    runs = np.flatnonzero(np.diff(inked.astype(int)) == 1)  # rows where a run of dark text or bar starts
+    assert len(runs) >= 3, inked.nonzero()  # title, middle label, bar: three separate runs
+
+
+@pytest.mark.parametrize("extra", [["--frame", "9"], ["--size", "0x1"], ["--screenshot", "x.jpg"]])
+def test_cli_options_are_checked_before_the_asset_loads(ball, tmp_path, capsys, monkeypatch, extra):
+    def no_loading(*args, **kwargs):
+        raise AssertionError("the asset was loaded before the options were checked")
+
+    monkeypatch.setattr("neural.asset.load_asset", no_loading)
+    asset, cage = ball
+    save_motion(tmp_path / "m.npz", twist_motion(cage))
+    args = ["inspect", "--asset", str(asset.root), "--motion", str(tmp_path / "m.npz")]
+    if "--screenshot" not in extra:
+        args += ["--screenshot", str(tmp_path / "x.png")]
+    assert main([*args, *extra]) == 2
+    assert extra[0] in capsys.readouterr().err

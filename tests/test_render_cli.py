@@ -72,7 +72,8 @@ def error_line(capsys) -> str:
 
 
 def test_simulate_video_renders_a_new_motion_anew_and_resume_keeps_its_frames(tmp_path, asset_dir):
-    """``simulate --video`` run again with other settings must not reuse the earlier motion's frames."""
+    """``simulate --video`` run again with other settings (--overwrite) must not reuse the earlier motion's
+    frames; run again with the same settings, it keeps them."""
     video, frames = tmp_path / "drop.mp4", tmp_path / "drop_frames"
     base = ["simulate", "--asset", str(asset_dir), "--frames", "3", "--out", str(tmp_path / "drop.npz")]
     base += ["--video", str(video), "--video-size", "16x12"]
@@ -82,7 +83,7 @@ def test_simulate_video_renders_a_new_motion_anew_and_resume_keeps_its_frames(tm
 
     assert main([*base, "--drop-height", "0"]) == 0
     low = images()
-    assert main([*base, "--drop-height", "0.5"]) == 0
+    assert main([*base, "--drop-height", "0.5", "--overwrite"]) == 0
     high = images()
     assert sorted(low) == sorted(high) == ["00000.png", "00001.png", "00002.png"]
     assert all(not np.array_equal(low[k], high[k]) for k in low)
@@ -101,6 +102,11 @@ def test_rest_render_writes_one_png_per_camera(tmp_path, asset_dir, capsys):
         assert image.shape == (14, 20, 3)
         assert image.min() < 200 and image.max() == 255  # the ball on the white background
     assert "3 frames rendered" in capsys.readouterr().out
+    assert render(asset_dir, out, "--width", "20", "--height", "14", cameras=cams) == 0
+    assert "0 frames rendered" in capsys.readouterr().out
+    assert render(asset_dir, out, "--width", "16", cameras=cams) == 0  # another size: rendered again
+    assert "3 frames rendered" in capsys.readouterr().out
+    assert all(np.asarray(Image.open(p)).shape == (16, 16, 3) for p in out.iterdir())
 
 
 def test_motion_render_resumes_and_writes_the_video(tmp_path, asset_dir):
@@ -189,3 +195,85 @@ def test_options_that_need_a_motion(tmp_path, asset_dir, capsys):
     code = render(asset_dir, tmp_path / "o", "--video", tmp_path / "v.mp4", cameras=cams)
     assert code == 2
     assert "--video needs --motion" in error_line(capsys)
+
+
+def test_frames_of_another_motion_or_size_are_rendered_again(tmp_path, asset_dir, capsys):
+    """A PNG is reused only when it records the same motion frame, camera, size, asset and renderer."""
+    cams = write_cameras(tmp_path / "cams.json", 1)
+    sway = write_motion(tmp_path / "sway.npz", asset_dir, 3)
+    cage = load_cage(load_asset(asset_dir).cage_path)
+    still = tmp_path / "still.npz"  # the cage at rest in every frame
+    save_motion(still, Motion(cage.vertices, cage.tets, np.stack([cage.vertices] * 3), np.arange(3) / 10.0))
+    out, video = tmp_path / "frames", tmp_path / "clip.mp4"
+
+    def images():
+        return [np.asarray(Image.open(out / f"{k:05d}.png")) for k in range(3)]
+
+    assert render(asset_dir, out, "--width", "16", "--height", "12", motion=still, cameras=cams) == 0
+    rest = images()
+    capsys.readouterr()
+    assert (
+        render(asset_dir, out, "--width", "16", "--height", "12", "--video", video, motion=sway, cameras=cams)
+        == 0
+    )
+    # frame 0 of the sway is the rest pose: kept; the others are rendered again
+    assert "2 frames rendered" in capsys.readouterr().out
+    swayed = images()
+    np.testing.assert_array_equal(swayed[0], rest[0])
+    assert all((np.abs(swayed[k].astype(int) - rest[k]) > 10).any() for k in (1, 2))
+    import imageio.v2 as imageio
+
+    with imageio.get_reader(video) as reader:  # the video shows the new frames
+        last = np.asarray([f for f in reader][-1]).astype(int)
+    assert np.abs(last - swayed[2]).mean() < np.abs(last - rest[2]).mean()
+
+    assert render(asset_dir, out, "--width", "20", "--height", "14", motion=sway, cameras=cams) == 0
+    assert "3 replaced" in capsys.readouterr().out
+    assert all(image.shape == (14, 20, 3) for image in images())
+    stamps = [p.stat().st_mtime_ns for p in sorted(out.iterdir())]
+    assert render(asset_dir, out, "--width", "20", "--height", "14", motion=sway, cameras=cams) == 0
+    assert "0 frames rendered to" in capsys.readouterr().out
+    assert [p.stat().st_mtime_ns for p in sorted(out.iterdir())] == stamps
+
+
+@pytest.mark.parametrize(
+    "options", [("--frames", "x:y"), ("--frames", "3:9"), ("--fps", "0"), ("--device", "tpu")]
+)
+def test_bad_options_fail_before_the_asset_loads(tmp_path, asset_dir, capsys, monkeypatch, options):
+    def no_loading(*args, **kwargs):
+        raise AssertionError("the asset was loaded before the options were checked")
+
+    monkeypatch.setattr("neural.asset.load_asset", no_loading)
+    monkeypatch.setattr("neural.asset.load_field", no_loading)
+    motion = write_motion(tmp_path / "m.npz", asset_dir, 3)
+    assert render(asset_dir, tmp_path / "o", "--orbit", *options, motion=motion) == 2
+    assert options[0] in error_line(capsys)
+
+
+def test_wind_example_run_again_at_another_size_renders_again(tmp_path, asset_dir):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "examples" / "wind_animation.py"
+    spec = importlib.util.spec_from_file_location("wind_animation", path)
+    example_module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example_module)
+    out = tmp_path / "wind"
+    example = example_module.Example(str(asset_dir), out, frames=3, fps=10.0, strength=0.1)
+    example.animate()
+    assert example.render(16, "cpu")["rendered"] == 3
+    example.animate()  # same wind: the motion file is kept
+    again = example.render(20, "cpu")
+    assert again["rendered"] == 3 and again["replaced"] == 3
+    assert all(Image.open(p).size == (20, 20) for p in (out / "frames").iterdir())
+    import imageio.v2 as imageio
+
+    with imageio.get_reader(out / "wind.mp4") as reader:
+        assert all(frame.shape[:2] == (20, 20) for frame in reader)
+    assert example.render(20, "cpu")["skipped"] == 3
+    stronger = example_module.Example(str(asset_dir), out, frames=3, fps=10.0, strength=0.2)
+    stronger.animate()  # another wind: the motion is recomputed, and the orbit that frames it moves
+    from shellsim.motion import load_motion
+
+    assert load_motion(out / "wind.npz").meta["settings"]["strength"] == 0.2
+    assert stronger.render(20, "cpu")["rendered"] == 3

@@ -34,7 +34,8 @@ from neural.metrics import psnr
 from shellsim.cage import Cage, load_or_build_cage, shell_digest
 from shellsim.deform import InverseMap, map_points_reference
 from shellsim.embed import embed_points
-from shellsim.render import DeformedRenderer, orbit_camera, parse_frames
+from shellsim.motion import parse_frames
+from shellsim.render import DeformedRenderer, orbit_camera
 
 CENTER = np.array([0.1, -0.2, 0.3])  # the asset's normalisation centre: the sphere's centre
 SCALE = 2.0  # unit space = (x - CENTER) * SCALE; the unit sphere of radius 0.5 has world radius 0.25

@@ -141,9 +141,11 @@ def test_run_writes_a_motion_file_and_resume_extends_it(tmp_path, closed_mesh, c
 
     err = _fail([*base, "--frames", "6", "--out", str(part), "--resume", "--material", "jelly"], capsys)
     assert "material" in err
-    err = _fail([*base, "--frames", "6", "--out", str(part), "--pin", "z<-100"], capsys)
+    err = _fail([*base, "--frames", "6", "--out", str(part), "--pin", "z<-100", "--overwrite"], capsys)
     assert "selects no cage vertex" in err
-    err = _fail([*base, "--frames", "6", "--out", str(part), "--pin", "__import__('os')"], capsys)
+    err = _fail(
+        [*base, "--frames", "6", "--out", str(part), "--pin", "__import__('os')", "--overwrite"], capsys
+    )
     assert "--pin" in err
     assert load_motion(part).n_frames == 5  # failed commands leave the file alone
 
@@ -177,3 +179,85 @@ def test_pinned_vertices_stay_put(tmp_path, closed_mesh):
         motion.positions[:, pinned], np.broadcast_to(motion.rest_vertices[pinned], (4, 9, 3)), atol=1e-6
     )
     assert (motion.positions[-1][~pinned, 2] < motion.rest_vertices[~pinned, 2]).all()  # the rest sags
+
+
+def test_an_existing_motion_is_continued_or_refused_never_replaced_silently(tmp_path, closed_mesh, capsys):
+    """Run again: same settings continue the file; other settings are refused naming old and new values;
+    --overwrite starts anew."""
+    mesh, _ = closed_mesh
+    out = tmp_path / "m.npz"
+    base = ["simulate", "--mesh", str(mesh), "--substeps", "1", "--size", "0.1", "--out", str(out)]
+    base += ["--device", "cpu"]
+    assert main([*base, "--frames", "3"]) == 0
+    first = load_motion(out)
+    assert main([*base, "--frames", "5"]) == 0  # no --resume needed
+    grown = load_motion(out)
+    assert grown.n_frames == 5
+    np.testing.assert_array_equal(grown.positions[:3], first.positions)
+
+    for extra, shown in (
+        (["--material", "jelly"], "--material: rubber -> jelly"),
+        (["--fps", "24"], "--fps: 30 -> 24"),
+        (["--velocity", "1,0,0"], "--velocity: 0,0,0 -> 1,0,0"),
+        (["--resume", "--no-ground"], "--drop-height (none: --no-ground): 0.1 -> none"),
+    ):
+        err = _fail([*base, "--frames", "6", *extra], capsys)
+        assert shown in err and str(out) in err and "--overwrite" in err, err
+        assert "{" not in err and "np." not in err
+    assert load_motion(out).n_frames == 5  # refused runs leave the file alone
+
+    assert main([*base, "--frames", "2", "--fps", "24", "--overwrite"]) == 0
+    fresh = load_motion(out)
+    assert fresh.n_frames == 2 and fresh.meta["params"]["fps"] == 24
+
+
+def test_wind_run_again_continues_or_refuses(tmp_path, capsys):
+    from meshes import save_embedded_cage
+    from test_wind import _write_asset, column
+
+    from neural.asset import load_asset
+
+    asset = load_asset(_write_asset(tmp_path / "rod"))
+    verts, tets = column(n_xy=2, n_z=6, width=0.4, height=1.1)
+    save_embedded_cage(asset, verts - [0.2, 0.2, 0.05], tets)
+    out = tmp_path / "wind.npz"
+    args = ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
+    assert main([*args, "--frames", "3"]) == 0
+    assert main([*args, "--frames", "5"]) == 0
+    assert load_motion(out).n_frames == 5
+    err = _fail([*args, "--frames", "6", "--strength", "0.2", "--seed", "3"], capsys)
+    assert "--strength: 0.05 -> 0.2" in err and "--seed: 0 -> 3" in err and "--overwrite" in err
+    assert "{" not in err
+    assert load_motion(out).n_frames == 5
+    assert main([*args, "--frames", "2", "--strength", "0.2", "--overwrite"]) == 0
+    assert load_motion(out).n_frames == 2
+
+
+def test_mesh_simulation_video_shows_the_mesh_moving(tmp_path, closed_mesh):
+    """simulate --mesh --video: the motion carries the mesh's surface (frame 0: the mesh file's own
+    vertices) and its frames show it moving."""
+    from PIL import Image
+
+    mesh, _ = closed_mesh
+    out, video = tmp_path / "cube.npz", tmp_path / "cube.mp4"
+    argv = [
+        "simulate",
+        "--mesh",
+        str(mesh),
+        "--frames",
+        "3",
+        "--substeps",
+        "2",
+        "--no-ground",
+        "--out",
+        str(out),
+    ]
+    argv += ["--velocity", "20,0,0", "--video", str(video), "--video-size", "32x24", "--device", "cpu"]
+    assert main(argv) == 0
+    motion = load_motion(out)
+    np.testing.assert_allclose(motion.surface_points(0), trimesh.load(mesh).vertices, atol=1e-9)
+    assert len(motion.surface.faces) == 12
+    frames = [np.asarray(Image.open(tmp_path / "cube_frames" / f"{k:05d}.png")) for k in range(3)]
+    assert all(f.shape == (24, 32, 3) and (f.min(axis=2) < 200).sum() > 20 for f in frames)
+    assert (np.abs(frames[2].astype(int) - frames[0]).max(axis=2) > 50).sum() > 20
+    assert video.is_file()

@@ -13,10 +13,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "images may be absent) to OUT/<frame name>.png with narrow-band rendering (paper Sec. 3.4). With "
         "--motion: render each motion frame k, seen by the first camera of --cameras or by a camera "
         "orbiting the asset (--orbit), to OUT/<k:05d>.png, deforming the shells with the cage and mapping "
-        "every sample back to rest space (paper Sec. 5). PNGs already in OUT are kept, so an interrupted "
-        "render resumes; --overwrite renders them again.",
+        "every sample back to rest space (paper Sec. 5). Each PNG records what made it (motion frame, "
+        "camera, size, asset, renderer settings): one already in OUT is kept only when all of these match, "
+        "so an interrupted render resumes, and rendered again otherwise; --overwrite renders all again.",
     )
-    p.add_argument("--asset", required=True, help="asset directory or shipped asset name")
+    p.add_argument(
+        "--asset",
+        default=None,
+        help="asset directory or shipped asset name; without it, --motion --orbit draws the surface the "
+        "motion carries (e.g. from 'simulate --mesh') with pyvista",
+    )
     p.add_argument(
         "--motion", default=None, help="motion file (.npz) from 'shellsim simulate' or 'shellsim wind'"
     )
@@ -41,8 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
+    import math
+
     from neural.errors import InputError
-    from shellsim.render import render_motion, render_views
 
     size = None
     if args.width is not None or args.height is not None:
@@ -55,8 +62,34 @@ def run(args: argparse.Namespace) -> None:
         for flag in ("orbit", "frames", "video", "fps"):
             if getattr(args, flag) not in (None, False):
                 raise InputError(f"--{flag} needs --motion (without it every camera is rendered at rest)")
+    if args.fps is not None and not (args.fps > 0 and math.isfinite(args.fps)):
+        raise InputError(f"--fps: expected a positive number, got {args.fps}")
+    if args.device not in ("auto", "cpu", "cuda"):
+        raise InputError(f"--device: expected cpu, cuda or auto, got {args.device!r}")
+
+    if args.motion is not None:
+        from shellsim.motion import load_motion, parse_frames
+
+        parse_frames(args.frames, load_motion(args.motion).n_frames, str(args.motion))
+    # the heavy imports (torch, pyvista) come after the options are checked
+    if args.asset is None:
+        if args.motion is None or not args.orbit:
+            raise InputError("--asset: needed, unless --motion and --orbit draw a motion's own surface")
+        from shellsim.inspect import quiet_vtk
+        from shellsim.surface import render_surface_motion
+
+        if not args.verbose:
+            quiet_vtk()
+        summary = render_surface_motion(
+            args.motion, args.out, args.frames, size, args.video, args.fps, args.overwrite
+        )
+    elif args.motion is None:
+        from shellsim.render import render_views
+
         summary = render_views(args.asset, args.cameras, args.out, size, args.device, args.overwrite)
     else:
+        from shellsim.render import render_motion
+
         summary = render_motion(
             args.asset,
             args.motion,
@@ -70,12 +103,19 @@ def run(args: argparse.Namespace) -> None:
             device=args.device,
             overwrite=args.overwrite,
         )
-    line = f"{summary['rendered']} frames rendered to {summary['out']} ({summary['skipped']} already there)"
-    if summary["rendered"]:
+    _report(summary)
+
+
+def _report(summary: dict) -> None:
+    line = f"{summary['rendered']} frames rendered to {summary['out']} ({summary['skipped']} already there"
+    line += f", {summary['replaced']} replaced)" if summary["replaced"] else ")"
+    if summary["rendered"] and "field_ms" in summary:
         line += (
             f": {summary['ms']:.0f} ms/frame (deform + build {summary['build_ms']:.0f}, cast "
             f"{summary['cast_ms']:.0f}, inverse map {summary['map_ms']:.0f}, field {summary['field_ms']:.0f})"
         )
+    elif summary["rendered"]:
+        line += f": {summary['ms']:.0f} ms/frame"
     print(line)
     if "video" in summary:
         print(f"video: {summary['video']}")

@@ -3,7 +3,8 @@
 Thin: parse, build the cage and the :class:`shellsim.fem.Simulator`, drive :func:`shellsim.fem.simulate`
 into a motion file, report. The world frame is kept: the cage is scaled so that its largest extent measures
 ``--size`` metres, simulated in SI units, and written back in world coordinates (``meta['world']`` holds the
-scale). ``--resume`` continues ``--out`` from its last frame with the velocities stored in its meta.
+scale). An existing ``--out`` made with the same settings is continued from its last frame with the velocities
+stored in its meta; one made with other settings is refused unless ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -67,7 +68,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="simulate an asset's cage (or a closed mesh) as an elastic body; writes a motion file",
         description="Implicit hyperelastic FEM (stable Neo-Hookean, backward Euler) of the cage under "
         "gravity, with ground and obstacle contact and friction. Writes a motion file (render it with "
-        "'shellsim render'). Interrupt at any time; --resume continues it.",
+        "'shellsim render'). Interrupt at any time: run again, and an OUT made with the same settings is "
+        "continued; one made with other settings is refused unless --overwrite.",
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--asset", help="asset directory or shipped asset name (its cage is used)")
@@ -123,11 +125,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--damping", type=float, default=0.0, help="Kelvin-Voigt damping in seconds (default 0)")
     p.add_argument("--tets", type=int, help="target cage tet count when the cage is built")
     p.add_argument("--out", help="motion file (default NAME_sim.npz)")
-    p.add_argument("--resume", action="store_true", help="continue OUT after its last frame")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue OUT after its last frame (what happens anyway when OUT exists and was made with the "
+        "same settings; other settings are refused)",
+    )
+    again.add_argument(
+        "--overwrite", action="store_true", help="start OUT anew even if it was made with other settings"
+    )
     p.add_argument(
         "--video",
-        help="then render the motion (orbiting camera) to this MP4 and its frames to VIDEO_frames/; needs "
-        "--asset; frames already there are kept with --resume, rendered anew otherwise",
+        help="then render the motion (orbiting camera) to this MP4 and its frames to VIDEO_frames/ (with "
+        "--mesh: the mesh's surface, drawn with pyvista); frames already there are kept only when they show "
+        "the same motion frame, camera and size",
     )
     p.add_argument("--video-size", default="200x200", help="WxH of the rendered frames (default 200x200)")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda (default auto)")
@@ -135,26 +147,26 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    if args.video and not args.asset:
-        raise InputError("--video renders the neural asset: it needs --asset, not --mesh")
     size = parse_size("--video-size", args.video_size) if args.video else None
     out = simulate_to_file(args)
     log.info("motion written to %s", out)
     if args.video:
-        from shellsim.render import render_motion
-
         video = Path(args.video)
         frames_dir = video.with_name(video.stem + "_frames")
-        summary = render_motion(  # a new motion's frames replace any earlier ones; --resume keeps them
-            args.asset,
-            out,
-            frames_dir,
-            orbit=True,
-            size=size,
-            video=video,
-            overwrite=not args.resume,
-            device=args.device,
-        )
+        # each frame is kept only if it records this motion frame and camera
+        if args.asset:
+            from shellsim.render import render_motion
+
+            summary = render_motion(
+                args.asset, out, frames_dir, orbit=True, size=size, video=video, device=args.device
+            )
+        else:  # a mesh: its surface moved by the cage, drawn with pyvista
+            from shellsim.inspect import quiet_vtk
+            from shellsim.surface import render_surface_motion
+
+            if not args.verbose:
+                quiet_vtk()
+            summary = render_surface_motion(out, frames_dir, size=size, video=video)
         log.info(
             "rendered %d frames (%d already there) to %s and the video %s",
             summary["rendered"],
@@ -196,6 +208,21 @@ def _parameters(args: argparse.Namespace, material, up) -> dict:
         "damping": args.damping,
         "tets": args.tets,
     }
+
+
+#: The option behind each key of :func:`_parameters` whose name is not ``--key-with-dashes``.
+_OPTIONS = {
+    "source.asset": "--asset",
+    "source.mesh": "--mesh",
+    "material.name": "--material",
+    "material.youngs": "Young's modulus (--youngs)",
+    "material.poisson": "Poisson ratio (--poisson)",
+    "material.density": "density (--density)",
+    "pins": "--pin",
+    "spheres": "--sphere",
+    "boxes": "--box",
+    "drop_height": "--drop-height (none: --no-ground)",
+}
 
 
 def _load_cage(args: argparse.Namespace):
@@ -265,12 +292,24 @@ def _failure_line(err, out: Path, args: argparse.Namespace, material) -> str:
     return f"{err}; frames 0-{err.frame - 1} are kept in {out}; {advice}"
 
 
+def _mesh_surface(path: Path, vertices: np.ndarray, tets: np.ndarray):
+    """The surface of the mesh file ``path`` embedded in its cage (vertices (V, 3), tets (T, 4)), so the
+    motion file can show it: a :class:`shellsim.motion.Surface`."""
+    from neural.asset import load_mesh
+    from shellsim.embed import embed_points
+    from shellsim.motion import Surface
+
+    mesh = load_mesh(path)
+    tet, bary = embed_points(vertices, tets, np.asarray(mesh.vertices, np.float64))
+    return Surface(tet, bary, np.asarray(mesh.faces, np.int64))
+
+
 def simulate_to_file(args: argparse.Namespace) -> Path:
     """Run the simulation the arguments describe; returns the motion file written."""
     from shellsim.contact import Box, Sphere
     from shellsim.fem import SimSettings, SimulationError, Simulator, WorldMap, restore_state, simulate
     from shellsim.materials import get_material
-    from shellsim.motion import MotionWriter
+    from shellsim.motion import MotionWriter, describe_changes
 
     _check_numbers(args)
     material = get_material(args.material, args.youngs, args.poisson, args.density)
@@ -280,21 +319,26 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     out = Path(args.out) if args.out else Path(f"{name}_sim.npz")
 
     writer = None
-    if args.resume and out.is_file():
-        writer = MotionWriter.resume(out)
+    if out.is_file() and not args.overwrite:  # same settings: continue the file; other settings: refuse
+        replace = "give --overwrite to start it anew, or another --out"
+        try:
+            writer = MotionWriter.resume(out)
+        except InputError as err:
+            raise InputError(f"{err}; {replace}") from None
         meta = writer.motion.meta
         if not {"params", "world", "state"} <= set(meta):
-            raise InputError(f"{out}: not a 'shellsim simulate' motion file; cannot --resume it")
+            raise InputError(f"{out}: not a 'shellsim simulate' motion file; {replace}")
         up = np.asarray(meta["params"]["up"]) if args.up is None else parse_floats("--up", args.up, 3)
         params = _parameters(args, material, up)
-        changed = [k for k, v in params.items() if meta["params"].get(k) != v]
-        if changed:
-            raise InputError(f"--resume {out}: these settings differ from the file's: {', '.join(changed)}")
+        changes = describe_changes(meta["params"], params, _OPTIONS)
+        if changes:
+            raise InputError(f"{out}: made with other settings ({'; '.join(changes)}); {replace}")
         vertices, tets = writer.motion.rest_vertices, writer.motion.tets
         world = WorldMap(tuple(meta["world"]["origin"]), float(meta["world"]["scale"]))
         log.info("resuming %s after frame %d", out, writer.n_frames - 1)
     else:
         vertices, tets, up = _load_cage(args)
+        surface = None if args.asset else _mesh_surface(Path(args.mesh), vertices, tets)
         if args.up is not None:
             up = parse_floats("--up", args.up, 3)
         params = _parameters(args, material, up)
@@ -327,6 +371,8 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     )
     sim = Simulator(rest_sim, tets, material, settings, pinned=pinned, device=device)
     if writer is None:
+        if args.resume:
+            log.info("%s does not exist: nothing to resume, starting it", out)
         sim.set_rigid_velocity(params["velocity"], params["spin"])
         meta = {
             "producer": "shellsim simulate",
@@ -338,8 +384,8 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
             "cage": {"vertices": len(vertices), "tets": len(tets)},
         }
         if out.exists():
-            log.info("overwriting %s", out)
-        writer = MotionWriter(out, vertices, tets, meta)
+            log.info("--overwrite: replacing %s", out)
+        writer = MotionWriter(out, vertices, tets, meta, surface=surface)
     else:
         restore_state(sim, writer, world)
 

@@ -16,7 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="animate an asset's cage in an analytic wind; writes a motion file",
         description="Bend the asset's cage like a cantilever anchored at its base, in a wind with gusts and "
         "travelling turbulence. Writes the same motion file as 'shellsim simulate' (render it with "
-        "'shellsim render'). Interrupt at any time; --resume continues a file.",
+        "'shellsim render'). Interrupt at any time: run again, and an OUT made with the same settings is "
+        "continued; one made with other settings is refused unless --overwrite.",
     )
     p.add_argument("--asset", required=True, help="asset directory or shipped asset name")
     p.add_argument(
@@ -57,7 +58,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--seed", type=int, default=None, help=f"turbulence seed (default {W.seed})")
     p.add_argument("--out", default=None, help="motion file to write (default ASSETNAME_wind.npz)")
-    p.add_argument("--resume", action="store_true", help="continue OUT after its last frame")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue OUT after its last frame (what happens anyway when OUT exists and was made with the "
+        "same settings; other settings are refused)",
+    )
+    again.add_argument(
+        "--overwrite", action="store_true", help="start OUT anew even if it was made with other settings"
+    )
     p.set_defaults(func=run)
 
 
@@ -103,13 +113,14 @@ def run(args: argparse.Namespace) -> None:
     settings = WindSettings(up=tuple(asset.up), **{k: v for k, v in options.items() if v is not None})
     cage = load_or_build_cage(asset)  # the stored cage whatever its settings, else a default one
     out = Path(args.out) if args.out else Path(f"{asset.name}_wind.npz")
-    if args.resume and out.is_file():
-        writer = MotionWriter.resume(out)
-        log.info("resuming %s after frame %d", out, writer.n_frames - 1)
+    meta = {**wind_meta(settings, args.fps), "asset": asset.name}
+    if out.is_file() and not args.overwrite:
+        writer = _reopen(out, meta, cage, asset.name)
     else:
         if out.exists():
-            log.info("overwriting %s", out)
-        meta = {**wind_meta(settings, args.fps), "asset": asset.name}
+            log.info("--overwrite: replacing %s", out)
+        elif args.resume:
+            log.info("%s does not exist: nothing to resume, starting it", out)
         writer = MotionWriter(out, cage.vertices, cage.tets, meta)
     with writer:
         animate_wind(cage.vertices, cage.tets, settings, args.frames, args.fps, writer)
@@ -120,3 +131,36 @@ def run(args: argparse.Namespace) -> None:
         out,
         stats.get("min_volume_ratio", 1.0),
     )
+
+
+def _reopen(out, meta: dict, cage, asset_name: str):
+    """A :class:`MotionWriter` continuing the wind motion ``out`` when it was made with ``meta``'s settings
+    of this ``cage``; else an InputError listing what differs (old -> new) and how to start anew."""
+    import numpy as np
+
+    from neural.errors import InputError
+    from shellsim.motion import MotionWriter, describe_changes
+
+    replace = "give --overwrite to start it anew, or another --out"
+    try:
+        writer = MotionWriter.resume(out)
+    except InputError as err:
+        raise InputError(f"{err}; {replace}") from None
+    stored = writer.motion.meta
+    if "settings" not in stored:
+        raise InputError(f"{out}: not a 'shellsim wind' motion file; {replace}")
+    keys = ("asset", "fps", "settings")
+    changes = describe_changes(
+        {k: stored.get(k) for k in keys},
+        {k: meta[k] for k in keys},
+        {"settings.up": "the asset's up axis", "settings.base_fraction": "base fraction"},
+    )
+    rest, tets = writer.motion.rest_vertices, writer.motion.tets
+    if not (rest.shape == cage.vertices.shape and np.allclose(rest, cage.vertices)) or not np.array_equal(
+        tets, cage.tets
+    ):
+        changes.append(f"the cage: the file's has {len(tets)} tets, {asset_name}'s {len(cage.tets)}")
+    if changes:
+        raise InputError(f"{out}: made with other settings ({'; '.join(changes)}); {replace}")
+    log.info("continuing %s after frame %d", out, writer.n_frames - 1)
+    return writer

@@ -20,9 +20,9 @@ def save_npz(path: str | os.PathLike, **arrays) -> None:
     os.replace(tmp, path)
 
 
-def load_npz(path: str | os.PathLike, keys, what: str) -> dict[str, np.ndarray]:
-    """The arrays ``keys`` of the ``what`` file (e.g. "cage") at ``path``; a missing file, a missing key or an
-    unreadable file is an :class:`InputError` naming the file."""
+def load_npz(path: str | os.PathLike, keys, what: str, optional=()) -> dict[str, np.ndarray]:
+    """The arrays ``keys`` of the ``what`` file (e.g. "cage") at ``path``, and those of ``optional`` that it
+    holds; a missing file, a missing key or an unreadable file is an :class:`InputError` naming the file."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: {what} file not found")
@@ -31,7 +31,7 @@ def load_npz(path: str | os.PathLike, keys, what: str) -> dict[str, np.ndarray]:
             missing = [k for k in keys if k not in data.files]
             if missing:
                 raise InputError(f"{path}: not a {what} file, missing {', '.join(missing)}")
-            return {k: data[k] for k in keys}
+            return {k: data[k] for k in (*keys, *optional) if k in data.files}
     except InputError:
         raise
     except Exception as err:  # zip/npy format errors come in many types

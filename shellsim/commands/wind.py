@@ -48,6 +48,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         f"(default: the lowest {100 * W.base_fraction:g}%% of the cage along the asset's up axis)",
     )
     p.add_argument("--seed", type=int, default=None, help=f"turbulence seed (default {W.seed})")
+    p.add_argument(
+        "--margin",
+        type=float,
+        default=None,
+        help="dilation of the outer shell when the cage is built, relative to its diagonal (default 0.02)",
+    )
     p.add_argument("--out", default=None, help="motion file to write (default ASSETNAME_wind.npz)")
     p.add_argument("--resume", action="store_true", help="continue OUT after its last frame")
     p.set_defaults(func=run)
@@ -58,7 +64,7 @@ def run(args: argparse.Namespace) -> None:
 
     from neural.asset import load_asset
     from neural.errors import InputError
-    from shellsim.cage import load_or_build_cage
+    from shellsim.cage import CageConfig, load_or_build_cage
     from shellsim.commands.args import parse_floats
     from shellsim.motion import MotionWriter
     from shellsim.wind import WindSettings, animate_wind, wind_meta
@@ -79,7 +85,10 @@ def run(args: argparse.Namespace) -> None:
     if args.direction is not None:
         options["direction"] = parse_floats("--direction", args.direction, 3)  # WindSettings rejects 0,0,0
     settings = WindSettings(up=tuple(asset.up), **{k: v for k, v in options.items() if v is not None})
-    cage = load_or_build_cage(asset)  # the stored cage whatever its settings, else a default one
+    if args.margin is not None and not (0 < args.margin < float("inf")):
+        raise InputError(f"--margin: expected a positive fraction of the diagonal, got {args.margin}")
+    # the stored cage whatever its settings (unless --margin asks for another), else a default one
+    cage = load_or_build_cage(asset, None if args.margin is None else CageConfig(margin=args.margin))
     out = Path(args.out) if args.out else Path(f"{asset.name}_wind.npz")
     if args.resume and out.is_file():
         writer = MotionWriter.resume(out)

@@ -78,7 +78,8 @@ TETS_PER_VOLUME, TETS_PER_AREA = 4.8, 7.6
 UNDILATED_EPSILON = 1e-3
 #: What a cage in pieces asks for: a dilated shell, an undilated mesh.
 APART_DILATED = (
-    "parts of the outer shell lie farther apart than twice the margin. Raise --margin until they merge, or "
+    "parts of the outer shell lie farther apart than twice the margin. Build the cage with a larger --margin "
+    "('shellsim cage', 'simulate' and 'wind' take one; the others use the stored cage) until they merge, or "
     "remove the floating parts from the shell"
 )
 APART_UNDILATED = "the mesh must be one connected solid: simulate its parts one at a time, or join them"

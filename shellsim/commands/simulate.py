@@ -289,9 +289,8 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     if args.tets is not None and args.tets < 10:
         raise InputError(f"--tets: expected at least 10, got {args.tets}")
     _check_scale_options(args)
-    for flag, value in (("--fps", args.fps),):
-        if not (math.isfinite(value) and value > 0):
-            raise InputError(f"{flag}: expected a positive number, got {value}")
+    if not (math.isfinite(args.fps) and args.fps > 0):
+        raise InputError(f"--fps: expected a positive number, got {args.fps}")
     for flag, value in (
         ("--drop-height", args.drop_height),
         ("--friction", args.friction),

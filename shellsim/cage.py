@@ -10,18 +10,24 @@ using precomputed barycentric coordinates generated as a pre-process."
    distance on a grid of cell ``margin / 2`` at the level ``+margin`` (``igl.offset_surface``), which is a
    closed surface by construction, then quadric-error decimation to ``surface_faces`` triangles, since
    fTetWild's time grows with its input;
-2. **tetrahedralize** it with fTetWild (``pytetwild``), steering the ideal edge length until the tet count
-   is within a factor ``tolerance`` of ``target_tets`` (at most ``max_attempts`` runs; the closest is kept).
-   fTetWild's envelope (how far its boundary may stray from the dilated surface) is ``envelope * margin``;
-3. **validate** (:func:`check_tet_mesh`): every tet positively oriented and not degenerate, and one solid
+   ``margin=0`` skips this: a closed mesh that is the body itself is tetrahedralised as it is;
+2. **tetrahedralize** it with fTetWild (:func:`shellsim.tetwild.tetrahedralize`: seeded, one thread, a
+   fresh process per run, so the same shells and settings give the same cage), steering the ideal edge
+   length until the tet count is within a factor ``tolerance`` of ``target_tets`` (at most
+   ``max_attempts`` runs; the closest is kept). fTetWild's envelope (how far its boundary may stray from the
+   dilated surface) is ``envelope * margin`` (:data:`UNDILATED_EPSILON` of the diagonal when undilated);
+3. **embed** every ``M+`` and ``M-`` vertex (:func:`shellsim.embed.embed_points`) and drop the connected
+   parts of the tet mesh that hold none of them (fTetWild's stray tets), with a log line;
+4. **validate** (:func:`check_tet_mesh`): every tet positively oriented and not degenerate, and one solid
    connected through shared faces. A shell whose parts lie farther apart than twice the margin gives a
-   cage in pieces, which is an :class:`~neural.errors.InputError` (raise the margin, or remove the floaters);
-4. **embed** every ``M+`` and ``M-`` vertex (:func:`shellsim.embed.embed_points`).
+   cage in pieces, which is an :class:`~neural.errors.InputError` (raise the margin, or remove the floaters).
 
 ``cage.npz`` (format version 1, no pickle): ``vertices`` (V, 3) float64, ``tets`` (T, 4) int64,
-``outer_tet`` (Vo,) int64, ``outer_bary`` (Vo, 4) float64, ``inner_tet`` (Vi,), ``inner_bary`` (Vi, 4),
-``shell_digest`` (sha256 of the shells' vertex and face arrays as loaded), ``config`` (JSON of
-:class:`CageConfig`), ``format``, ``format_version``.
+optionally ``outer_tet`` (Vo,) int64, ``outer_bary`` (Vo, 4) float64, ``inner_tet`` (Vi,), ``inner_bary``
+(Vi, 4) (:func:`load_or_build_cage` leaves them out: for the 250k shell vertices of the LEGO they are 10
+MB against 0.3 MB for the cage, and embedding again takes half a second), ``shell_digest`` (sha256 of the
+shells' vertex and face arrays as loaded), ``config`` (JSON of :class:`CageConfig`), ``format``,
+``format_version``.
 """
 
 from __future__ import annotations
@@ -51,12 +57,13 @@ from .embed import (
     outside_distance,
 )
 from .npz import load_npz, save_npz
+from .tetwild import tetrahedralize
 
 logger = logging.getLogger(__name__)
 
 FORMAT = "shellsim-cage"
 FORMAT_VERSION = 1
-ARRAY_KEYS = ("vertices", "tets", "outer_tet", "outer_bary", "inner_tet", "inner_bary")
+EMBEDDING_KEYS = ("outer_tet", "outer_bary", "inner_tet", "inner_bary")
 
 #: Tets with :func:`tet_quality` below this are degenerate (1 is a regular tet).
 DEGENERATE_QUALITY = 1e-6
@@ -67,13 +74,23 @@ GRID_MIN, GRID_MAX = 16, 160
 #: TETS_PER_AREA * area / L**2`` (least squares on a bumpy sphere, a box, a torus, a capsule and a plant-like
 #: shape at the default envelope; within -30%/+25% on them). Only the first guess of ``L`` depends on it.
 TETS_PER_VOLUME, TETS_PER_AREA = 4.8, 7.6
+#: fTetWild's envelope relative to the bounding-box diagonal when the surface is not dilated (its default).
+UNDILATED_EPSILON = 1e-3
+#: What a cage in pieces asks for: a dilated shell, an undilated mesh.
+APART_DILATED = (
+    "parts of the outer shell lie farther apart than twice the margin. Build the cage with a larger --margin "
+    "('shellsim cage', 'simulate' and 'wind' take one; the others use the stored cage) until they merge, or "
+    "remove the floating parts from the shell"
+)
+APART_UNDILATED = "the mesh must be one connected solid: simulate its parts one at a time, or join them"
 
 
 @dataclass
 class CageConfig:
     """Settings of :func:`build_cage`.
 
-    margin : dilation of ``M+`` before tetrahedralising, relative to its bounding-box diagonal
+    margin : dilation of ``M+`` before tetrahedralising, relative to its bounding-box diagonal; 0 for none
+        (a mesh that is the body itself)
     target_tets : the tet count to aim for; the result lies within a factor ``tolerance`` when fTetWild
         can resolve the surface with that few (a thin, detailed shell needs more)
     tolerance : accepted ratio between the tet count and ``target_tets``
@@ -91,8 +108,8 @@ class CageConfig:
     envelope: float = 0.25
 
     def __post_init__(self):
-        if not (math.isfinite(self.margin) and self.margin > 0):
-            raise ValueError(f"margin must be a positive number, got {self.margin}")
+        if not (math.isfinite(self.margin) and self.margin >= 0):
+            raise ValueError(f"margin must be a number >= 0, got {self.margin}")
         if self.target_tets < 10:
             raise ValueError(f"target_tets must be at least 10, got {self.target_tets}")
         if not self.tolerance > 1:
@@ -160,9 +177,9 @@ def connected_parts(tets: np.ndarray) -> np.ndarray:
     return np.unique(labels[:n], return_inverse=True)[1].ravel().astype(np.int64)
 
 
-def check_tet_mesh(vertices: np.ndarray, tets: np.ndarray, what: str) -> None:
+def check_tet_mesh(vertices: np.ndarray, tets: np.ndarray, what: str, apart: str = APART_DILATED) -> None:
     """Raise :class:`InputError` (``what: problem``) unless the tets form one solid of well-shaped,
-    positively oriented tets. vertices (V, 3), tets (T, 4)."""
+    positively oriented tets; ``apart`` is the advice when they form several. vertices (V, 3), tets (T, 4)."""
     if len(tets) == 0:
         raise InputError(f"{what}: the cage has no tetrahedra")
     if not np.isfinite(vertices).all():
@@ -181,9 +198,37 @@ def check_tet_mesh(vertices: np.ndarray, tets: np.ndarray, what: str) -> None:
         sizes = np.sort(np.bincount(parts))[::-1]
         raise InputError(
             f"{what}: the cage falls apart into {n_parts} separate solids ({', '.join(map(str, sizes[:5]))} "
-            "tets); parts of the outer shell lie farther apart than twice the margin. Raise --margin until "
-            "they merge, or remove the floating parts from the shell"
+            f"tets); {apart}"
         )
+
+
+def holding_parts(tets: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """(T,) bool: the tets of the connected parts (:func:`connected_parts`) that hold at least one of the
+    tets ``held`` (P,) int (those of the shell vertices). The others are fTetWild's strays: logged. When no
+    part holds any, all are kept (the check of the cage then reports the pieces)."""
+    parts = connected_parts(tets)
+    holding = np.zeros(int(parts.max()) + 1, bool)
+    holding[parts[held]] = True
+    keep = holding[parts]
+    if not holding.any():
+        return np.ones(len(tets), bool)
+    if not keep.all():
+        sizes = np.bincount(parts[~keep])
+        logger.info(
+            "dropped %d stray part(s) of the tet mesh that hold no shell vertex (%s tets)",
+            int((~holding).sum()),
+            ", ".join(str(n) for n in sorted(sizes[sizes > 0], reverse=True)),
+        )
+    return keep
+
+
+def drop_tets(vertices: np.ndarray, tets: np.ndarray, keep: np.ndarray):
+    """The tets (T, 4) where ``keep`` (T,) bool, with their vertices (V, 3) renumbered -> (V', 3), (T', 4),
+    and (T,) int64 the new index of each kept tet (-1 for a dropped one)."""
+    used, new_tets = np.unique(tets[keep], return_inverse=True)
+    new_index = np.full(len(tets), -1, np.int64)
+    new_index[keep] = np.arange(int(keep.sum()))
+    return vertices[used], new_tets.reshape(-1, 4).astype(np.int64), new_index
 
 
 def shell_digest(outer, inner) -> str:
@@ -231,33 +276,21 @@ def dilate_surface(
     return np.ascontiguousarray(out_v, dtype=np.float64), np.ascontiguousarray(out_f, dtype=np.int64)
 
 
-def _tetrahedralize(
-    vertices: np.ndarray, faces: np.ndarray, edge: float, epsilon: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """One fTetWild run; unreferenced vertices dropped. -> (V, 3) float64, (T, 4) int64."""
-    import pytetwild
-
-    tet_v, tet_t = pytetwild.tetrahedralize(
-        vertices, faces.astype(np.int32), edge_length_abs=edge, epsilon=epsilon, vtk_ordering=True, quiet=True
-    )
-    used, tets = np.unique(np.asarray(tet_t, dtype=np.int64), return_inverse=True)
-    return np.asarray(tet_v, dtype=np.float64)[used], tets.reshape(-1, 4)
-
-
 def tetrahedralize_to_count(
     vertices: np.ndarray, faces: np.ndarray, config: CageConfig, margin: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """fTetWild on a closed surface with about ``config.target_tets`` tets.
 
-    vertices (N, 3), faces (M, 3) of the dilated surface, margin in world units -> (V, 3) float64,
-    (T, 4) int64. The edge length starts from the model of :data:`TETS_PER_VOLUME` and :data:`TETS_PER_AREA`,
-    then follows a secant on log(count) against log(edge length), changing by a factor 2 at most per run.
+    vertices (N, 3), faces (M, 3) of the dilated surface, margin in world units (0: undilated) -> (V, 3)
+    float64, (T, 4) int64. The edge length starts from the model of :data:`TETS_PER_VOLUME` and
+    :data:`TETS_PER_AREA`, then follows a secant on log(count) against log(edge length), changing by a
+    factor 2 at most per run.
     """
     import trimesh
 
     surface = trimesh.Trimesh(vertices, faces, process=False)
     diag = float(np.linalg.norm(np.ptp(vertices, axis=0)))
-    epsilon = config.envelope * margin / diag
+    epsilon = config.envelope * margin / diag if margin > 0 else UNDILATED_EPSILON
     target = config.target_tets
     # positive root u = 1 / L of TETS_PER_VOLUME * volume * u^3 + TETS_PER_AREA * area * u^2 = target
     roots = np.roots([TETS_PER_VOLUME * abs(surface.volume), TETS_PER_AREA * surface.area, 0.0, -target])
@@ -269,7 +302,9 @@ def tetrahedralize_to_count(
     tried: list[tuple[float, np.ndarray, np.ndarray]] = []
     for attempt in range(config.max_attempts):
         start = time.perf_counter()
-        tet_v, tets = _tetrahedralize(vertices, faces, edge, epsilon)
+        tet_v, tets, seeded = tetrahedralize(vertices, faces, edge, epsilon)
+        if not seeded and attempt == 0:
+            logger.warning("fTetWild cannot be seeded on this platform: rebuilding this cage may differ")
         logger.info(
             "fTetWild run %d: edge %.4g -> %d tets (%.1f s)",
             attempt + 1,
@@ -307,12 +342,24 @@ def build_cage(outer, inner, config: CageConfig | None = None, what: str = "oute
     outer_v = np.asarray(outer.vertices, dtype=np.float64)
     inner_v = np.asarray(inner.vertices, dtype=np.float64)
     margin = config.margin * float(np.linalg.norm(np.ptp(outer_v, axis=0)))
-    surf_v, surf_f = dilate_surface(outer_v, outer.faces, margin, config.surface_faces)
-    logger.info("dilated M+ by %.4g: %d triangles (%.1f s)", margin, len(surf_f), time.perf_counter() - start)
-    vertices, tets = tetrahedralize_to_count(surf_v, surf_f, config, margin)
-    check_tet_mesh(vertices, tets, what)
+    if margin > 0:
+        surf_v, surf_f = dilate_surface(outer_v, outer.faces, margin, config.surface_faces)
+        logger.info(
+            "dilated M+ by %.4g: %d triangles (%.1f s)", margin, len(surf_f), time.perf_counter() - start
+        )
+    else:
+        surf_v, surf_f = outer_v, np.asarray(outer.faces, np.int64)
+    try:
+        vertices, tets = tetrahedralize_to_count(surf_v, surf_f, config, margin)
+    except RuntimeError as err:  # fTetWild crashed or refused the surface
+        raise InputError(f"{what}: {err}") from None
     outer_tet, outer_bary = embed_points(vertices, tets, outer_v)
     inner_tet, inner_bary = embed_points(vertices, tets, inner_v)
+    keep = holding_parts(tets, np.concatenate([outer_tet, inner_tet]))
+    if not keep.all():
+        vertices, tets, new_index = drop_tets(vertices, tets, keep)
+        outer_tet, inner_tet = new_index[outer_tet], new_index[inner_tet]
+    check_tet_mesh(vertices, tets, what, APART_DILATED if margin > 0 else APART_UNDILATED)
     logger.info("cage: %d vertices, %d tets (%.1f s)", len(vertices), len(tets), time.perf_counter() - start)
     return Cage(
         vertices, tets, outer_tet, outer_bary, inner_tet, inner_bary, shell_digest(outer, inner), config
@@ -343,27 +390,35 @@ def cage_summary(cage: Cage) -> dict:
     }
 
 
-def save_cage(path: str | os.PathLike, cage: Cage) -> None:
-    """Write ``cage`` to ``path`` (npz, no pickle) atomically: temporary file + rename."""
+def save_cage(path: str | os.PathLike, cage: Cage, embedding: bool = True) -> None:
+    """Write ``cage`` to ``path`` (npz, no pickle) atomically: temporary file + rename; the embedding of the
+    shells only if ``embedding``."""
+    arrays = {}
+    if embedding:
+        arrays = {
+            "outer_tet": np.asarray(cage.outer_tet, np.int64),
+            "outer_bary": np.asarray(cage.outer_bary, np.float64),
+            "inner_tet": np.asarray(cage.inner_tet, np.int64),
+            "inner_bary": np.asarray(cage.inner_bary, np.float64),
+        }
     save_npz(
         path,
         format=np.array(FORMAT),
         format_version=np.array(FORMAT_VERSION),
         vertices=np.asarray(cage.vertices, np.float64),
         tets=np.asarray(cage.tets, np.int64),
-        outer_tet=np.asarray(cage.outer_tet, np.int64),
-        outer_bary=np.asarray(cage.outer_bary, np.float64),
-        inner_tet=np.asarray(cage.inner_tet, np.int64),
-        inner_bary=np.asarray(cage.inner_bary, np.float64),
         shell_digest=np.array(cage.shell_digest),
         config=np.array(json.dumps(dataclasses.asdict(cage.config))),
+        **arrays,
     )
 
 
-def load_cage(path: str | os.PathLike) -> Cage:
-    """Read and validate a cage file; any problem is an :class:`InputError` naming the file."""
+def load_cage(path: str | os.PathLike, shells=None) -> Cage:
+    """Read and validate a cage file; any problem is an :class:`InputError` naming the file. A file without
+    the embedding needs ``shells`` (outer, inner ``trimesh.Trimesh``) to embed them again."""
     path = Path(path)
-    arrays = load_npz(path, ("format", "format_version", *ARRAY_KEYS, "shell_digest", "config"), "cage")
+    keys = ("format", "format_version", "vertices", "tets", "shell_digest", "config")
+    arrays = load_npz(path, keys, "cage", optional=EMBEDDING_KEYS)
     if (
         str(arrays["format"]) != FORMAT
         or arrays["format_version"].shape != ()
@@ -381,7 +436,19 @@ def load_cage(path: str | os.PathLike) -> Cage:
         tets = check_tets(tets, len(vertices), allow_empty=True)
     except ValueError as err:
         raise InputError(f"{path}: {err}") from None
-    check_tet_mesh(vertices.astype(np.float64), tets, str(path))
+    vertices = vertices.astype(np.float64)
+    check_tet_mesh(vertices, tets, str(path))
+    stored = [k for k in EMBEDDING_KEYS if k in arrays]
+    if stored and len(stored) < len(EMBEDDING_KEYS):
+        missing = sorted(set(EMBEDDING_KEYS) - set(stored))
+        raise InputError(f"{path}: not a cage file, missing {', '.join(missing)}")
+    if not stored:
+        if shells is None:
+            raise InputError(
+                f"{path}: the cage file holds no embedding of the shells; load it with its asset"
+            )
+        for name, mesh in zip(("outer", "inner"), shells, strict=True):
+            arrays[f"{name}_tet"], arrays[f"{name}_bary"] = embed_points(vertices, tets, mesh.vertices)
     for name in ("outer", "inner"):
         names = (f"{name}_tet", f"{name}_bary")
         try:
@@ -391,7 +458,7 @@ def load_cage(path: str | os.PathLike) -> Cage:
         if not np.isfinite(bary).all() or not np.allclose(bary.sum(axis=1), 1.0, rtol=0, atol=1e-6):
             raise InputError(f"{path}: {name}_bary rows must be finite and sum to 1")
     return Cage(
-        vertices.astype(np.float64),
+        vertices,
         tets.astype(np.int64),
         arrays["outer_tet"].astype(np.int64),
         arrays["outer_bary"].astype(np.float64),
@@ -403,7 +470,8 @@ def load_cage(path: str | os.PathLike) -> Cage:
 
 
 def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = False) -> Cage:
-    """The cage of an asset, from ``asset.cage_path`` (``cage.npz``) when it matches, else built and saved.
+    """The cage of an asset, from ``asset.cage_path`` (``cage.npz``) when it matches, else built and saved
+    (without the embedding, which is computed again on loading).
 
     The stored cage is used unless ``rebuild``, or it is unreadable, or it was built from other shells
     (:func:`shell_digest`), or ``config`` is given and differs from its settings. ``config=None`` takes
@@ -414,7 +482,7 @@ def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = 
     path = asset.cage_path
     if path.is_file() and not rebuild:
         try:
-            cage = load_cage(path)
+            cage = load_cage(path, (outer, inner))
         except InputError as err:
             logger.warning("rebuilding the cage: %s", err)
         else:
@@ -425,5 +493,5 @@ def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = 
             else:
                 return cage
     cage = build_cage(outer, inner, config, what=str(asset.file("shell_outer")))
-    save_cage(path, cage)
+    save_cage(path, cage, embedding=False)
     return cage

@@ -5,7 +5,7 @@ import shutil
 import numpy as np
 import pytest
 import trimesh
-from meshes import write_asset_dir
+from meshes import kuhn_grid, write_asset_dir
 
 import shellsim.cage as cage_module
 from neural.asset import load_asset
@@ -198,7 +198,7 @@ def test_cli_passes_settings(sphere_asset, sphere_cage, tmp_path, capsys, monkey
     "args, message",
     [
         (["--asset", "{missing}"], "no such directory"),
-        (["--asset", "{asset}", "--margin", "-1"], "--margin: margin must be a positive number"),
+        (["--asset", "{asset}", "--margin", "-1"], "--margin: margin must be a number >= 0"),
         (["--asset", "{asset}", "--tets", "0"], "--tets: target_tets must be at least 10"),
     ],
 )
@@ -207,3 +207,82 @@ def test_cli_errors_are_one_line(sphere_asset, tmp_path, capsys, args, message):
     assert main(["cage", *args]) == 2
     err = capsys.readouterr().err
     assert err.startswith("shellsim: error: ") and message in err and err.count("\n") == 1
+
+
+def test_rebuilds_are_identical_and_leave_the_cwd_clean(tmp_path, monkeypatch):
+    """fTetWild shuffles its input with std::random_device and keeps a static generator between runs: two
+    builds in one process differed (and one in three LEGO rebuilds had a stray tet). Seeded, one thread, a
+    process per run: the same cage twice, and its __tracked_surface.stl stays out of the cwd."""
+    monkeypatch.chdir(tmp_path)
+    outer = trimesh.creation.icosphere(subdivisions=2)
+    first, second = (build_cage(outer, outer, QUICK) for _ in range(2))
+    for key in ("vertices", "tets", "outer_tet", "outer_bary"):
+        np.testing.assert_array_equal(getattr(first, key), getattr(second, key), err_msg=key)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_stray_parts_without_shell_vertices_are_dropped(monkeypatch, caplog):
+    """A tet mesh with a stray tet far from the shell (as fTetWild sometimes leaves one): the tet is dropped
+    with a log line, and the embedding still reproduces the shells."""
+    outer = trimesh.creation.icosphere(subdivisions=2)
+    inner = trimesh.creation.icosphere(subdivisions=1, radius=0.5)
+    grid_v, grid_t, _ = kuhn_grid(-1.5, 1.5, 3)
+    stray_v = np.array([[5.0, 0, 0], [6.0, 0, 0], [5.0, 1.0, 0], [5.0, 0, 1.0]])
+    vertices = np.concatenate([stray_v, grid_v])  # the stray first: every index moves when it goes
+    tets = np.concatenate([[[0, 1, 2, 3]], grid_t + 4])
+    monkeypatch.setattr(cage_module, "tetrahedralize", lambda *args: (vertices, tets, True))
+    with caplog.at_level("INFO", logger="shellsim.cage"):
+        cage = build_cage(outer, inner, QUICK)
+    assert "dropped 1 stray part(s) of the tet mesh that hold no shell vertex (1 tets)" in caplog.text
+    np.testing.assert_array_equal(cage.vertices, grid_v)
+    np.testing.assert_array_equal(cage.tets, grid_t)
+    check_cage(cage, outer, inner)
+
+
+def test_an_undilated_mesh_in_pieces_is_not_told_to_raise_the_margin():
+    ball = trimesh.creation.icosphere(subdivisions=2)
+    two = trimesh.util.concatenate([ball, ball.copy().apply_translation([4.0, 0, 0])])
+    undilated = CageConfig(margin=0.0, target_tets=1000, tolerance=3.0, max_attempts=1)
+    with pytest.raises(InputError, match="one connected solid") as err:
+        build_cage(two, two, undilated, what="twins.ply")
+    assert "--margin" not in str(err.value)
+
+
+@pytest.mark.parametrize("command", ["simulate", "wind"])
+def test_commands_that_build_cages_take_margin(sphere_asset, monkeypatch, tmp_path, command):
+    """The advice of a cage in pieces is 'Raise --margin': every command that builds a cage has one."""
+    configs = []
+
+    def record(asset, config=None, rebuild=False):
+        configs.append(config)
+        raise InputError("recorded")
+
+    monkeypatch.setattr(cage_module, "load_or_build_cage", record)
+    out = str(tmp_path / "m.npz")
+    assert main([command, "--asset", str(sphere_asset), "--margin", "0.07", "--out", out]) == 2
+    assert configs == [CageConfig(margin=0.07)]
+
+
+def test_shipped_lego_cage_is_loaded_not_built(monkeypatch):
+    """The shipped asset ships its cage (a few MB at most): the README's main command never runs fTetWild."""
+    asset = load_asset("lego")
+    assert asset.cage_path.is_file() and asset.cage_path.stat().st_size < 3e6
+
+    def no_build(*args, **kwargs):
+        raise AssertionError("the shipped cage was rebuilt")
+
+    monkeypatch.setattr(cage_module, "build_cage", no_build)
+    cage = load_or_build_cage(asset)
+    assert cage.config == CageConfig()
+    summary = cage_summary(cage)
+    assert summary["outside"] == 0 and summary["outer_vertices"] == len(asset.outer_mesh().vertices)
+
+
+@pytest.mark.slow
+def test_shipped_lego_cage_is_what_the_builder_makes():
+    """Rebuilding the shipped cage with its settings gives it again, bit for bit (about a minute)."""
+    asset = load_asset("lego")
+    shipped = load_cage(asset.cage_path, (asset.outer_mesh(), asset.inner_mesh()))
+    rebuilt = build_cage(asset.outer_mesh(), asset.inner_mesh(), shipped.config)
+    for key in ("vertices", "tets", "outer_tet", "outer_bary", "inner_tet", "inner_bary"):
+        np.testing.assert_array_equal(getattr(rebuilt, key), getattr(shipped, key), err_msg=key)

@@ -1,10 +1,12 @@
 """``shellsim simulate``: drop an asset's cage (or a closed mesh, tetrahedralised) as an elastic body.
 
 Thin: parse, build the cage and the :class:`shellsim.fem.Simulator`, drive :func:`shellsim.fem.simulate`
-into a motion file, report. The world frame is kept: the cage is scaled so that its largest extent measures
-``--size`` metres, simulated in SI units, and written back in world coordinates (``meta['world']`` holds the
-scale). An existing ``--out`` made with the same settings is continued from its last frame with the velocities
-stored in its meta; one made with other settings is refused unless ``--overwrite``.
+into a motion file, report. The world frame is kept: an asset's cage is scaled so that its largest extent
+measures ``--size`` metres (default 0.3); a ``--mesh`` is the body itself, in metres (or ``--units``), not
+dilated, and scaled only when ``--size`` asks. It is simulated in SI units and written back in world
+coordinates (``meta['world']`` holds the scale and why). An existing ``--out`` made with the same settings
+is continued from its last frame with the velocities stored in its meta; one made with other settings is
+refused unless ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -25,6 +27,10 @@ log = logging.getLogger(__name__)
 
 _NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?"
 _PIN = re.compile(rf"\s*([xyzXYZ])\s*(<=|>=|<|>)\s*({_NUMBER})\s*(%?)\s*")
+#: Metres per unit of a --mesh file's coordinates (--units).
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
+#: Size in metres of an asset's largest extent when --size is not given.
+ASSET_SIZE = 0.3
 
 
 @dataclass(frozen=True)
@@ -86,8 +92,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--size",
         type=float,
-        default=0.3,
-        help="physical size in metres of the cage's largest extent (default 0.3)",
+        help=f"scale the body so that its largest extent measures this many metres (default {ASSET_SIZE} "
+        "for --asset; a --mesh keeps its own size, see --units)",
+    )
+    p.add_argument(
+        "--units",
+        choices=list(UNITS),
+        help="length unit of the --mesh file's coordinates (default m); not with --size",
+    )
+    p.add_argument(
+        "--margin",
+        type=float,
+        help="dilation of the asset's outer shell when its cage is built, relative to its bounding-box "
+        "diagonal (default 0.02); a --mesh is tetrahedralised as it is",
     )
     p.add_argument(
         "--drop-height",
@@ -197,6 +214,8 @@ def _parameters(args: argparse.Namespace, material, up) -> dict:
         "fps": args.fps,
         "substeps": args.substeps,
         "size": args.size,
+        "units": args.units,
+        "margin": args.margin,
         "drop_height": None if args.no_ground else args.drop_height,
         "up": [float(c) for c in up],
         "pins": list(args.pin),
@@ -225,18 +244,36 @@ _OPTIONS = {
 }
 
 
+def _check_scale_options(args: argparse.Namespace) -> None:
+    """Refuse --size/--units/--margin that do not fit the source; an asset's --size defaults to ASSET_SIZE."""
+    if args.units is not None and (args.asset or args.size is not None):
+        raise InputError(
+            "--units: gives the unit of a --mesh file's coordinates; "
+            + ("an asset is scaled by --size" if args.asset else "not with --size, which sets the size")
+        )
+    if args.margin is not None:
+        if args.mesh:
+            raise InputError("--margin: dilates an asset's shell into its cage; a --mesh is the body itself")
+        check_range("--margin", args.margin, 0, 1, "a fraction of the shell's diagonal", "(]")
+    if args.asset and args.size is None:
+        args.size = ASSET_SIZE
+
+
 def _load_cage(args: argparse.Namespace):
-    """(vertices, tets, up) of the rest cage, world frame."""
+    """(vertices, tets, up) of the rest cage, world frame. An asset's cage is its stored one when it fits
+    --tets/--margin; a --mesh is tetrahedralised undilated (margin 0)."""
     from neural.asset import load_asset, load_mesh
     from shellsim import cage as cages
 
-    config = cages.CageConfig(target_tets=args.tets) if args.tets else None
     if args.asset:
+        settings = {"target_tets": args.tets, "margin": args.margin}
+        settings = {k: v for k, v in settings.items() if v is not None}
         asset = load_asset(args.asset)
-        cage = cages.load_or_build_cage(asset, config)
+        cage = cages.load_or_build_cage(asset, cages.CageConfig(**settings) if settings else None)
         up = asset.up
     else:
         mesh = load_mesh(Path(args.mesh))
+        config = cages.CageConfig(margin=0.0, **({"target_tets": args.tets} if args.tets else {}))
         cage = cages.build_cage(mesh, mesh, config, what=str(args.mesh))
         up = np.array([0.0, 0.0, 1.0])
     return cage.vertices, cage.tets, up
@@ -255,7 +292,8 @@ def _check_numbers(args: argparse.Namespace) -> None:
     if args.tets is not None:
         check_range("--tets", args.tets, 10, 1_000_000, "an integer")
     check_range("--fps", args.fps, 0, MAX_FPS, "a number of frames per second", "(]")
-    check_range("--size", args.size, 1e-3, 1e3, "a length in metres")
+    if args.size is not None:
+        check_range("--size", args.size, 1e-3, 1e3, "a length in metres")
     check_range("--drop-height", args.drop_height, 0, 100, "a height in metres")  # lands below 45 m/s
     check_range("--friction", args.friction, 0, 10, "a Coulomb coefficient")
     check_range("--damping", args.damping, 0, 10, "a time in seconds")
@@ -271,7 +309,7 @@ def _check_numbers(args: argparse.Namespace) -> None:
     if args.velocity:
         speed = float(np.linalg.norm(parse_floats("--velocity", args.velocity, 3)))
         check_range("--velocity", speed, 0, max_speed, "a speed in m/s (the simulator's limit)", "[)")
-    if args.spin:
+    if args.spin and args.size is not None:  # a --mesh in its own units: the simulator checks speeds
         rate = float(np.linalg.norm(parse_floats("--spin", args.spin, 3)))
         what = f"an angular speed in rad/s at --size {args.size:g}"  # the rim below max_speed
         check_range("--spin", rate, 0, max_speed / args.size, what, "[)")
@@ -304,6 +342,27 @@ def _mesh_surface(path: Path, vertices: np.ndarray, tets: np.ndarray):
     return Surface(tet, bary, np.asarray(mesh.faces, np.int64))
 
 
+def _world_map(args: argparse.Namespace, vertices: np.ndarray):
+    """The :class:`shellsim.fem.WorldMap` of the body (vertices (V, 3), world units) and one line saying
+    how it is scaled, logged and kept in the motion's meta."""
+    from shellsim.fem import WorldMap
+
+    extent = float(np.ptp(vertices, axis=0).max())
+    if args.size is not None:
+        world = WorldMap.fit(vertices, args.size)
+        return world, (
+            f"scaled by {world.scale:.6g} m per unit (largest extent {extent:.6g} units -> "
+            f"--size {args.size:g} m)"
+        )
+    units = args.units or "m"
+    lo, hi = vertices.min(0), vertices.max(0)
+    world = WorldMap(tuple(float(c) for c in (lo + hi) / 2), UNITS[units])
+    return world, (
+        f"not rescaled: coordinates in {units} ({world.scale:g} m per unit), "
+        f"largest extent {extent * world.scale:.6g} m"
+    )
+
+
 def simulate_to_file(args: argparse.Namespace) -> Path:
     """Run the simulation the arguments describe; returns the motion file written."""
     from shellsim.contact import Box, Sphere
@@ -311,6 +370,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     from shellsim.materials import get_material
     from shellsim.motion import MotionWriter, describe_changes
 
+    _check_scale_options(args)
     _check_numbers(args)
     material = get_material(args.material, args.youngs, args.poisson, args.density)
     rules = [parse_pin(text) for text in args.pin]
@@ -342,7 +402,8 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
         if args.up is not None:
             up = parse_floats("--up", args.up, 3)
         params = _parameters(args, material, up)
-        world = WorldMap.fit(vertices, args.size)
+        world, how = _world_map(args, vertices)
+        log.info("%s: %s", name, how)
     if np.linalg.norm(up) == 0:
         raise InputError("--up: the up axis must be a non-zero vector")
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
@@ -377,7 +438,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
         meta = {
             "producer": "shellsim simulate",
             "params": params,
-            "world": {"origin": list(world.origin), "scale": world.scale},
+            "world": {"origin": list(world.origin), "scale": world.scale, "scaling": how},
             "units": "positions in world units; meta.world.scale is metres per world unit; "
             "state.velocities in world units per second",
             "settings": settings.as_dict(),

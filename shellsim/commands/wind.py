@@ -57,6 +57,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         f"(default: the lowest {100 * W.base_fraction:g}%% of the cage along the asset's up axis)",
     )
     p.add_argument("--seed", type=int, default=None, help=f"turbulence seed (default {W.seed})")
+    p.add_argument(
+        "--margin",
+        type=float,
+        default=None,
+        help="dilation of the outer shell when the cage is built, relative to its diagonal (default 0.02)",
+    )
     p.add_argument("--out", default=None, help="motion file to write (default ASSETNAME_wind.npz)")
     again = p.add_mutually_exclusive_group()
     again.add_argument(
@@ -76,7 +82,7 @@ def run(args: argparse.Namespace) -> None:
 
     from neural.asset import load_asset
     from neural.errors import InputError
-    from shellsim.cage import load_or_build_cage
+    from shellsim.cage import CageConfig, load_or_build_cage
     from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats
     from shellsim.motion import MotionWriter
     from shellsim.wind import RANGES, WindSettings, animate_wind, max_frequency, wind_meta
@@ -99,6 +105,8 @@ def run(args: argparse.Namespace) -> None:
             f"{max_frequency(args.fps):.4g} (--fps / {args.fps / max_frequency(args.fps):g}: faster "
             f"turbulence would alias), got {frequency:g}"
         )
+    if args.margin is not None:
+        check_range("--margin", args.margin, 0, 1, "a fraction of the shell's diagonal", "(]")
     asset = load_asset(args.asset)
     options = {
         "strength": args.strength,
@@ -111,7 +119,8 @@ def run(args: argparse.Namespace) -> None:
     if args.direction is not None:
         options["direction"] = parse_floats("--direction", args.direction, 3)  # WindSettings rejects 0,0,0
     settings = WindSettings(up=tuple(asset.up), **{k: v for k, v in options.items() if v is not None})
-    cage = load_or_build_cage(asset)  # the stored cage whatever its settings, else a default one
+    # the stored cage whatever its settings (unless --margin asks for another), else a default one
+    cage = load_or_build_cage(asset, None if args.margin is None else CageConfig(margin=args.margin))
     out = Path(args.out) if args.out else Path(f"{asset.name}_wind.npz")
     meta = {**wind_meta(settings, args.fps), "asset": asset.name}
     if out.is_file() and not args.overwrite:

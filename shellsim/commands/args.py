@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from neural.errors import InputError
+from shellsim.selection import Selection, parse_selection
 
 
 def parse_size(flag: str, text: str) -> tuple[int, int]:
@@ -24,3 +25,12 @@ def parse_floats(flag: str, text: str, count: int) -> tuple[float, ...]:
     if len(values) != count or not all(math.isfinite(v) for v in values):
         raise InputError(f"{flag}: expected {count} comma-separated numbers, got {text!r}")
     return values
+
+
+def parse_rule(flag: str, text: str) -> Selection:
+    """A vertex selection ``AXIS OP VALUE[%]`` (:mod:`shellsim.selection`); junk is an InputError naming
+    ``flag``."""
+    try:
+        return parse_selection(text)
+    except InputError as err:
+        raise InputError(f"{flag} {err}") from None

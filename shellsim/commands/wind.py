@@ -44,8 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--anchor",
         default=None,
-        help="fixed vertices as AXIS<VALUE or AXIS>VALUE in world units, e.g. 'z<0.05' "
-        f"(default: the lowest {100 * W.base_fraction:g}%% of the cage along the asset's up axis)",
+        help="fixed vertices as AXIS OP VALUE in world units or in %% of the cage's extent, as for "
+        "'simulate --pin': 'z<0.05', 'z<5%%', 'y>0.9' (default: the lowest "
+        f"{100 * W.base_fraction:g}%% of the cage along the asset's up axis)",
     )
     p.add_argument("--seed", type=int, default=None, help=f"turbulence seed (default {W.seed})")
     p.add_argument("--out", default=None, help="motion file to write (default ASSETNAME_wind.npz)")
@@ -59,7 +60,7 @@ def run(args: argparse.Namespace) -> None:
     from neural.asset import load_asset
     from neural.errors import InputError
     from shellsim.cage import load_or_build_cage
-    from shellsim.commands.args import parse_floats
+    from shellsim.commands.args import parse_floats, parse_rule
     from shellsim.motion import MotionWriter
     from shellsim.wind import WindSettings, animate_wind, wind_meta
 
@@ -67,6 +68,8 @@ def run(args: argparse.Namespace) -> None:
         raise InputError(f"--frames: expected a positive integer, got {args.frames}")
     if not 0 < args.fps < float("inf"):
         raise InputError(f"--fps: expected a positive number, got {args.fps}")
+    if args.anchor is not None:
+        parse_rule("--anchor", args.anchor)
     asset = load_asset(args.asset)
     options = {
         "strength": args.strength,

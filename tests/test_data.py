@@ -603,3 +603,33 @@ def test_cameras_all_at_the_centre_they_look_at_is_an_input_error(tmp_path):
     with pytest.raises(InputError, match="every camera sits at the point they look at"):
         load_dataset(tmp_path)
     assert load_dataset(tmp_path, bound=2.0).normalisation.scale == 0.5
+
+
+def test_a_camera_file_that_is_a_directory_empty_or_not_utf8(tmp_path):
+    with pytest.raises(InputError, match="is a directory, not a camera file$"):
+        load_camera_file(tmp_path)
+    empty = tmp_path / "empty.json"
+    empty.write_bytes(b"")
+    with pytest.raises(InputError, match=r"empty\.json: the file is empty"):
+        load_camera_file(empty)
+    latin = tmp_path / "latin.json"
+    latin.write_bytes(b'{"frames": [], "note": "caf\xe9"}')
+    with pytest.raises(InputError, match=r"latin\.json: not a UTF-8 text file \(byte 0xe9 at offset 27\)$"):
+        load_camera_file(latin)
+
+
+def test_16_bit_grey_images_keep_their_values(tmp_path):
+    """PIL's convert('RGB') clips 16-bit grey to 255; the loader scales it by 1/65535 instead."""
+    _write_synthetic(tmp_path, {"train": 2}, size=(4, 4))
+    grey = np.arange(16, dtype=np.uint16).reshape(4, 4) * 4000
+    Image.fromarray(grey).save(tmp_path / "train" / "r_1.png")
+    assert Image.open(tmp_path / "train" / "r_1.png").mode.startswith("I;16")
+    data = load_dataset(tmp_path)
+    np.testing.assert_allclose(data.images[1], np.repeat(grey[:, :, None] / 65535, 3, axis=2), atol=1e-6)
+    np.testing.assert_array_equal(data.alphas[1], 1.0)  # no alpha channel: fully covered
+    Image.fromarray(grey.astype(np.int32)).save(tmp_path / "train" / "r_1.tif")  # 32-bit 'I'
+    meta = json.loads((tmp_path / "transforms_train.json").read_text())
+    meta["frames"][1]["file_path"] = "./train/r_1.tif"
+    (tmp_path / "transforms_train.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"r_1\.tif: 32-bit 'I' images are not supported"):
+        load_dataset(tmp_path)

@@ -66,9 +66,9 @@ class Cameras:
                 raise ValueError(f"{name}: expected shape ({n},), got {value.shape}")
             bad = ~np.isfinite(value) | ((value <= 0) if name in ("fx", "fy") else False)
             if bad.any():
-                what = "positive" if name in ("fx", "fy") else "finite"
+                what, first = ("positive" if name in ("fx", "fy") else "finite"), int(bad.argmax())
                 raise ValueError(
-                    f"{name}: expected {what} numbers, got {float(value[bad][0])} at camera {int(bad.argmax())}"
+                    f"{name}: expected {what} numbers, got {float(value[first])} at camera {first}"
                 )
             setattr(self, name, value)
         for name in ("width", "height"):

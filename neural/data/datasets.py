@@ -199,6 +199,8 @@ def load_camera_file(path: str | os.PathLike, width: int | None = None, height: 
     if (width is None) != (height is None):
         raise ValueError(f"width, height: give both or neither, got {width!r}, {height!r}")
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, not a camera file")
     if not path.is_file():
         raise InputError(f"{path}: camera file not found")
     frames = _read_frames(path, need_images=False)
@@ -228,7 +230,9 @@ def _normalisation(fmt: str, cameras: Cameras, json_path: Path, meta: dict, boun
     center = _focus_point(cameras.c2w)
     distance = float(np.mean(np.linalg.norm(cameras.c2w[:, :3, 3] - center, axis=1)))
     if bound is None and not distance > 0:
-        raise InputError(f"{json_path}: every camera sits at the point they look at: give the bound explicitly")
+        raise InputError(
+            f"{json_path}: every camera sits at the point they look at: give the bound explicitly"
+        )
     half = NGP_CUBE_FRACTION * distance if bound is None else float(bound)
     up = cameras.c2w[:, :3, 1].mean(axis=0)
     aabb_scale = _number(json_path, "top-level 'aabb_scale'", "aabb_scale", meta.get("aabb_scale", 1))
@@ -257,11 +261,19 @@ def _locate(path: Path) -> tuple[Path, str, list[Path]]:
 
 def _read_frames(json_path: Path, need_images: bool = True) -> list[_Frame]:
     try:
-        meta = json.loads(json_path.read_text())
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{json_path}: cannot read: {err}") from err
+        text = json_path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise InputError(f"{json_path}: cannot read: {err.strerror}") from None
+    except UnicodeDecodeError as err:
+        raise InputError(
+            f"{json_path}: not a UTF-8 text file (byte {err.object[err.start]:#04x} at offset {err.start})"
+        ) from None
+    if not text.strip():
+        raise InputError(f"{json_path}: the file is empty, expected a JSON object with a 'frames' list")
+    try:
+        meta = json.loads(text)
     except json.JSONDecodeError as err:
-        raise InputError(f"{json_path}: malformed JSON: {err}") from err
+        raise InputError(f"{json_path}: malformed JSON: {err}") from None
     if not isinstance(meta, dict):
         raise InputError(f"{json_path}: expected a JSON object at the top level")
     if not isinstance(meta.get("frames"), list):
@@ -436,13 +448,18 @@ def _load_image(path: Path, downscale: float, background: np.ndarray):
     """
     try:
         with Image.open(path) as im:
+            if im.mode in ("I", "F"):
+                raise InputError(f"{path}: 32-bit {im.mode!r} images are not supported (only 8 or 16 bits)")
             has_alpha = im.mode in ("RGBA", "LA", "PA", "RGBa") or "transparency" in im.info
-            pixels = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
+            if im.mode.startswith("I;16"):  # 16-bit grey: convert() would clip it to 8 bits
+                pixels, peak = np.repeat(np.asarray(im)[:, :, None], 3, axis=2), 65535
+            else:
+                pixels, peak = np.asarray(im.convert("RGBA" if has_alpha else "RGB")), 255
     except (OSError, UnidentifiedImageError) as err:
-        raise InputError(f"{path}: cannot read image: {err}") from err
+        raise InputError(f"{path}: cannot read image: {err}") from None
     full = (pixels.shape[1], pixels.shape[0])
     planes = np.empty((pixels.shape[2], full[1], full[0]), np.float32)  # channels first: fast inner loops
-    np.multiply(pixels.transpose(2, 0, 1), np.float32(1 / 255), out=planes)
+    np.multiply(pixels.transpose(2, 0, 1), np.float32(1 / peak), out=planes)
     if has_alpha:  # straight (unassociated) alpha as PNG stores it: rgb a + bg (1 - a) = bg + a (rgb - bg)
         bg = background[:, None, None]
         planes[:3] -= bg

@@ -489,7 +489,7 @@ BAD_POSES = {
         np.block([[np.eye(3) + np.triu(np.full((3, 3), 0.3), 1), np.zeros((3, 1))], [0, 0, 0, 1]]),
         "orthonormal",
     ),
-    "mirrored": (np.diag([1.0, 1.0, -1.0, 1.0]), "determinant -1"),
+    "mirrored": (np.diag([1.0, 1.0, -1.0, 1.0]), "negative determinant: a mirror image"),
     "projective last row": (
         np.vstack([np.eye(4)[:3], [0.0, 0.0, 1.0, 1.0]]),
         "last row 0 0 0 1, got 0 0 1 1",

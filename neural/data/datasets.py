@@ -6,7 +6,8 @@ Both formats store per-frame ``transform_matrix`` camera-to-world in OpenGL axes
 ``.png`` extension). Intrinsics are read by one rule for both: keys of the frame override keys of the file;
 ``fl_x`` (else ``0.5 w / tan(camera_angle_x / 2)``), ``fl_y`` (else from ``camera_angle_y``, else
 ``fl_x``), ``cx = w / 2``, ``cy = h / 2``, ``k1 k2 p1 p2 = 0`` by default; ``w``, ``h`` default to the
-image's size.
+image's size. Every pose must be rigid (:func:`camera_pose`) and every intrinsic valid (:func:`_number`);
+errors name the file and the frame with its ``file_path``, or the top-level key.
 
 Normalisation into the field's unit cube ``u = (x - center) * scale``:
 
@@ -334,7 +335,7 @@ def camera_pose(value) -> np.ndarray:
             f"column lengths {lengths}): a pose has no scale or shear"
         )
     if np.linalg.det(rot) < 0:
-        raise ValueError("has a rotation part with determinant -1: a mirror image, not a camera pose")
+        raise ValueError("has a rotation part with a negative determinant: a mirror image, not a camera pose")
     return m
 
 

@@ -172,6 +172,7 @@ def load_asset(spec: str | os.PathLike) -> Asset:
         raise InputError(f"{meta_path}: normalisation needs center [x, y, z] and scale > 0") from None
     if center.shape != (3,) or not np.isfinite(center).all() or not (scale > 0 and np.isfinite(scale)):
         raise InputError(f"{meta_path}: normalisation needs center [x, y, z] and scale > 0")
+    _check_optional_keys(meta_path, meta)
     asset = Asset(root, meta)
     for key in REQUIRED_FILES:
         if key not in meta["files"]:
@@ -179,6 +180,34 @@ def load_asset(spec: str | os.PathLike) -> Asset:
         if not asset.file(key).is_file():
             raise InputError(f"{asset.file(key)}: file listed in asset.json is missing")
     return asset
+
+
+def _check_optional_keys(meta_path: Path, meta: dict) -> None:
+    """``up`` (3 finite numbers, not all 0), ``background`` (3 in [0, 1]), ``name`` (a string) and
+    ``training.downscale`` (a whole number >= 1) when present; anything else is an :class:`InputError`."""
+
+    def three(value) -> np.ndarray | None:
+        ok = isinstance(value, list) and len(value) == 3
+        ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+        return np.asarray(value, dtype=np.float64) if ok and np.isfinite(value).all() else None
+
+    up, bg = three(meta.get("up", [0, 0, 1])), three(meta.get("background", [1, 1, 1]))
+    if up is None or not np.any(up):
+        raise InputError(f"{meta_path}: 'up' must be 3 finite numbers, not all 0, got {meta.get('up')!r}")
+    if bg is None or bg.min() < 0 or bg.max() > 1:
+        raise InputError(
+            f"{meta_path}: 'background' must be 3 numbers in [0, 1], got {meta.get('background')!r}"
+        )
+    if not isinstance(meta.get("name", ""), str):
+        raise InputError(f"{meta_path}: 'name' must be a string, got {meta['name']!r}")
+    training = meta.get("training", {})
+    downscale = training.get("downscale", 1) if isinstance(training, dict) else None
+    number = isinstance(downscale, int | float) and not isinstance(downscale, bool)
+    if not (number and downscale >= 1 and float(downscale).is_integer()):
+        raise InputError(
+            f"{meta_path}: 'training.downscale' must be a whole number >= 1, "
+            f"got {downscale if isinstance(training, dict) else training!r}"
+        )
 
 
 def save_asset(root, field, outer, inner, meta: dict) -> Path:

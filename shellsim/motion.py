@@ -90,26 +90,41 @@ def save_motion(path: str | os.PathLike, motion: Motion) -> None:
 
 
 def load_motion(path: str | os.PathLike) -> Motion:
-    """Read and validate a motion file; any problem is an :class:`InputError` naming the file."""
+    """Read and validate a motion file; any problem is one :class:`InputError` naming the file."""
     path = Path(path)
     arrays = load_npz(path, KEYS, "motion", optional=SURFACE_KEYS)
-    rest, tets, pos, times = (arrays[k] for k in KEYS[:4])
+
+    def refuse(reason: str) -> InputError:
+        return InputError(f"{path}: not a shellsim motion file ({reason})")
+
+    rest, tets, pos, times, meta = (arrays[k] for k in KEYS)
+    for name, value in (("rest_vertices", rest), ("positions", pos), ("times", times)):
+        if not np.issubdtype(value.dtype, np.floating):
+            raise refuse(f"{name} must hold floats, got {value.dtype}")
     if rest.ndim != 2 or rest.shape[1] != 3:
-        raise InputError(f"{path}: rest_vertices must be (V, 3), got {rest.shape}")
+        raise refuse(f"rest_vertices must be (V, 3), got {rest.shape}")
     try:
         tets = check_tets(tets, len(rest), allow_empty=True)
     except ValueError as err:
-        raise InputError(f"{path}: {err}") from None
+        raise refuse(str(err)) from None
     if pos.ndim != 3 or pos.shape[1:] != rest.shape or pos.shape[0] < 1:
-        raise InputError(f"{path}: positions must be (F, {len(rest)}, 3) with F >= 1, got {pos.shape}")
+        raise refuse(f"positions must be (F, {len(rest)}, 3) with F >= 1, got {pos.shape}")
     if times.shape != (pos.shape[0],):
-        raise InputError(f"{path}: times must be ({pos.shape[0]},), got {times.shape}")
-    if not (np.isfinite(pos).all() and np.isfinite(times).all()):
-        raise InputError(f"{path}: positions or times contain NaN or infinity")
+        raise refuse(f"times must be ({pos.shape[0]},), got {times.shape}")
+    if not np.isfinite(rest).all():
+        raise refuse("rest_vertices contains NaN or infinity")
+    bad = ~(np.isfinite(pos).all(axis=(1, 2)) & np.isfinite(times))
+    if bad.any():
+        more = f" (and {int(bad.sum()) - 1} more frames)" if bad.sum() > 1 else ""
+        raise refuse(f"frame {int(bad.argmax())} has NaN or infinite positions or time{more}")
+    if meta.shape != () or meta.dtype.kind not in "US":
+        raise refuse(f"meta must be one JSON string, got {meta.dtype} {meta.shape}")
     try:
-        meta = json.loads(str(arrays["meta"]))
+        meta = json.loads(str(meta))
     except json.JSONDecodeError as err:
-        raise InputError(f"{path}: meta is not valid JSON ({err})") from None
+        raise refuse(f"meta is not valid JSON: {err}") from None
+    if not isinstance(meta, dict):
+        raise refuse(f"meta must be a JSON object, got {type(meta).__name__}")
     return Motion(
         rest.astype(np.float64),
         tets.astype(np.int64),

@@ -21,18 +21,55 @@ def save_npz(path: str | os.PathLike, **arrays) -> None:
 
 
 def load_npz(path: str | os.PathLike, keys, what: str, optional=()) -> dict[str, np.ndarray]:
-    """The arrays ``keys`` of the ``what`` file (e.g. "cage") at ``path``, and those of ``optional`` it has;
-    a missing file, a missing key or an unreadable file is an :class:`InputError` naming the file."""
+    """The arrays ``keys`` of the ``what`` file (e.g. "cage") at ``path``, and those of ``optional`` it has.
+
+    Never unpickles: an array of Python objects is refused from its header, before it is read. Any problem is
+    one :class:`InputError` naming the file: not found, a directory, unreadable, or ``not a shellsim WHAT
+    file (...)`` for anything that is not an ``.npz`` archive holding ``keys`` as plain arrays (another
+    kind of file, a truncated or damaged archive, missing keys).
+    """
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, not a {what} file")
     if not path.is_file():
         raise InputError(f"{path}: {what} file not found")
+
+    def refuse(reason: str) -> InputError:
+        return InputError(f"{path}: not a shellsim {what} file ({reason})")
+
+    try:
+        with path.open("rb") as f:
+            head = f.read(4)
+    except OSError as err:
+        raise InputError(f"{path}: cannot read {what} file ({err.strerror})") from None
+    if head not in _ZIP_MAGIC:
+        raise refuse("not an .npz archive" if head else "the file is empty")
     try:
         with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in keys if k not in data.files]
+            members = set(data.zip.namelist())
+            missing = [k for k in keys if f"{k}.npy" not in members]
             if missing:
-                raise InputError(f"{path}: not a {what} file, missing {', '.join(missing)}")
-            return {k: data[k] for k in (*keys, *optional) if k in data.files}
+                raise refuse(f"missing the array{'s' * (len(missing) > 1)} {', '.join(missing)}")
+            present = [k for k in optional if f"{k}.npy" in members]
+            for k in (*keys, *present):
+                if _header_dtype(data, k).hasobject:
+                    raise refuse(f"{k!r} holds Python objects, which are never loaded")
+            return {k: data[k] for k in (*keys, *present)}
     except InputError:
         raise
-    except Exception as err:  # zip/npy format errors come in many types
-        raise InputError(f"{path}: cannot read {what} file ({err})") from None
+    except Exception as err:  # zip, zlib and .npy format errors come in many types
+        raise refuse(f"damaged archive: {err or type(err).__name__}") from None
+
+
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # a zip's first entry, or an empty zip
+
+
+def _header_dtype(data, key: str) -> np.dtype:
+    """The dtype in the ``.npy`` header of ``key`` in the open :class:`numpy.lib.npyio.NpzFile` ``data``."""
+    with data.zip.open(f"{key}.npy") as f:
+        version = np.lib.format.read_magic(f)
+        if version == (1, 0):
+            return np.lib.format.read_array_header_1_0(f)[2]
+        if version == (2, 0):
+            return np.lib.format.read_array_header_2_0(f)[2]
+        raise ValueError(f"unsupported .npy format version {version}")

@@ -16,9 +16,11 @@ No simulation: the object is treated as a cantilever anchored at its base and lo
   modes makes the object flutter sideways (``ell_hat = a x w_hat``) with half that amplitude.
 - **Length.** Bending a rod sideways by ``u(h)`` lowers it by ``int_0^h u'(s)^2 / 2 ds`` when its length is
   kept; the same drop is applied along ``-a``.
-- **Anchor.** Vertices with ``h <= 0`` never move (``w(0) = 0`` exactly). ``anchor`` is ``"AXIS<VALUE"``
-  (e.g. ``"z<0.05"``: everything below is fixed, the object stands on it) or ``"AXIS>VALUE"`` (it hangs
-  from it); None anchors the lowest ``base_fraction`` of the cage along ``up``.
+- **Anchor.** Vertices with ``h <= 0`` never move (``w(0) = 0`` exactly). ``anchor`` is a vertex selection
+  of :mod:`shellsim.selection`, the grammar of ``simulate --pin``: ``"z<0.05"`` or ``"z<5%"`` (everything
+  below is fixed, the object stands on it), ``"z>0.9"`` (it hangs from it); ``<`` and ``<=`` fix the same
+  vertices, since those on the threshold have ``h = 0``. None anchors the lowest ``base_fraction`` of the
+  cage along ``up``.
 
 - **Limit.** The second-order drop leaves a tet the volume ratio ``1 - slope^2 / 2``, and turbulence
   compresses the cage along the wind: where a frame would squeeze a tet below
@@ -35,7 +37,6 @@ import json
 import logging
 import math
 import numbers
-import re
 import time
 from dataclasses import asdict, dataclass
 
@@ -43,34 +44,21 @@ import numpy as np
 
 from neural.errors import InputError
 
+from .selection import Selection, parse_selection
 from .validity import MIN_VOLUME_RATIO, volumes6
 
 log = logging.getLogger(__name__)
 
-_ANCHOR = re.compile(r"\s*([xyz])\s*([<>])\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?)\s*", re.IGNORECASE)
 _BINS = 64  # resolution of the beam profile along the bending axis
 _MODES = 3  # turbulence modes
 
 
-@dataclass(frozen=True)
-class Anchor:
-    """A parsed ``"AXIS<VALUE"``: vertices with ``sign * (x[axis] - value) < 0`` are fixed."""
-
-    axis: int  # 0, 1, 2 for x, y, z
-    sign: float  # +1 for "<" (standing on the anchor), -1 for ">" (hanging from it)
-    value: float
-
-
-def parse_anchor(spec: str) -> Anchor:
-    """``"z<0.05"`` -> ``Anchor(2, 1.0, 0.05)``; anything else is an :class:`InputError`. Never evaluated."""
-    match = _ANCHOR.fullmatch(spec) if isinstance(spec, str) else None
-    value = float(match.group(3)) if match else math.nan
-    if not math.isfinite(value):
-        raise InputError(
-            f"anchor {spec!r}: expected AXIS<VALUE or AXIS>VALUE with AXIS one of x, y, z and a finite "
-            "number, e.g. 'z<0.05'"
-        )
-    return Anchor("xyz".index(match.group(1).lower()), 1.0 if match.group(2) == "<" else -1.0, value)
+def parse_anchor(spec) -> Selection:
+    """``"z<0.05"``, ``"z<5%"`` -> a :class:`Selection`; anything else is an :class:`InputError`."""
+    try:
+        return parse_selection(spec)
+    except InputError as err:
+        raise InputError(f"anchor {err}") from None
 
 
 def _plain(v) -> str:
@@ -125,7 +113,7 @@ class WindSettings:
     frequency: float = 0.5  # Hz, gusts and the longest turbulence mode
     turbulence: float = 0.2  # relative amplitude of the travelling modes
     wavelength: float = 1.0  # of the longest turbulence mode, / L
-    anchor: str | None = None  # "AXIS<VALUE" / "AXIS>VALUE"; None: the lowest base_fraction along up
+    anchor: str | None = None  # "AXIS OP VALUE[%]" (shellsim.selection); None: lowest base_fraction along up
     base_fraction: float = 0.05
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     thinness: float = 2.0  # exponent k of EI(h) ~ r(h)^k; 0 ignores the cross-section
@@ -166,7 +154,7 @@ def heights(rest_vertices: np.ndarray, settings: WindSettings) -> np.ndarray:
             raise InputError(f"the cage has no extent along the up axis {settings.up}: nothing to bend")
         return along - (along.min() + settings.base_fraction * (along.max() - along.min()))
     anchor = parse_anchor(settings.anchor)
-    h = anchor.sign * (rest[:, anchor.axis] - anchor.value)
+    h = anchor.sign * (rest[:, anchor.axis] - anchor.threshold(rest))
     if h.max() <= 0 or h.min() > 0:
         axis = "xyz"[anchor.axis]
         what = "every" if h.max() <= 0 else "no"

@@ -1,6 +1,7 @@
 import json
 import logging
 import math
+import re
 
 import numpy as np
 import pytest
@@ -313,7 +314,9 @@ def test_missing_key_names_the_file_frame_and_key(tmp_path):
     meta = json.loads((tmp_path / "transforms_train.json").read_text())
     del meta["frames"][3]["transform_matrix"]
     (tmp_path / "transforms_train.json").write_text(json.dumps(meta))
-    with pytest.raises(InputError, match=r"transforms_train\.json: frame 3 has no 'transform_matrix'"):
+    with pytest.raises(
+        InputError, match=r"transforms_train\.json: frame 3 \(\./train/r_3\) has no 'transform_matrix'"
+    ):
         load_dataset(tmp_path)
 
 
@@ -322,7 +325,10 @@ def test_missing_focal_length_is_an_input_error(tmp_path):
     meta = json.loads((tmp_path / "transforms_train.json").read_text())
     del meta["camera_angle_x"]
     (tmp_path / "transforms_train.json").write_text(json.dumps(meta))
-    with pytest.raises(InputError, match=r"transforms_train\.json: frame 0: no 'fl_x' or 'camera_angle_x'"):
+    message = (
+        r"transforms_train\.json: no focal length: neither the top level nor frame 0 \(\./train/r_0\) has"
+    )
+    with pytest.raises(InputError, match=message + " 'fl_x' or 'camera_angle_x'"):
         load_dataset(tmp_path)
 
 
@@ -402,7 +408,7 @@ def test_ngp_focal_from_camera_angles_and_size_from_the_image(tmp_path):
 
 def test_ngp_size_that_disagrees_with_the_image_is_an_input_error(tmp_path):
     _write_ngp(tmp_path, w=16)
-    message = r"transforms\.json: frame 0: 'w' x 'h' = 16x10 but .*0000\.png is 8x10"
+    message = r"transforms\.json: frame 0 \(images/0000\.png\): 'w' x 'h' = 16x10 but .*0000\.png is 8x10"
     with pytest.raises(InputError, match=message):
         load_dataset(tmp_path)
 
@@ -464,3 +470,166 @@ def test_camera_file_size_from_keys_or_an_existing_image(tmp_path):
     Image.fromarray(np.zeros((6, 12, 3), np.uint8)).save(tmp_path / "frames" / "1.png")
     cams = load_camera_file(path)
     assert cams.width.tolist() == [12] * 3 and cams.height.tolist() == [6] * 3
+
+
+# --- odd camera files: one line naming the file, the frame and its file_path, or the top-level key --------
+
+
+def _rotation_z(angle):
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+BAD_POSES = {
+    "all zeros": (np.zeros((4, 4)), "is all zeros"),
+    "all-zero rotation": (np.diag([0.0, 0.0, 0.0, 1.0]), "all-zero rotation part"),
+    "NaN": (np.where(np.eye(4) == 1, np.nan, 0.0), "NaN or infinity"),
+    "scaled": (np.diag([2.0, 2.0, 2.0, 1.0]), r"not orthonormal .*column lengths 2, 2, 2"),
+    "sheared": (
+        np.block([[np.eye(3) + np.triu(np.full((3, 3), 0.3), 1), np.zeros((3, 1))], [0, 0, 0, 1]]),
+        "orthonormal",
+    ),
+    "mirrored": (np.diag([1.0, 1.0, -1.0, 1.0]), "negative determinant: a mirror image"),
+    "projective last row": (
+        np.vstack([np.eye(4)[:3], [0.0, 0.0, 1.0, 1.0]]),
+        "last row 0 0 0 1, got 0 0 1 1",
+    ),
+    "wrong shape": (np.eye(3), "4x4 or 3x4 matrix"),
+}
+
+
+@pytest.mark.parametrize("kind", BAD_POSES)
+@pytest.mark.parametrize("loader", ["nerf-synthetic", "instant-ngp", "camera file"])
+def test_a_bad_pose_is_one_line_naming_file_frame_and_path(tmp_path, kind, loader):
+    matrix, problem = BAD_POSES[kind]
+    if loader == "nerf-synthetic":
+        _write_synthetic(tmp_path, {"train": 3}, size=(4, 4))
+        path, label = tmp_path / "transforms_train.json", r"frame 1 \(\./train/r_1\)"
+    elif loader == "instant-ngp":
+        _write_ngp(tmp_path, n=3)
+        path, label = tmp_path / "transforms.json", r"frame 1 \(images/0001\.png\)"
+    else:
+        path, label = tmp_path / "path.json", r"frame 1 \(frames/1\)"
+        _write_camera_file(path)
+    meta = json.loads(path.read_text())
+    meta["frames"][1]["transform_matrix"] = matrix.tolist()
+    path.write_text(json.dumps(meta))
+    with pytest.raises(InputError) as err:
+        load_camera_file(path, 8, 6) if loader == "camera file" else load_dataset(tmp_path)
+    message = str(err.value)
+    assert "\n" not in message
+    assert re.match(rf"{re.escape(str(path))}: {label}: 'transform_matrix' .*{problem}", message), message
+
+
+def test_poses_within_the_tolerance_load_unchanged(tmp_path):
+    """A rotation rounded to 3 decimals (|R^T R - I| ~ 1e-3), and a 3x4 matrix, are poses."""
+    path = tmp_path / "path.json"
+    rounded = np.eye(4)
+    rounded[:3, :3] = np.round(_rotation_z(0.3), 3)
+    frames = [{"transform_matrix": rounded.tolist()}, {"transform_matrix": np.eye(4)[:3].tolist()}]
+    path.write_text(json.dumps({"camera_angle_x": 0.8, "w": 8, "h": 6, "frames": frames}))
+    cams = load_camera_file(path)
+    np.testing.assert_array_equal(cams.c2w, [rounded, np.eye(4)])
+
+
+@pytest.mark.parametrize(
+    "key, value, at_top, problem",
+    [
+        ("camera_angle_x", math.nan, True, "must be a finite number, got nan"),
+        ("camera_angle_x", 3.5, True, r"must be a field of view in radians in \(0, pi\), got 3\.5"),
+        ("camera_angle_x", 0, False, r"must be a field of view in radians in \(0, pi\), got 0"),
+        ("camera_angle_y", math.inf, True, r"must be a finite number, got inf"),
+        ("fl_x", -9.0, True, r"must be positive, got -9\.0"),
+        ("fl_y", 0, False, "must be positive, got 0"),
+        ("cx", "4", True, r"must be a finite number, got '4'"),
+        ("cy", math.nan, False, "must be a finite number, got nan"),
+        ("w", 0, True, r"must be a positive whole number of pixels, got 0"),
+        ("h", 10.5, False, r"must be a positive whole number of pixels, got 10.5"),
+        ("k1", math.nan, True, "must be a finite number, got nan"),
+        ("k2", True, False, r"must be a finite number, got True"),
+        ("p1", math.inf, True, r"must be a finite number, got inf"),
+        ("p2", [0.1], False, r"must be a finite number, got \[0\.1\]"),
+        ("aabb_scale", -1, True, "must be positive, got -1"),
+    ],
+)
+def test_a_bad_intrinsic_is_one_line_naming_where_it_is(tmp_path, key, value, at_top, problem):
+    """A bad top-level key is reported as the file's (not as frame 0's); a per-frame one by its frame."""
+    meta, _ = _write_ngp(tmp_path, n=3)
+    if key.startswith("camera_angle"):  # an angle is read only without its fl_x / fl_y; a good one at the top
+        meta.pop("fl_" + key[-1])
+        meta[key] = 0.7
+    (meta if at_top else meta["frames"][2])[key] = value
+    (tmp_path / "transforms.json").write_text(json.dumps(meta))  # NaN and Infinity as JSON allows
+    where = f"top-level '{key}'" if at_top else f"frame 2 (images/0002.png): '{key}'"
+    with pytest.raises(InputError) as err:
+        load_dataset(tmp_path)
+    message = str(err.value)
+    assert re.fullmatch(
+        rf"{re.escape(str(tmp_path / 'transforms.json'))}: {re.escape(where)} {problem}", message
+    )
+
+
+def test_cameras_refuse_non_finite_values():
+    good = dict(
+        c2w=np.eye(4)[None],
+        fx=[1],
+        fy=[1],
+        cx=[0],
+        cy=[0],
+        width=[2],
+        height=[2],
+        distortion=np.zeros((1, 4)),
+        names=["a"],
+    )
+    Cameras(**good)
+    for key, value, words in (
+        ("c2w", np.full((1, 4, 4), np.nan), "c2w: expected finite"),
+        ("fx", [0.0], "fx: expected positive numbers, got 0.0 at camera 0"),
+        ("cy", [np.inf], "cy: expected finite numbers, got inf"),
+        ("distortion", np.full((1, 4), np.nan), "distortion: expected finite"),
+    ):
+        with pytest.raises(ValueError, match=words):
+            Cameras(**{**good, key: value})
+
+
+def test_cameras_all_at_the_centre_they_look_at_is_an_input_error(tmp_path):
+    """A turn-on-the-spot capture: every camera at one point, so the ngp rule has no scene size."""
+    meta, _ = _write_ngp(tmp_path, n=3)
+    for i, frame in enumerate(meta["frames"]):
+        c2w = np.eye(4)
+        c2w[:3, :3] = _rotation_z(2 * math.pi * i / 3) @ np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])
+        frame["transform_matrix"] = c2w.tolist()
+    (tmp_path / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="every camera sits at the point they look at"):
+        load_dataset(tmp_path)
+    assert load_dataset(tmp_path, bound=2.0).normalisation.scale == 0.5
+
+
+def test_a_camera_file_that_is_a_directory_empty_or_not_utf8(tmp_path):
+    with pytest.raises(InputError, match="is a directory, not a camera file$"):
+        load_camera_file(tmp_path)
+    empty = tmp_path / "empty.json"
+    empty.write_bytes(b"")
+    with pytest.raises(InputError, match=r"empty\.json: the file is empty"):
+        load_camera_file(empty)
+    latin = tmp_path / "latin.json"
+    latin.write_bytes(b'{"frames": [], "note": "caf\xe9"}')
+    with pytest.raises(InputError, match=r"latin\.json: not a UTF-8 text file \(byte 0xe9 at offset 27\)$"):
+        load_camera_file(latin)
+
+
+def test_16_bit_grey_images_keep_their_values(tmp_path):
+    """PIL's convert('RGB') clips 16-bit grey to 255; the loader scales it by 1/65535 instead."""
+    _write_synthetic(tmp_path, {"train": 2}, size=(4, 4))
+    grey = np.arange(16, dtype=np.uint16).reshape(4, 4) * 4000
+    Image.fromarray(grey).save(tmp_path / "train" / "r_1.png")
+    assert Image.open(tmp_path / "train" / "r_1.png").mode.startswith("I;16")
+    data = load_dataset(tmp_path)
+    np.testing.assert_allclose(data.images[1], np.repeat(grey[:, :, None] / 65535, 3, axis=2), atol=1e-6)
+    np.testing.assert_array_equal(data.alphas[1], 1.0)  # no alpha channel: fully covered
+    Image.fromarray(grey.astype(np.int32)).save(tmp_path / "train" / "r_1.tif")  # 32-bit 'I'
+    meta = json.loads((tmp_path / "transforms_train.json").read_text())
+    meta["frames"][1]["file_path"] = "./train/r_1.tif"
+    (tmp_path / "transforms_train.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"r_1\.tif: 32-bit 'I' images are not supported"):
+        load_dataset(tmp_path)

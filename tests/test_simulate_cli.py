@@ -1,4 +1,4 @@
-"""``shellsim simulate``: pin grammar, bad meshes, a small run and --resume."""
+"""``shellsim simulate``: bad meshes, a small run, pins and --resume (the pin grammar: test_selection)."""
 
 import types
 
@@ -7,40 +7,8 @@ import pytest
 import trimesh
 from meshes import kuhn_grid
 
-from neural.errors import InputError
 from shellsim.cli import main
-from shellsim.commands.simulate import parse_pin
 from shellsim.motion import load_motion
-
-
-@pytest.mark.parametrize(
-    "text, axis, op, value, percent",
-    [
-        ("z<0.1", 2, "<", 0.1, False),
-        ("x >= -2", 0, ">=", -2.0, False),
-        (" Y>1e-3 ", 1, ">", 1e-3, False),
-        ("z<=5%", 2, "<=", 5.0, True),
-        ("x>.5", 0, ">", 0.5, False),
-    ],
-)
-def test_pin_rules_parse(text, axis, op, value, percent):
-    rule = parse_pin(text)
-    assert (rule.axis, rule.op, rule.value, rule.percent) == (axis, op, value, percent)
-
-
-@pytest.mark.parametrize(
-    "text",
-    ["__import__('os')", "z<", "q<1", "z<1; x>2", "z=1", "z<nan", "z<inf", "", "1<z", "z<1e999", "z<<1"],
-)
-def test_pin_junk_is_rejected(text):
-    with pytest.raises(InputError, match="--pin"):
-        parse_pin(text)
-
-
-def test_pin_selection_in_world_units_and_percent():
-    v = np.array([[0.0, 0, 0], [0, 0, 1], [0, 0, 2], [0, 0, 10]])
-    assert parse_pin("z<1.5").select(v).tolist() == [True, True, False, False]
-    assert parse_pin("z>=15%").select(v).tolist() == [False, False, True, True]
 
 
 def test_cli_defaults_are_the_simulator_defaults():

@@ -57,11 +57,19 @@ class Cameras:
         self.c2w = np.asarray(self.c2w, dtype=np.float64)
         if self.c2w.ndim != 3 or self.c2w.shape[1:] != (4, 4):
             raise ValueError(f"c2w: expected shape (N, 4, 4), got {self.c2w.shape}")
+        if not np.all(np.isfinite(self.c2w)):
+            raise ValueError("c2w: expected finite numbers, got NaN or infinity")
         n = self.c2w.shape[0]
         for name in ("fx", "fy", "cx", "cy"):
             value = np.asarray(getattr(self, name), dtype=np.float64)
             if value.shape != (n,):
                 raise ValueError(f"{name}: expected shape ({n},), got {value.shape}")
+            bad = ~np.isfinite(value) | ((value <= 0) if name in ("fx", "fy") else False)
+            if bad.any():
+                what, first = ("positive" if name in ("fx", "fy") else "finite"), int(bad.argmax())
+                raise ValueError(
+                    f"{name}: expected {what} numbers, got {float(value[first])} at camera {first}"
+                )
             setattr(self, name, value)
         for name in ("width", "height"):
             value = np.asarray(getattr(self, name))
@@ -71,6 +79,8 @@ class Cameras:
         self.distortion = np.asarray(self.distortion, dtype=np.float64)
         if self.distortion.shape != (n, 4):
             raise ValueError(f"distortion: expected shape ({n}, 4), got {self.distortion.shape}")
+        if not np.all(np.isfinite(self.distortion)):
+            raise ValueError("distortion: expected finite numbers, got NaN or infinity")
         self.names = list(self.names)
         if len(self.names) != n:
             raise ValueError(f"names: expected {n} names, got {len(self.names)}")

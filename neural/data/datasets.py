@@ -6,7 +6,8 @@ Both formats store per-frame ``transform_matrix`` camera-to-world in OpenGL axes
 ``.png`` extension). Intrinsics are read by one rule for both: keys of the frame override keys of the file;
 ``fl_x`` (else ``0.5 w / tan(camera_angle_x / 2)``), ``fl_y`` (else from ``camera_angle_y``, else
 ``fl_x``), ``cx = w / 2``, ``cy = h / 2``, ``k1 k2 p1 p2 = 0`` by default; ``w``, ``h`` default to the
-image's size.
+image's size. Every pose must be rigid (:func:`camera_pose`) and every intrinsic valid (:func:`_number`);
+errors name the file and the frame with its ``file_path``, or the top-level key.
 
 Normalisation into the field's unit cube ``u = (x - center) * scale``:
 
@@ -46,6 +47,7 @@ SYNTHETIC_SPLITS = ("train", "val", "test")
 SYNTHETIC_BOUND = 1.5
 NGP_CUBE_FRACTION = (0.5 / 0.33) / 4.0
 SUPPORTED_CAMERA_MODELS = ("OPENCV", "PINHOLE")
+POSE_TOLERANCE = 1e-2  # on |R^T R - I|: poses rounded to 3 decimals pass, a 1 % scale or shear does not
 
 
 @dataclass(eq=False)
@@ -198,6 +200,8 @@ def load_camera_file(path: str | os.PathLike, width: int | None = None, height: 
     if (width is None) != (height is None):
         raise ValueError(f"width, height: give both or neither, got {width!r}, {height!r}")
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, not a camera file")
     if not path.is_file():
         raise InputError(f"{path}: camera file not found")
     frames = _read_frames(path, need_images=False)
@@ -226,9 +230,13 @@ def _normalisation(fmt: str, cameras: Cameras, json_path: Path, meta: dict, boun
         return Normalisation(np.zeros(3), 1.0 / half), np.array([0.0, 0.0, 1.0]), half
     center = _focus_point(cameras.c2w)
     distance = float(np.mean(np.linalg.norm(cameras.c2w[:, :3, 3] - center, axis=1)))
+    if bound is None and not distance > 0:
+        raise InputError(
+            f"{json_path}: every camera sits at the point they look at: give the bound explicitly"
+        )
     half = NGP_CUBE_FRACTION * distance if bound is None else float(bound)
     up = cameras.c2w[:, :3, 1].mean(axis=0)
-    aabb_scale = _number(json_path, "", "aabb_scale", meta.get("aabb_scale", 1))
+    aabb_scale = _number(json_path, "top-level 'aabb_scale'", "aabb_scale", meta.get("aabb_scale", 1))
     return Normalisation(center, 1.0 / half), up / np.linalg.norm(up), half * max(1.0, aabb_scale)
 
 
@@ -254,11 +262,19 @@ def _locate(path: Path) -> tuple[Path, str, list[Path]]:
 
 def _read_frames(json_path: Path, need_images: bool = True) -> list[_Frame]:
     try:
-        meta = json.loads(json_path.read_text())
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{json_path}: cannot read: {err}") from err
+        text = json_path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise InputError(f"{json_path}: cannot read: {err.strerror}") from None
+    except UnicodeDecodeError as err:
+        raise InputError(
+            f"{json_path}: not a UTF-8 text file (byte {err.object[err.start]:#04x} at offset {err.start})"
+        ) from None
+    if not text.strip():
+        raise InputError(f"{json_path}: the file is empty, expected a JSON object with a 'frames' list")
+    try:
+        meta = json.loads(text)
     except json.JSONDecodeError as err:
-        raise InputError(f"{json_path}: malformed JSON: {err}") from err
+        raise InputError(f"{json_path}: malformed JSON: {err}") from None
     if not isinstance(meta, dict):
         raise InputError(f"{json_path}: expected a JSON object at the top level")
     if not isinstance(meta.get("frames"), list):
@@ -267,31 +283,66 @@ def _read_frames(json_path: Path, need_images: bool = True) -> list[_Frame]:
     for i, frame in enumerate(meta["frames"]):
         if not isinstance(frame, dict):
             raise InputError(f"{json_path}: frame {i} is not a JSON object")
+        where = _frame_label(i, frame)
         for key in ("transform_matrix", "file_path") if need_images else ("transform_matrix",):
             if key not in frame:
-                raise InputError(f"{json_path}: frame {i} has no {key!r}")
-        c2w = _matrix(json_path, i, frame["transform_matrix"])
-        image = _image_path(json_path, i, frame["file_path"]) if "file_path" in frame else None
+                raise InputError(f"{json_path}: {where} has no {key!r}")
+        try:
+            c2w = camera_pose(frame["transform_matrix"])
+        except ValueError as err:
+            raise InputError(f"{json_path}: {where}: 'transform_matrix' {err}") from None
+        image = _image_path(json_path, where, frame["file_path"]) if "file_path" in frame else None
         frames.append(_Frame(json_path, i, meta, frame, c2w, image))
     return frames
 
 
-def _matrix(json_path: Path, i: int, value) -> np.ndarray:
+def _frame_label(i: int, frame: dict) -> str:
+    """``frame 3 (./train/r_3)``: the index in the file and, when it is a string, the frame's file_path."""
+    file_path = frame.get("file_path")
+    return f"frame {i}" + (f" ({file_path})" if isinstance(file_path, str) else "")
+
+
+def camera_pose(value) -> np.ndarray:
+    """(4, 4) float64 camera-to-world from a 4x4 or 3x4 nested list, checked to be a rigid motion.
+
+    Both formats store a pose: finite numbers, a last row ``0 0 0 1`` and a rotation part ``R`` with
+    ``|R^T R - I| <= POSE_TOLERANCE`` elementwise and ``det R > 0`` (no scale, shear or mirroring: neither
+    format defines them, and they would silently distort every ray). Anything else is a ``ValueError``
+    saying what is wrong.
+    """
     try:
         m = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         m = None
-    if m is None or m.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(m)):
-        raise InputError(f"{json_path}: frame {i}: 'transform_matrix' must be a 4x4 or 3x4 matrix of numbers")
+    if m is None or m.shape not in ((4, 4), (3, 4)):
+        raise ValueError("must be a 4x4 or 3x4 matrix of numbers")
+    if not np.all(np.isfinite(m)):
+        raise ValueError("contains NaN or infinity")
+    if not np.any(m):
+        raise ValueError("is all zeros: not a camera pose")
     if m.shape == (3, 4):
         m = np.vstack([m, [0.0, 0.0, 0.0, 1.0]])
+    if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError(f"must have the last row 0 0 0 1, got {' '.join(f'{v:g}' for v in m[3])}")
+    rot = m[:3, :3]
+    if not np.any(rot):
+        raise ValueError("has an all-zero rotation part: not a camera pose")
+    error = np.abs(rot.T @ rot - np.eye(3)).max()
+    if error > POSE_TOLERANCE:
+        lengths = ", ".join(f"{v:.4g}" for v in np.linalg.norm(rot, axis=0))
+        raise ValueError(
+            f"has a rotation part that is not orthonormal (|R^T R - I| = {error:.3g} > {POSE_TOLERANCE:g}; "
+            f"column lengths {lengths}): a pose has no scale or shear"
+        )
+    if np.linalg.det(rot) < 0:
+        raise ValueError("has a rotation part with a negative determinant: a mirror image, not a camera pose")
     return m
 
 
-def _image_path(json_path: Path, i: int, file_path) -> Path:
+def _image_path(json_path: Path, where: str, file_path) -> Path:
     """The image of a frame: ``file_path`` relative to the JSON, ``.png`` appended when it has none."""
     if not isinstance(file_path, str):
-        raise InputError(f"{json_path}: frame {i}: 'file_path' must be a string, got {file_path!r}")
+        raise InputError(f"{json_path}: {where}: 'file_path' must be a string, got {file_path!r}")
     image = json_path.parent / file_path
     if image.suffix == "" or (not image.is_file() and image.with_name(image.name + ".png").is_file()):
         image = image.with_name(image.name + ".png")
@@ -303,9 +354,25 @@ def _get(frame: _Frame, key: str):
     return frame.frame[key] if key in frame.frame else frame.meta.get(key)
 
 
+def _where(frame: _Frame, key: str) -> str:
+    """Where ``key`` of ``frame`` comes from: ``frame 3 (./r_3): 'fl_x'`` or ``top-level 'fl_x'``."""
+    if key in frame.frame:
+        return f"{_frame_label(frame.index, frame.frame)}: {key!r}"
+    return f"top-level {key!r}"
+
+
 def _number(json_path: Path, where: str, key: str, value) -> float:
+    """``value`` of the intrinsic ``key`` as a float, checked: ``w``/``h`` positive whole pixels, focal
+    lengths and ``aabb_scale`` positive, angles in (0, pi) radians, the rest finite; else an
+    :class:`InputError` naming ``where`` (see :func:`_where`)."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise InputError(f"{json_path}:{where} {key!r} must be a number, got {value!r}")
+        raise InputError(f"{json_path}: {where} must be a finite number, got {value!r}")
+    if key in ("w", "h") and not (value >= 1 and value == round(value)):
+        raise InputError(f"{json_path}: {where} must be a positive whole number of pixels, got {value!r}")
+    if key in ("fl_x", "fl_y", "aabb_scale") and not value > 0:
+        raise InputError(f"{json_path}: {where} must be positive, got {value!r}")
+    if key in ("camera_angle_x", "camera_angle_y") and not 0 < value < math.pi:
+        raise InputError(f"{json_path}: {where} must be a field of view in radians in (0, pi), got {value!r}")
     return float(value)
 
 
@@ -317,11 +384,11 @@ def _cameras(frames: list[_Frame], sizes: list, check_size: bool = True) -> Came
     """
     rows = []
     for f, (img_w, img_h) in zip(frames, [s or (None, None) for s in sizes], strict=True):
-        where = f" frame {f.index}:"
+        where = f" {_frame_label(f.index, f.frame)}:"
 
-        def num(key, default=None, f=f, where=where):
+        def num(key, default=None, f=f):
             value = _get(f, key)
-            return default if value is None else _number(f.json_path, where, key, value)
+            return default if value is None else _number(f.json_path, _where(f, key), key, value)
 
         w, h = num("w", img_w), num("h", img_h)
         if check_size and (round(w), round(h)) != (img_w, img_h):
@@ -342,7 +409,10 @@ def _cameras(frames: list[_Frame], sizes: list, check_size: bool = True) -> Came
         if fx is None:
             angle = num("camera_angle_x")
             if angle is None:
-                raise InputError(f"{f.json_path}:{where} no 'fl_x' or 'camera_angle_x' (focal length)")
+                raise InputError(
+                    f"{f.json_path}: no focal length: neither the top level nor{where[:-1]} has 'fl_x' or "
+                    "'camera_angle_x'"
+                )
             fx = 0.5 * w / math.tan(0.5 * angle)
         fy = num("fl_y")
         if fy is None:
@@ -379,13 +449,18 @@ def _load_image(path: Path, downscale: float, background: np.ndarray):
     """
     try:
         with Image.open(path) as im:
+            if im.mode in ("I", "F"):
+                raise InputError(f"{path}: 32-bit {im.mode!r} images are not supported (only 8 or 16 bits)")
             has_alpha = im.mode in ("RGBA", "LA", "PA", "RGBa") or "transparency" in im.info
-            pixels = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
+            if im.mode.startswith("I;16"):  # 16-bit grey: convert() would clip it to 8 bits
+                pixels, peak = np.repeat(np.asarray(im)[:, :, None], 3, axis=2), 65535
+            else:
+                pixels, peak = np.asarray(im.convert("RGBA" if has_alpha else "RGB")), 255
     except (OSError, UnidentifiedImageError) as err:
-        raise InputError(f"{path}: cannot read image: {err}") from err
+        raise InputError(f"{path}: cannot read image: {err}") from None
     full = (pixels.shape[1], pixels.shape[0])
     planes = np.empty((pixels.shape[2], full[1], full[0]), np.float32)  # channels first: fast inner loops
-    np.multiply(pixels.transpose(2, 0, 1), np.float32(1 / 255), out=planes)
+    np.multiply(pixels.transpose(2, 0, 1), np.float32(1 / peak), out=planes)
     if has_alpha:  # straight (unassociated) alpha as PNG stores it: rgb a + bg (1 - a) = bg + a (rgb - bg)
         bg = background[:, None, None]
         planes[:3] -= bg

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from neural.errors import InputError
+from shellsim.selection import Selection, parse_selection
 
 
 def parse_size(flag: str, text: str) -> tuple[int, int]:
@@ -43,3 +44,12 @@ def check_range(flag: str, value, low: float, high: float, what: str = "a number
         span = f"{open_ends[0]}{plain(low)}, {plain(high)}{open_ends[1]}"
         raise InputError(f"{flag}: expected {what} in {span}, got {plain(value)}")
     return value
+
+
+def parse_rule(flag: str, text: str) -> Selection:
+    """A vertex selection ``AXIS OP VALUE[%]`` (:mod:`shellsim.selection`); junk is an InputError naming
+    ``flag``."""
+    try:
+        return parse_selection(text)
+    except InputError as err:
+        raise InputError(f"{flag} {err}") from None

@@ -14,55 +14,19 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats, parse_size
+from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats, parse_rule, parse_size
 
 log = logging.getLogger(__name__)
 
-_NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?"
-_PIN = re.compile(rf"\s*([xyzXYZ])\s*(<=|>=|<|>)\s*({_NUMBER})\s*(%?)\s*")
 #: Metres per unit of a --mesh file's coordinates (--units).
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 #: Size in metres of an asset's largest extent when --size is not given.
 ASSET_SIZE = 0.3
-
-
-@dataclass(frozen=True)
-class PinRule:
-    """``AXIS OP VALUE[%]``: select vertices whose world coordinate ``axis`` (0, 1, 2) compares with
-    ``value`` (world units, or percent of the bounding box along the axis, measured from its minimum)."""
-
-    axis: int
-    op: str
-    value: float
-    percent: bool
-
-    def select(self, vertices: np.ndarray) -> np.ndarray:
-        """(V,) bool mask of the vertices (V, 3) the rule selects."""
-        coord = vertices[:, self.axis]
-        threshold = self.value
-        if self.percent:
-            threshold = coord.min() + self.value / 100.0 * (coord.max() - coord.min())
-        compare = {"<": np.less, "<=": np.less_equal, ">": np.greater, ">=": np.greater_equal}[self.op]
-        return compare(coord, threshold)
-
-
-def parse_pin(text: str) -> PinRule:
-    """Parse ``"z<0.1"``, ``"x >= -2"``, ``"y>95%"`` with a strict grammar (never evaluated)."""
-    match = _PIN.fullmatch(text)
-    value = float(match.group(3)) if match else math.nan
-    if not match or not math.isfinite(value):
-        raise InputError(
-            f"--pin {text!r}: expected AXIS OP VALUE, e.g. 'z<0.1', 'x>=-2' or 'z<5%' "
-            "(AXIS x, y or z; OP <, <=, > or >=; VALUE a number in world units or a percentage)"
-        )
-    return PinRule("xyz".index(match.group(1).lower()), match.group(2), value, bool(match.group(4)))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -373,7 +337,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     _check_scale_options(args)
     _check_numbers(args)
     material = get_material(args.material, args.youngs, args.poisson, args.density)
-    rules = [parse_pin(text) for text in args.pin]
+    rules = [parse_rule("--pin", text) for text in args.pin]
     device = _device(args.device)
     name = Path(args.mesh).stem if args.mesh else Path(args.asset).name
     out = Path(args.out) if args.out else Path(f"{name}_sim.npz")

@@ -53,8 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--anchor",
         default=None,
-        help="fixed vertices as AXIS<VALUE or AXIS>VALUE in world units, e.g. 'z<0.05' "
-        f"(default: the lowest {100 * W.base_fraction:g}%% of the cage along the asset's up axis)",
+        help="fixed vertices as AXIS OP VALUE in world units or in %% of the cage's extent, as for "
+        "'simulate --pin': 'z<0.05', 'z<5%%', 'y>0.9' (default: the lowest "
+        f"{100 * W.base_fraction:g}%% of the cage along the asset's up axis)",
     )
     p.add_argument("--seed", type=int, default=None, help=f"turbulence seed (default {W.seed})")
     p.add_argument(
@@ -83,7 +84,7 @@ def run(args: argparse.Namespace) -> None:
     from neural.asset import load_asset
     from neural.errors import InputError
     from shellsim.cage import CageConfig, load_or_build_cage
-    from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats
+    from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats, parse_rule
     from shellsim.motion import MotionWriter
     from shellsim.wind import RANGES, WindSettings, animate_wind, max_frequency, wind_meta
 
@@ -107,6 +108,8 @@ def run(args: argparse.Namespace) -> None:
         )
     if args.margin is not None:
         check_range("--margin", args.margin, 0, 1, "a fraction of the shell's diagonal", "(]")
+    if args.anchor is not None:
+        parse_rule("--anchor", args.anchor)
     asset = load_asset(args.asset)
     options = {
         "strength": args.strength,

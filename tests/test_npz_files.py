@@ -1,0 +1,179 @@
+"""Motion and cage files (shellsim.npz, shellsim.motion): anything that is not one is one line naming the
+file, never a traceback and never numpy's advice to unpickle."""
+
+import json
+import re
+import zipfile
+
+import numpy as np
+import pytest
+
+from neural.errors import InputError
+from shellsim.cli import main
+from shellsim.motion import KEYS, Motion, load_motion, save_motion
+from shellsim.npz import load_npz
+
+
+def _motion(n_frames=3):
+    rest = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    frames = np.stack([rest + 0.1 * k for k in range(n_frames)])
+    return Motion(rest, np.array([[0, 1, 2, 3]]), frames, np.arange(n_frames) / 10.0, {"fps": 10.0})
+
+
+def _arrays(**changes):
+    m = _motion()
+    arrays = {
+        "rest_vertices": m.rest_vertices,
+        "tets": m.tets,
+        "positions": m.positions.astype(np.float32),
+        "times": m.times,
+        "meta": np.array(json.dumps(m.meta)),
+    }
+    arrays.update(changes)
+    return {k: v for k, v in arrays.items() if v is not None}
+
+
+class Unpickled:
+    """Unpickling an instance writes a marker file: the loader must refuse the array before that."""
+
+    marker = None
+
+    def __reduce__(self):
+        return (open, (str(self.marker), "w"))
+
+
+def _write_pickled(path, marker):
+    obj = Unpickled()
+    obj.marker = marker
+    np.savez(path, **_arrays(meta=np.array([obj], dtype=object)))
+
+
+def _truncated(path):
+    save_motion(path, _motion())
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+def _bit_flipped(path):
+    save_motion(path, _motion())
+    data = bytearray(path.read_bytes())
+    data[200] ^= 0xFF  # inside the first member's data: its CRC no longer matches
+    path.write_bytes(bytes(data))
+
+
+def _zip_of_other_things(path):
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("readme.txt", "hello")
+
+
+JUNK = {
+    "text": (lambda p: p.write_text("my notes\n"), "not an .npz archive"),
+    "empty": (lambda p: p.write_bytes(b""), "the file is empty"),
+    "npy": (
+        lambda p: np.save(p.with_suffix(".npy"), np.zeros(3)) or p.with_suffix(".npy").rename(p),
+        "not an .npz",
+    ),
+    "json": (lambda p: p.write_text('{"frames": []}'), "not an .npz archive"),
+    "truncated": (_truncated, "damaged archive"),
+    "bit flipped": (_bit_flipped, "damaged archive: Bad CRC-32"),
+    "other zip": (_zip_of_other_things, "missing the arrays rest_vertices, tets, positions, times, meta"),
+    "missing key": (lambda p: np.savez(p, **_arrays(times=None)), "missing the array times"),
+    "positions as text": (
+        lambda p: np.savez(p, **_arrays(positions=np.full((3, 4, 3), "x"))),
+        "positions must hold floats",
+    ),
+    "tets as floats": (
+        lambda p: np.savez(p, **_arrays(tets=np.zeros((1, 4)))),
+        r"tets: expected \(T, 4\) integers",
+    ),
+    "frames of other vertices": (
+        lambda p: np.savez(p, **_arrays(positions=np.zeros((3, 5, 3)))),
+        r"\(F, 4, 3\)",
+    ),
+    "times of other frames": (lambda p: np.savez(p, **_arrays(times=np.zeros(2))), r"times must be \(3,\)"),
+    "NaN frame": (
+        lambda p: np.savez(
+            p, **_arrays(positions=np.where(np.arange(3)[:, None, None] == 2, np.nan, _motion().positions))
+        ),
+        "frame 2 has NaN or infinite positions",
+    ),
+    "NaN rest": (
+        lambda p: np.savez(p, **_arrays(rest_vertices=np.full((4, 3), np.nan))),
+        "rest_vertices contains NaN",
+    ),
+    "meta not JSON": (lambda p: np.savez(p, **_arrays(meta=np.array("{oops"))), "meta is not valid JSON"),
+    "meta a list": (
+        lambda p: np.savez(p, **_arrays(meta=np.array("[1, 2]"))),
+        "meta must be a JSON object, got list",
+    ),
+    "meta numbers": (lambda p: np.savez(p, **_arrays(meta=np.zeros(3))), "meta must be one JSON string"),
+}
+
+
+@pytest.mark.parametrize("kind", JUNK)
+def test_junk_motion_is_one_line_naming_the_file(tmp_path, kind):
+    path = tmp_path / "motion.npz"
+    make, reason = JUNK[kind]
+    make(path)
+    with pytest.raises(InputError) as err:
+        load_motion(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: not a shellsim motion file (") and message.endswith(")"), message
+    assert re.search(reason, message), message
+    assert "\n" not in message and "pickle" not in message
+
+
+def test_pickled_objects_are_refused_before_they_are_read(tmp_path):
+    path, marker = tmp_path / "evil.npz", tmp_path / "unpickled"
+    _write_pickled(path, marker)
+    with pytest.raises(InputError, match=r"not a shellsim motion file \('meta' holds Python objects"):
+        load_motion(path)
+    assert not marker.exists()
+
+
+def test_a_directory_or_a_missing_file_says_so(tmp_path):
+    with pytest.raises(InputError, match=f"^{tmp_path}: is a directory, not a cage file$"):
+        load_npz(tmp_path, ("vertices",), "cage")
+    with pytest.raises(InputError, match="nothing.npz: motion file not found$"):
+        load_motion(tmp_path / "nothing.npz")
+
+
+def test_a_good_motion_round_trips(tmp_path):
+    path = tmp_path / "m.npz"
+    save_motion(path, _motion())
+    loaded = load_motion(path)
+    assert set(KEYS) == {"rest_vertices", "tets", "positions", "times", "meta"}
+    np.testing.assert_array_equal(loaded.positions, _motion().positions.astype(np.float32))
+    assert loaded.meta == {"fps": 10.0}
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["inspect", "--asset", "{asset}", "--motion", "{notes}"],
+        ["wind", "--asset", "{asset}", "--out", "{notes}", "--resume", "--frames", "2"],
+        [
+            "simulate",
+            "--asset",
+            "{asset}",
+            "--out",
+            "{notes}",
+            "--resume",
+            "--frames",
+            "2",
+            "--device",
+            "cpu",
+        ],
+    ],
+)
+def test_cli_given_a_text_file_as_a_motion(tmp_path, capsys, argv):
+    """The issue's case: a text file as a motion; no advice to load it unsafely."""
+    from test_wind import _write_asset
+
+    asset = _write_asset(tmp_path / "rod")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("these are my notes\n")
+    capsys.readouterr()
+    assert main([a.format(asset=asset, notes=notes) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"shellsim: error: {notes}: not a shellsim motion file (not an .npz archive)"

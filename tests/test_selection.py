@@ -1,0 +1,95 @@
+"""shellsim.selection: the one vertex-selection grammar of ``simulate --pin`` and ``wind --anchor``."""
+
+import numpy as np
+import pytest
+from meshes import kuhn_grid
+
+from neural.errors import InputError
+from shellsim.selection import parse_selection
+from shellsim.wind import WindSettings, heights, wind_displacement
+
+
+@pytest.mark.parametrize(
+    "text, axis, op, value, percent",
+    [
+        ("z<0.1", 2, "<", 0.1, False),
+        ("x >= -2", 0, ">=", -2.0, False),
+        (" Y>1e-3 ", 1, ">", 1e-3, False),
+        ("z<=5%", 2, "<=", 5.0, True),
+        ("x>.5", 0, ">", 0.5, False),
+    ],
+)
+def test_rules_parse(text, axis, op, value, percent):
+    rule = parse_selection(text)
+    assert (rule.axis, rule.op, rule.value, rule.percent) == (axis, op, value, percent)
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "__import__('os')",
+        "z<",
+        "q<1",
+        "z<1; x>2",
+        "z=1",
+        "z<nan",
+        "z<inf",
+        "",
+        "1<z",
+        "z<1e999",
+        "z<<1",
+        None,
+        3,
+    ],
+)
+def test_junk_is_rejected_quoting_the_value_not_an_option(text):
+    with pytest.raises(InputError, match="expected AXIS OP VALUE") as err:
+        parse_selection(text)
+    assert str(err.value).startswith(repr(text)) and "--" not in str(err.value)
+
+
+def test_selection_in_world_units_and_percent():
+    v = np.array([[0.0, 0, 0], [0, 0, 1], [0, 0, 2], [0, 0, 10]])
+    assert parse_selection("z<1.5").select(v).tolist() == [True, True, False, False]
+    assert parse_selection("z>=15%").select(v).tolist() == [False, False, True, True]  # 15% of 0..10: 1.5
+    assert parse_selection("z<=10%").select(v).tolist() == [True, True, False, False]
+    assert parse_selection("z<10%").select(v).tolist() == [True, False, False, False]
+
+
+def test_wind_anchor_takes_the_pin_grammar():
+    """``z<5%`` anchors the lowest 5 % of the cage: the same as the default anchor (base_fraction 0.05
+    along up = z), so the displacements agree exactly; ``<=`` and ``>=`` are accepted too."""
+    verts = kuhn_grid(0.0, (0.2, 0.2, 1.0), (2, 2, 10))[0]
+    default = WindSettings(strength=0.2, turbulence=0.5)
+    percent = WindSettings(strength=0.2, turbulence=0.5, anchor="z<5%")
+    np.testing.assert_array_equal(heights(verts, percent), heights(verts, default))
+    for t in (0.0, 0.7, 2.3):
+        np.testing.assert_array_equal(
+            wind_displacement(verts, t, percent), wind_displacement(verts, t, default)
+        )
+    # '<=' fixes the same vertices as '<': those on the threshold have height 0 and never move
+    for a, b in (("z<=0.3", "z<0.3"), ("z>=0.7", "z>0.7")):
+        u, w = (wind_displacement(verts, 1.3, WindSettings(strength=0.2, anchor=s)) for s in (a, b))
+        np.testing.assert_array_equal(u, w)
+        assert np.abs(u).max() > 0
+    hanging = WindSettings(strength=0.2, anchor="z>=90%")  # hangs from its top 10 %
+    fixed = verts[:, 2] >= 0.9
+    u = wind_displacement(verts, 1.3, hanging)
+    assert fixed.any() and np.array_equal(u[fixed], np.zeros_like(u[fixed])) and np.abs(u[~fixed]).max() > 0
+
+
+def test_cli_names_the_option(tmp_path, capsys):
+    from shellsim.cli import main
+
+    for argv, flag in (
+        (["wind", "--asset", str(tmp_path / "none"), "--anchor", "z<<1"], "--anchor"),
+        (["simulate", "--mesh", str(tmp_path / "none.ply"), "--pin", "z=1", "--device", "cpu"], "--pin"),
+    ):
+        capsys.readouterr()
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert (
+            err.startswith(f"shellsim: error: {flag} ")
+            and "expected AXIS OP VALUE" in err
+            and "\n" not in err
+        )

@@ -330,7 +330,7 @@ def test_cli_reports_the_collapsing_frame_in_one_line_keeping_the_frames_before(
         (["--damping", "-0.1"], "--damping: expected a time in seconds in [0, 10], got -0.1"),
         (["--tets", "5"], "--tets: expected an integer in [10, 1000000], got 5"),
         (["--velocity", "300,0,0"], "--velocity: expected a speed in m/s"),
-        (["--spin", "0,0,1000"], "--spin: expected an angular speed in rad/s at --size 0.3 in [0, 333.333)"),
+        (["--spin", "0,0,1000", "--size", "0.3"], "--spin: expected an angular speed in rad/s at --size 0.3 in [0, 333.333)"),
         (["--sphere", "0,0,0,-1"], "--sphere: expected a radius in (0, inf), got -1"),
         (["--box", "0,0,0,1,0,1"], "--box: expected half extents in (0, inf), got 0"),
     ],

@@ -40,6 +40,7 @@ import numpy as np
 
 from neural.errors import InputError
 
+from .commands.outputs import check_writable_file
 from .embed import (
     BARY_TOL,
     TET_FACES,
@@ -424,6 +425,7 @@ def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = 
                 logger.info("rebuilding %s: other cage settings requested", path)
             else:
                 return cage
+    check_writable_file(path)  # before the build, not after it
     cage = build_cage(outer, inner, config, what=str(asset.file("shell_outer")))
     save_cage(path, cage)
     return cage

@@ -44,10 +44,13 @@ def run(args: argparse.Namespace) -> None:
     from neural.errors import InputError
     from shellsim.cage import load_or_build_cage
     from shellsim.commands.args import parse_size
+    from shellsim.commands.outputs import check_writable_file
     from shellsim.inspect import check_motion, screenshot, show
     from shellsim.motion import load_motion
 
     size = parse_size("--size", args.size)
+    if args.screenshot:
+        check_writable_file(args.screenshot, "--screenshot")
     asset = load_asset(args.asset)
     motion = load_motion(args.motion) if args.motion else None
     frame = 0 if args.frame is None else args.frame

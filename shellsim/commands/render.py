@@ -42,7 +42,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     from neural.errors import InputError
+    from shellsim.commands.outputs import check_writable_dir, check_writable_file
     from shellsim.render import render_motion, render_views
+
+    check_writable_dir(args.out, "--out")
+    if args.video:
+        check_writable_file(args.video, "--video")
 
     size = None
     if args.width is not None or args.height is not None:

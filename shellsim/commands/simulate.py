@@ -19,6 +19,7 @@ import numpy as np
 
 from neural.errors import InputError
 from shellsim.commands.args import parse_floats, parse_size
+from shellsim.commands.outputs import check_writable_dir, check_writable_file
 
 log = logging.getLogger(__name__)
 
@@ -138,6 +139,9 @@ def run(args: argparse.Namespace) -> None:
     if args.video and not args.asset:
         raise InputError("--video renders the neural asset: it needs --asset, not --mesh")
     size = parse_size("--video-size", args.video_size) if args.video else None
+    if args.video:
+        video = check_writable_file(args.video, "--video")
+        check_writable_dir(video.with_name(video.stem + "_frames"), "--video")
     out = simulate_to_file(args)
     log.info("motion written to %s", out)
     if args.video:
@@ -241,7 +245,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     rules = [parse_pin(text) for text in args.pin]
     device = _device(args.device)
     name = Path(args.mesh).stem if args.mesh else Path(args.asset).name
-    out = Path(args.out) if args.out else Path(f"{name}_sim.npz")
+    out = check_writable_file(Path(args.out) if args.out else Path(f"{name}_sim.npz"), "--out")
 
     writer = None
     if args.resume and out.is_file():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -53,6 +54,7 @@ def run(args: argparse.Namespace) -> None:
     from neural.device import pick_device
     from neural.errors import InputError
     from neural.pipeline import PipelineConfig, parse_background, train_asset
+    from shellsim.commands.outputs import check_writable_dir
 
     config = PipelineConfig(background=parse_background(args.background), bound=args.bound)
     for flag, value in (
@@ -63,6 +65,8 @@ def run(args: argparse.Namespace) -> None:
     ):
         if value is not None and value < 1:
             raise InputError(f"{flag}: expected a positive integer, got {value}")
+    check_writable_dir(args.out, "--out")
+    check_writable_dir(Path(args.out) / "checkpoints", "--out")
     config.downscale = args.downscale
     config.stage1.random_background = config.stage2.random_background = args.random_background
     if args.steps is not None:

@@ -60,6 +60,7 @@ def run(args: argparse.Namespace) -> None:
     from neural.errors import InputError
     from shellsim.cage import load_or_build_cage
     from shellsim.commands.args import parse_floats
+    from shellsim.commands.outputs import check_writable_file
     from shellsim.motion import MotionWriter
     from shellsim.wind import WindSettings, animate_wind, wind_meta
 
@@ -79,8 +80,8 @@ def run(args: argparse.Namespace) -> None:
     if args.direction is not None:
         options["direction"] = parse_floats("--direction", args.direction, 3)  # WindSettings rejects 0,0,0
     settings = WindSettings(up=tuple(asset.up), **{k: v for k, v in options.items() if v is not None})
+    out = check_writable_file(Path(args.out) if args.out else Path(f"{asset.name}_wind.npz"), "--out")
     cage = load_or_build_cage(asset)  # the stored cage whatever its settings, else a default one
-    out = Path(args.out) if args.out else Path(f"{asset.name}_wind.npz")
     if args.resume and out.is_file():
         writer = MotionWriter.resume(out)
         log.info("resuming %s after frame %d", out, writer.n_frames - 1)

@@ -50,7 +50,8 @@ def test_helper_accepts_new_directories_and_leaves_nothing_behind(tmp_path):
 
 
 def test_helper_refuses_paths_under_a_file_and_names_taken_by_directories(tmp_path, blocker):
-    with pytest.raises(ValueError, match=r"^--out .*plain.txt/x/m.npz: cannot write here \(.*plain.txt is a file"):
+    expected = r"^--out .*plain.txt/x/m.npz: cannot write here \(.*plain.txt is a file, not a directory"
+    with pytest.raises(ValueError, match=expected):
         check_writable_file(blocker / "x" / "m.npz", "--out")
     with pytest.raises(ValueError, match="--video .*: cannot write here .a directory has this name"):
         check_writable_file(tmp_path, "--video")
@@ -106,7 +107,8 @@ def test_a_cage_that_cannot_be_saved_is_not_built(tmp_path, capsys):
     (today: fTetWild runs, then a traceback). A directory named cage.npz blocks the save even for root."""
     asset = rod_asset(tmp_path / "rod", with_cage=False)
     (asset / "cage.npz").mkdir()
-    for argv in (["cage", "--asset", str(asset)], ["wind", "--asset", str(asset), "--out", str(tmp_path / "w.npz")]):
+    wind = ["wind", "--asset", str(asset), "--out", str(tmp_path / "w.npz")]
+    for argv in (["cage", "--asset", str(asset)], wind):
         _fails_in_one_line(argv, capsys, asset / "cage.npz")
 
 
@@ -132,7 +134,7 @@ def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
         deadline = time.monotonic() + 120
         while not out.exists() and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert out.exists(), proc.communicate()[1] if proc.poll() is not None else "no motion file after 120 s"
+        assert out.exists(), proc.communicate()[1] if proc.poll() is not None else "no motion file in 120 s"
         first = load_motion(out).n_frames
         time.sleep(1.0)  # well under the writer's 2 s flush interval: these frames are only in memory
         proc.send_signal(signal.SIGTERM)

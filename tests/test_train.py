@@ -138,3 +138,34 @@ def test_train_cli_keeps_a_finished_asset(tmp_path, capsys):
     (done / "asset.json").write_text("{}")
     code, err = _run_cli(["train", "--data", str(data), "--out", str(done)], capsys)
     assert code == 2 and "finished asset" in err and (done / "asset.json").read_text() == "{}"
+
+
+def _failing_sampler(monkeypatch, at_call: int, error: BaseException):
+    """Make the pixel sampler raise ``error`` on its ``at_call``-th call (a crash or Ctrl-C mid-stage)."""
+    original, calls = PixelSampler.sample, []
+
+    def sample(self, n):
+        calls.append(n)
+        if len(calls) == at_call:
+            raise error
+        return original(self, n)
+
+    monkeypatch.setattr(PixelSampler, "sample", sample)
+
+
+def test_stage1_checkpoints_by_time_and_on_interrupt(sphere_data, tmp_path, monkeypatch):
+    from neural.checkpoint import load_checkpoint
+
+    ckpt = tmp_path / "checkpoints" / "stage1.safetensors"
+    config = dataclasses.replace(small_stage1(40), checkpoint_every=10**6, checkpoint_seconds=0.0)
+    _failing_sampler(monkeypatch, 7, RuntimeError("killed"))  # no handler runs: only what is on disk counts
+    with pytest.raises(RuntimeError):
+        train_stage1(build_field(sphere_data, SMALL_FIELD, "cpu"), sphere_data, tmp_path, config, "cpu")
+    field = build_field(sphere_data, SMALL_FIELD, "cpu")
+    assert load_checkpoint(ckpt, field)[0]["step"] == 6  # by time: every step when checkpoint_seconds is 0
+
+    config = dataclasses.replace(config, checkpoint_seconds=1e9)  # neither by steps nor by time...
+    _failing_sampler(monkeypatch, 4, KeyboardInterrupt())
+    with pytest.raises(KeyboardInterrupt):
+        train_stage1(field, sphere_data, tmp_path, config, "cpu")
+    assert load_checkpoint(ckpt, build_field(sphere_data, SMALL_FIELD, "cpu"))[0]["step"] == 9  # ...on Ctrl-C

@@ -1,9 +1,9 @@
 """Training (paper Procedure 4): stage 1 full-ray NeuS with a spatially varying kernel (Eq. 8-12), stage 2
 narrow-band fine-tuning with the color loss only.
 
-Both stages draw random pixels from the training views, write a checkpoint every ``checkpoint_every``
-steps or ``checkpoint_seconds`` seconds, whichever comes first, and when interrupted (safetensors, atomic),
-resume from it, show a progress bar with loss and PSNR, and evaluate on held-out views every
+Both stages draw random pixels from the training views, write a checkpoint (safetensors, atomic) every
+``checkpoint_every`` steps, every ``checkpoint_seconds`` and when interrupted (Ctrl-C, SIGTERM through the
+CLI), resume from it, show a progress bar with loss and PSNR, and evaluate on held-out views every
 ``eval_every`` steps.
 """
 

@@ -224,6 +224,7 @@ def test_settings_and_inputs_are_validated():
         Simulator(v, t + 100, RUBBER, device="cpu")
 
 
+@pytest.mark.slow
 def test_serial_pcg_matches_warp_optim_cg():
     """The one-kernel CPU solver against the CUDA path (warp.optim.linear.cg), here run on the CPU."""
     v, t = box_tets((2, 2, 2), (0.1, 0.1, 0.1), origin=(0.0, 0.0, 0.002))

@@ -21,7 +21,7 @@ from neural.train import Stage1Config, Stage2Config
 from shellsim.cli import main
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="module")  # trains for about 40 s on 2 cores: its tests are marked slow
 def fuzzy(tmp_path_factory):
     root = tmp_path_factory.mktemp("fuzzy")
     data = write_fuzzy_scene(root / "data", n_views=24, size=32)
@@ -55,6 +55,7 @@ def _widths(asset) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(outer.vertices), np.sqrt(d2)
 
 
+@pytest.mark.slow
 def test_shell_is_wider_over_the_cloud_than_over_the_solid(fuzzy):
     _, asset_dir = fuzzy
     asset = load_asset(asset_dir)
@@ -64,6 +65,7 @@ def test_shell_is_wider_over_the_cloud_than_over_the_solid(fuzzy):
     assert cloud > 1.25 * solid, (cloud, solid)
 
 
+@pytest.mark.slow
 def test_asset_records_training_and_the_narrow_band_renders_well(fuzzy):
     _, asset_dir = fuzzy
     meta = json.loads((asset_dir / "asset.json").read_text())
@@ -73,6 +75,7 @@ def test_asset_records_training_and_the_narrow_band_renders_well(fuzzy):
     assert not (asset_dir / "checkpoints").exists()
 
 
+@pytest.mark.slow
 def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     data, asset_dir = fuzzy
     out = tmp_path / "eval.json"
@@ -107,6 +110,7 @@ def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     assert "--max-peel" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_resumed_run_keeps_shells_time_and_normal_permissions(tmp_path, monkeypatch):
     """Interrupted in stage 2, a run leaves its checkpoints and shells; the next run does not extract again,
     and asset.json's wall time is the sum of both runs. Files get 0666 less the umask (not 0600)."""

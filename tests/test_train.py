@@ -72,6 +72,7 @@ def test_random_background_only_behind_empty_pixels(sphere_data):
     torch.testing.assert_close(rgb, stored_rgb)
 
 
+@pytest.mark.slow  # about a minute on 2 cores
 def test_stage1_improves_psnr_on_a_rendered_sphere(sphere_data, tmp_path):
     torch.manual_seed(0)
     field = build_field(sphere_data, SMALL_FIELD, "cpu")
@@ -169,3 +170,27 @@ def test_stage1_checkpoints_by_time_and_on_interrupt(sphere_data, tmp_path, monk
     with pytest.raises(KeyboardInterrupt):
         train_stage1(field, sphere_data, tmp_path, config, "cpu")
     assert load_checkpoint(ckpt, build_field(sphere_data, SMALL_FIELD, "cpu"))[0]["step"] == 9  # ...on Ctrl-C
+
+
+def test_a_short_run_scales_stage2_and_the_grids_with_its_steps(tmp_path, monkeypatch, capsys):
+    """--steps 200 (a first try) must not run the default 1000 stage-2 steps nor the 256^3 extraction;
+    explicit options win; --help says so."""
+    import neural.pipeline
+
+    configs = []
+    monkeypatch.setattr(
+        neural.pipeline, "train_asset", lambda data, out, config, *a, **k: configs.append(config)
+    )
+    base = ["train", "--data", str(tmp_path), "--out", str(tmp_path / "out")]
+    assert main([*base, "--steps", "200", "--checkpoint-minutes", "0.5"]) == 0
+    assert main([*base, "--steps", "200", "--stage2-steps", "7", "--shell-resolution", "64"]) == 0
+    assert main(base) == 0
+    quick, explicit, default = configs
+    assert quick.stage2.steps <= 200 // 5 and quick.shell.resolution <= 128
+    assert quick.stage1.target_samples <= default.stage1.target_samples // 4
+    assert quick.stage1.checkpoint_seconds == quick.stage2.checkpoint_seconds == 30.0
+    assert (explicit.stage2.steps, explicit.shell.resolution) == (7, 64)
+    assert (default.stage1.steps, default.stage2.steps, default.shell.resolution) == (6000, 1000, 256)
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    assert "--steps / 6" in capsys.readouterr().out

@@ -15,8 +15,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "extraction, stage 2 narrow-band fine-tuning; writes an asset directory. Interrupt at any time: "
         "running the same command again resumes from the last checkpoint (written every 250 steps, every "
         "--checkpoint-minutes and on Ctrl-C or SIGTERM; the extracted shells are kept too). Stage 2 and the "
-        "shell extraction scale with --steps unless set: --steps 200 trains 200 + 34 steps and extracts on a "
-        "128^3 grid, a first try of a few minutes at --downscale 8.",
+        "shell extraction scale with --steps unless set: stage 2 runs --steps / 6, and fewer than 2000 steps "
+        "are a quick try (4x smaller batches, 64^3 occupancy and 128^3 shell grids): --steps 200 "
+        "--downscale 8 makes a rough asset in a few minutes.",
     )
     p.add_argument("--data", required=True, help="dataset directory (transforms_*.json or transforms.json)")
     p.add_argument(
@@ -94,6 +95,8 @@ def run(args: argparse.Namespace) -> None:
     if args.steps is not None:
         config.stage1.steps = args.steps
     scaled = scaled_defaults(config.stage1.steps)
+    config.stage1.target_samples = scaled["target_samples"]
+    config.stage1.occupancy_resolution = scaled["occupancy_resolution"]
     config.stage2.steps = args.stage2_steps if args.stage2_steps is not None else scaled["stage2_steps"]
     config.shell.resolution = args.shell_resolution or scaled["shell_resolution"]
     if args.table_size is not None:

@@ -32,6 +32,8 @@ import json
 import logging
 import math
 import os
+import signal
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -238,9 +240,12 @@ def _tetrahedralize(
     """One fTetWild run; unreferenced vertices dropped. -> (V, 3) float64, (T, 4) int64."""
     import pytetwild
 
+    sigint = signal.getsignal(signal.SIGINT)
     tet_v, tet_t = pytetwild.tetrahedralize(
         vertices, faces.astype(np.int32), edge_length_abs=edge, epsilon=epsilon, vtk_ordering=True, quiet=True
     )
+    if sigint is not None and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, sigint)  # fTetWild resets SIGINT: Ctrl-C would then kill, saving nothing
     used, tets = np.unique(np.asarray(tet_t, dtype=np.int64), return_inverse=True)
     return np.asarray(tet_v, dtype=np.float64)[used], tets.reshape(-1, 4)
 

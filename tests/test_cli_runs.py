@@ -112,15 +112,18 @@ def test_a_cage_that_cannot_be_saved_is_not_built(tmp_path, capsys):
         _fails_in_one_line(argv, capsys, asset / "cage.npz")
 
 
-def _cli(*args: str) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
-    return subprocess.Popen(
-        [sys.executable, "-m", "shellsim.cli", *args],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+def _cli(logs: Path, *args: str) -> subprocess.Popen:
+    """``python -m shellsim.cli ARGS`` in the background, its stdout and stderr going to files in ``logs``
+    (pipes that nobody reads would fill up with the progress bar and block the command)."""
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}
+    with open(logs / "stdout.txt", "w") as stdout, open(logs / "stderr.txt", "w") as stderr:
+        return subprocess.Popen(
+            [sys.executable, "-m", "shellsim.cli", *args], env=env, stdout=stdout, stderr=stderr
+        )
+
+
+def _outputs(logs: Path) -> tuple[str, str]:
+    return (logs / "stdout.txt").read_text(), (logs / "stderr.txt").read_text()
 
 
 def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
@@ -129,18 +132,26 @@ def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
     Warp's banner and module-load lines stay off stdout."""
     asset = rod_asset(tmp_path / "rod")
     out = tmp_path / "m.npz"
-    proc = _cli("simulate", "--asset", str(asset), "--frames", "100000", "--pin", "z<0.1", "--out", str(out))
+    proc = _cli(
+        tmp_path, "simulate", "--asset", str(asset), "--frames", "100000", "--pin", "z<0.1", "--out", str(out)
+    )
     try:
         deadline = time.monotonic() + 120
         while not out.exists() and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert out.exists(), proc.communicate()[1] if proc.poll() is not None else "no motion file in 120 s"
+        assert out.exists(), _outputs(tmp_path)[1][-2000:]
         first = load_motion(out).n_frames
         time.sleep(1.0)  # well under the writer's 2 s flush interval: these frames are only in memory
         proc.send_signal(signal.SIGTERM)
-        stdout, stderr = proc.communicate(timeout=60)
+        try:
+            proc.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGABRT)  # faulthandler prints where it hangs
+            proc.wait(timeout=30)
+            pytest.fail(f"no exit 120 s after SIGTERM:\n{_outputs(tmp_path)[1][-4000:]}")
     finally:
         proc.kill()
+    stdout, stderr = _outputs(tmp_path)
     assert proc.returncode == 128 + signal.SIGTERM, stderr[-2000:]
     assert stderr.splitlines()[-1] == "shellsim: terminated; what was written so far is kept"
     motion = load_motion(out)
@@ -151,7 +162,32 @@ def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
 
 def test_verbose_shows_warp_messages(tmp_path):
     asset = rod_asset(tmp_path / "rod")
-    proc = _cli("-v", "simulate", "--asset", str(asset), "--frames", "2", "--out", str(tmp_path / "m.npz"))
-    stdout, stderr = proc.communicate(timeout=120)
+    proc = _cli(
+        tmp_path, "-v", "simulate", "--asset", str(asset), "--frames", "2", "--out", str(tmp_path / "m.npz")
+    )
+    proc.wait(timeout=120)
+    stdout, stderr = _outputs(tmp_path)
     assert proc.returncode == 0, stderr[-2000:]
     assert "Warp" in stdout and "Module" in stdout
+
+
+def test_ctrl_c_still_interrupts_after_a_cage_build(tmp_path):
+    """fTetWild resets the SIGINT handler; after a cage build, Ctrl-C must still raise KeyboardInterrupt (so
+    writers save) instead of killing the process."""
+    code = (
+        "import os, signal, time, trimesh\n"
+        "from shellsim.cage import build_cage\n"
+        "m = trimesh.creation.icosphere(subdivisions=2)\n"
+        "build_cage(m, m.copy())\n"
+        "try:\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(5)\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted')\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout.strip() == "interrupted", (
+        done.returncode,
+        done.stderr[-2000:],
+    )

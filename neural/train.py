@@ -320,6 +320,7 @@ def train_stage1(
             history += [final] if final else []
             checkpoints.due(done)
     except KeyboardInterrupt:
+        bar.close()
         checkpoints.interrupted(done, "stage 1")
         raise
     if final is None and done == config.steps:  # resumed after the last step, before its evaluation
@@ -387,6 +388,7 @@ def train_stage2(
             history += [final] if final else []
             checkpoints.due(done)
     except KeyboardInterrupt:
+        bar.close()
         checkpoints.interrupted(done, "stage 2")
         raise
     if final is None and done == config.steps:  # resumed after the last step, before its evaluation

@@ -110,7 +110,6 @@ def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     assert "--max-peel" in capsys.readouterr().err
 
 
-@pytest.mark.slow
 def test_a_resumed_run_keeps_shells_time_and_normal_permissions(tmp_path, monkeypatch):
     """Interrupted in stage 2, a run leaves its checkpoints and shells; the next run does not extract again,
     and asset.json's wall time is the sum of both runs. Files get 0666 less the umask (not 0600)."""

@@ -210,16 +210,25 @@ def _check_optional_keys(meta_path: Path, meta: dict) -> None:
         )
 
 
+def write_safetensors(path, tensors: dict, metadata: dict[str, str] | None = None) -> None:
+    """Write ``tensors`` to ``path`` as safetensors, atomically (temporary file + rename), with the usual
+    permissions (0666 less the umask; safetensors' own ``save_file`` makes 0600 files)."""
+    from safetensors.torch import save
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(save(tensors, metadata=metadata))
+    os.replace(tmp, path)
+
+
 def save_asset(root, field, outer, inner, meta: dict) -> Path:
     """Write an asset directory: ``field.safetensors``, the two shells as PLY and ``asset.json`` (last, so a
     directory with an ``asset.json`` is complete). ``meta`` supplies everything but format/files/field."""
-    from safetensors.torch import save_file
-
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     files = {"field": "field.safetensors", "shell_outer": "shell_outer.ply", "shell_inner": "shell_inner.ply"}
     state = {k: v.detach().contiguous().cpu() for k, v in field.state_dict().items()}
-    save_file(state, str(root / files["field"]))
+    write_safetensors(root / files["field"], state)
     outer.export(root / files["shell_outer"])
     inner.export(root / files["shell_inner"])
     full = {

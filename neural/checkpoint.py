@@ -8,7 +8,6 @@ are atomic (temporary file + rename), so an interrupted run keeps the previous c
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import torch
@@ -24,7 +23,7 @@ def save_checkpoint(
     meta: dict | None = None,
 ) -> None:
     """Write model (+ optimizer state, extra tensors, JSON ``meta``) to ``path`` atomically."""
-    from safetensors.torch import save_file
+    from .asset import write_safetensors
 
     tensors = {f"model.{k}": v.detach().contiguous().cpu() for k, v in model.state_dict().items()}
     if optimizer is not None:
@@ -37,9 +36,7 @@ def save_checkpoint(
     header = {"meta": json.dumps(meta or {})}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    save_file(tensors, str(tmp), metadata=header)
-    os.replace(tmp, path)
+    write_safetensors(path, tensors, header)
 
 
 def load_checkpoint(

@@ -1,7 +1,7 @@
 """Procedure 4 end to end: stage 1 -> adaptive-shell extraction -> stage 2 -> an asset on disk.
 
-Each phase leaves its result in the output directory (checkpoints, then the shells, then the asset), so
-an interrupted run resumes where it stopped.
+Each phase leaves its result in ``OUT/checkpoints`` (stage checkpoints, the extracted shells, the wall time
+of the runs so far), then the asset in ``OUT``, so an interrupted run resumes where it stopped.
 """
 
 from __future__ import annotations
@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +22,7 @@ from .errors import InputError
 from .field import FieldConfig, ShellField
 from .render.narrowband import NarrowBandConfig
 from .shell import ShellConfig
-from .shell.from_field import extract_field_shells
+from .shell.from_field import FieldShells, extract_field_shells
 from .train import Stage1Config, Stage2Config, train_stage1, train_stage2
 
 log = logging.getLogger(__name__)
@@ -39,6 +40,25 @@ class PipelineConfig:
     downscale: int = 1
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     bound: float | None = None
+
+
+QUICK_STEPS = 2000  # stage-1 runs shorter than this are a quick try: smaller batches and grids
+
+
+def scaled_defaults(stage1_steps: int) -> dict:
+    """Settings that go with ``stage1_steps`` (``shellsim train`` applies them unless set explicitly).
+
+    Stage 2 takes 1/6 of stage 1 (1000 for the default 6000). A quick try (fewer than ``QUICK_STEPS``)
+    also trains on 16384 instead of 65536 samples per batch with a 64^3 instead of 128^3 occupancy grid,
+    and extracts its shells on a 128^3 instead of 256^3 grid: each about 4-8x cheaper, so that 200 steps
+    at a small downscale take minutes."""
+    quick = stage1_steps < QUICK_STEPS
+    return {
+        "stage2_steps": max(1, math.ceil(stage1_steps / 6)),
+        "shell_resolution": 128 if quick else ShellConfig.resolution,
+        "target_samples": 16384 if quick else Stage1Config.target_samples,
+        "occupancy_resolution": 64 if quick else Stage1Config.occupancy_resolution,
+    }
 
 
 def build_field(data: SceneData, config: FieldConfig, device: str) -> ShellField:
@@ -59,7 +79,17 @@ def train_asset(
     out_dir = Path(out_dir)
     if (out_dir / "asset.json").is_file() and not (out_dir / "checkpoints").is_dir():
         raise InputError(f"{out_dir}: holds a finished asset already; choose another --out or delete it")
+    ckpt_dir = out_dir / "checkpoints"
+    runs = _read_runs(ckpt_dir)
     started = time.time()
+    try:
+        return _train(data_dir, out_dir, config, device, name, keep_checkpoints, runs, started)
+    finally:  # also on an interrupt or an error: the next run adds its time to this one's
+        if ckpt_dir.is_dir():
+            _write_runs(ckpt_dir, runs["seconds"] + time.time() - started, runs["runs"] + 1)
+
+
+def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs: dict, started: float):
     data = load_dataset(
         data_dir, downscale=config.downscale, background=config.background, bound=config.bound
     )
@@ -73,7 +103,10 @@ def train_asset(
     )
     field_ = build_field(data, config.field, device)
     stage1 = train_stage1(field_, data, out_dir, config.stage1, device)
-    shells = extract_field_shells(field_, config.shell, device)
+    shells = _load_shells(out_dir / "checkpoints", config)
+    if shells is None:
+        shells = extract_field_shells(field_, config.shell, device)
+        _save_shells(out_dir / "checkpoints", config, shells)
     narrowband = config.narrowband.scaled(1.0 / float(data.normalisation.scale))  # unit cube -> world
     stage2 = train_stage2(
         field_, data, shells.outer, shells.inner, out_dir, config.stage2, narrowband, device
@@ -97,18 +130,69 @@ def train_asset(
             "stage2": dataclasses.asdict(config.stage2),
             "train_views": len(data.train_idx),
             "heldout_views": [int(v) for v in data.test_idx],
-            "wall_minutes": round((time.time() - started) / 60.0, 2),
+            "wall_minutes": round((runs["seconds"] + time.time() - started) / 60.0, 2),  # all runs
+            "runs": runs["runs"] + 1,
             "torch": torch.__version__,
         },
         "metrics": {"stage1_full_ray": stage1["final"], "stage2_narrow_band": stage2["final"]},
     }
     save_asset(out_dir, field_, shells.outer, shells.inner, meta)
     if not keep_checkpoints:
-        for ckpt in (out_dir / "checkpoints").glob("*.safetensors"):
-            ckpt.unlink()
+        for file in (*CHECKPOINT_FILES, *SHELL_FILES):
+            (out_dir / "checkpoints" / file).unlink(missing_ok=True)
         _rmdir(out_dir / "checkpoints")
     log.info("asset written to %s:\n%s", out_dir, json.dumps(meta["metrics"], indent=1))
     return out_dir
+
+
+CHECKPOINT_FILES = ("stage1.safetensors", "stage2.safetensors", "runs.json")
+SHELL_FILES = ("shell_outer.ply", "shell_inner.ply", "shells.json")
+
+
+def _read_runs(ckpt_dir: Path) -> dict:
+    """Wall seconds and count of the earlier runs that trained into ``ckpt_dir`` (none: zeros)."""
+    try:
+        runs = json.loads((ckpt_dir / "runs.json").read_text())
+        return {"seconds": float(runs["seconds"]), "runs": int(runs["runs"])}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {"seconds": 0.0, "runs": 0}
+
+
+def _write_runs(ckpt_dir: Path, seconds: float, runs: int) -> None:
+    tmp = ckpt_dir / "runs.json.tmp"
+    tmp.write_text(json.dumps({"seconds": seconds, "runs": runs}))
+    tmp.replace(ckpt_dir / "runs.json")
+
+
+def _shell_key(config: PipelineConfig) -> dict:
+    """What extracted shells depend on besides the stage-1 field: shell settings, stage-1 length (JSON)."""
+    return json.loads(
+        json.dumps({"shell": dataclasses.asdict(config.shell), "stage1_steps": config.stage1.steps})
+    )
+
+
+def _save_shells(ckpt_dir: Path, config: PipelineConfig, shells: FieldShells) -> None:
+    """Keep the extracted shells so that a resumed run skips the extraction; shells.json is written last."""
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
+    shells.outer.export(ckpt_dir / "shell_outer.ply")
+    shells.inner.export(ckpt_dir / "shell_inner.ply")
+    (ckpt_dir / "shells.json").write_text(json.dumps({**_shell_key(config), "stats": shells.stats}))
+
+
+def _load_shells(ckpt_dir: Path, config: PipelineConfig) -> FieldShells | None:
+    """The shells an earlier run extracted with the same settings after the same stage 1, else None."""
+    import trimesh
+
+    try:
+        saved = json.loads((ckpt_dir / "shells.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if {k: saved.get(k) for k in _shell_key(config)} != _shell_key(config):
+        log.info("%s: shell settings or stage-1 length changed; extracting the shells again", ckpt_dir)
+        return None
+    meshes = [trimesh.load(ckpt_dir / f, force="mesh", process=False) for f in SHELL_FILES[:2]]
+    log.info("%s: reusing the shells extracted by an earlier run", ckpt_dir)
+    return FieldShells(*meshes, saved["stats"])
 
 
 def _rmdir(path: Path) -> None:

@@ -1,15 +1,17 @@
 """Training (paper Procedure 4): stage 1 full-ray NeuS with a spatially varying kernel (Eq. 8-12), stage 2
 narrow-band fine-tuning with the color loss only.
 
-Both stages draw random pixels from the training views, write a checkpoint every ``checkpoint_every``
-steps (safetensors, atomic) and resume from it, show a progress bar with loss and PSNR, and evaluate on
-held-out views every ``eval_every`` steps.
+Both stages draw random pixels from the training views, write a checkpoint (safetensors, atomic) every
+``checkpoint_every`` steps, every ``checkpoint_seconds`` and when interrupted (Ctrl-C, SIGTERM through the
+CLI), resume from it, show a progress bar with loss and PSNR, and evaluate on held-out views every
+``eval_every`` steps.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,6 +65,7 @@ class Stage1Config:
     eval_every: int = 1000
     eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
     checkpoint_every: int = 250
+    checkpoint_seconds: float = 120.0  # also checkpoint when this much time passed since the last one
     seed: int = 0
 
 
@@ -79,6 +82,7 @@ class Stage2Config:
     eval_every: int = 500
     eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
     checkpoint_every: int = 250
+    checkpoint_seconds: float = 120.0  # also checkpoint when this much time passed since the last one
     seed: int = 1
 
 
@@ -222,6 +226,27 @@ def _progress(total: int, start: int, desc: str):
     return tqdm(total=total, initial=start, desc=desc, dynamic_ncols=True, mininterval=1.0)
 
 
+class _Checkpointer:
+    """Saves a stage's checkpoint every ``checkpoint_every`` steps, every ``checkpoint_seconds`` and at the
+    last step (``due``), and on an interrupt (``interrupted``). ``save(done)`` writes the checkpoint."""
+
+    def __init__(self, config, save, start: int):
+        self.config, self.save, self.saved = config, save, start
+        self.last = time.monotonic()
+
+    def due(self, done: int) -> None:
+        c = self.config
+        elapsed = time.monotonic() - self.last
+        if done % c.checkpoint_every == 0 or done == c.steps or elapsed >= c.checkpoint_seconds:
+            self.save(done)
+            self.saved, self.last = done, time.monotonic()
+
+    def interrupted(self, done: int, stage: str) -> None:
+        if done > self.saved:
+            self.save(done)
+            log.info("%s: interrupted; checkpoint saved at step %d", stage, done)
+
+
 def train_stage1(
     field: ShellField, data: SceneData, out_dir: Path, config: Stage1Config, device: str
 ) -> dict:
@@ -244,56 +269,65 @@ def train_stage1(
     scale = float(field.scale)
     bar = _progress(config.steps, start, "stage 1")
     history = []
-    for step in range(start, config.steps):
-        if step % config.occupancy_every == 0:
-            with torch.no_grad():
-                grid.update(sdf_kernel_fn(field), step)
-        set_learning_rate(optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor)
-        origins, dirs, target, ray_background = pixels.sample(n_rays)
-        samples = sampler(origins, dirs)
-        n_samples = len(samples.ray_indices)
-        if n_samples == 0:
+
+    def save(done: int) -> None:
+        meta = {"step": done, "n_rays": n_rays, "final": final if done == config.steps else None}
+        save_checkpoint(ckpt, field, optimizer, grid.state(), meta)
+
+    checkpoints, done = _Checkpointer(config, save, start), start
+    try:
+        for step in range(start, config.steps):
+            if step % config.occupancy_every == 0:
+                with torch.no_grad():
+                    grid.update(sdf_kernel_fn(field), step)
+            set_learning_rate(optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor)
+            origins, dirs, target, ray_background = pixels.sample(n_rays)
+            samples = sampler(origins, dirs)
+            n_samples = len(samples.ray_indices)
+            if n_samples == 0:
+                bar.update(1)
+                continue
+            anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
+            out = render_rays(field, origins, dirs, samples, ray_background, cos_anneal=anneal)
+            loss_c = (out["color"] - target).abs().mean()  # Eq. 9
+            k = max(1, int(n_samples * config.reg_fraction))
+            pick = torch.randperm(n_samples, generator=reg_gen)[:k].to(origins.device)
+            reg = regularisers(
+                field, out["points"][pick].detach(), out["normal"][pick], out["inv_s"][pick], config, reg_gen
+            )
+            loss = (
+                loss_c
+                + config.lambda_e * reg["eikonal"]
+                + config.lambda_n * reg["normal"]
+                + config.lambda_s * reg["smooth"]
+            )  # Eq. 8
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            n_rays = int(np.clip(n_rays * config.target_samples / n_samples, 256, config.max_rays))
+            bar.set_postfix(
+                loss=f"{loss.item():.4f}",
+                psnr=f"{_psnr(out['color'], target):.2f}",
+                rays=n_rays,
+                spp=f"{n_samples / len(origins):.1f}",
+                s=f"{float(1 / out['inv_s'].detach().mean()) * scale:.4f}",
+            )
             bar.update(1)
-            continue
-        anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
-        out = render_rays(field, origins, dirs, samples, ray_background, cos_anneal=anneal)
-        loss_c = (out["color"] - target).abs().mean()  # Eq. 9
-        k = max(1, int(n_samples * config.reg_fraction))
-        pick = torch.randperm(n_samples, generator=reg_gen)[:k].to(origins.device)
-        reg = regularisers(
-            field, out["points"][pick].detach(), out["normal"][pick], out["inv_s"][pick], config, reg_gen
-        )
-        loss = (
-            loss_c
-            + config.lambda_e * reg["eikonal"]
-            + config.lambda_n * reg["normal"]
-            + config.lambda_s * reg["smooth"]
-        )  # Eq. 8
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        n_rays = int(np.clip(n_rays * config.target_samples / n_samples, 256, config.max_rays))
-        bar.set_postfix(
-            loss=f"{loss.item():.4f}",
-            psnr=f"{_psnr(out['color'], target):.2f}",
-            rays=n_rays,
-            spp=f"{n_samples / len(origins):.1f}",
-            s=f"{float(1 / out['inv_s'].detach().mean()) * scale:.4f}",
-        )
-        bar.update(1)
-        done = step + 1
+            done = step + 1
+            final = _periodic_evaluation(
+                "stage 1", done, config, field, data, eval_sampler, pixels.background, bar
+            )
+            history += [final] if final else []
+            checkpoints.due(done)
+    except KeyboardInterrupt:
+        bar.close()
+        checkpoints.interrupted(done, "stage 1")
+        raise
+    if final is None and done == config.steps:  # resumed after the last step, before its evaluation
         final = _periodic_evaluation(
             "stage 1", done, config, field, data, eval_sampler, pixels.background, bar
         )
-        history += [final] if final else []
-        if done % config.checkpoint_every == 0 or done == config.steps:
-            save_checkpoint(
-                ckpt,
-                field,
-                optimizer,
-                grid.state(),
-                {"step": done, "n_rays": n_rays, "final": final if done == config.steps else None},
-            )
+        history.append(final)
     bar.close()
     return {"history": history, "final": history[-1] if history else final, "occupancy": grid}
 
@@ -324,27 +358,41 @@ def train_stage2(
     pixels = PixelSampler(data, device, config.seed + start, config.random_background)
     bar = _progress(config.steps, start, "stage 2")
     history = []
-    for step in range(start, config.steps):
-        set_learning_rate(optimizer, step, config.steps, 1, config.final_lr_factor)
-        origins, dirs, target, ray_background = pixels.sample(config.rays)
-        samples = sampler(origins, dirs)
-        out = render_rays(field, origins, dirs, samples, ray_background)
-        loss = (out["color"] - target).abs().mean()  # Eq. 9 only: no regularisers in stage 2
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        bar.set_postfix(
-            loss=f"{loss.item():.4f}",
-            psnr=f"{_psnr(out['color'], target):.2f}",
-            spp=f"{len(samples.ray_indices) / len(origins):.2f}",
+
+    def save(done: int) -> None:
+        save_checkpoint(
+            ckpt, field, optimizer, None, {"step": done, "final": final if done == config.steps else None}
         )
-        bar.update(1)
-        done = step + 1
-        final = _periodic_evaluation("stage 2", done, config, field, data, sampler, pixels.background, bar)
-        history += [final] if final else []
-        if done % config.checkpoint_every == 0 or done == config.steps:
-            save_checkpoint(
-                ckpt, field, optimizer, None, {"step": done, "final": final if done == config.steps else None}
+
+    checkpoints, done = _Checkpointer(config, save, start), start
+    try:
+        for step in range(start, config.steps):
+            set_learning_rate(optimizer, step, config.steps, 1, config.final_lr_factor)
+            origins, dirs, target, ray_background = pixels.sample(config.rays)
+            samples = sampler(origins, dirs)
+            out = render_rays(field, origins, dirs, samples, ray_background)
+            loss = (out["color"] - target).abs().mean()  # Eq. 9 only: no regularisers in stage 2
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            bar.set_postfix(
+                loss=f"{loss.item():.4f}",
+                psnr=f"{_psnr(out['color'], target):.2f}",
+                spp=f"{len(samples.ray_indices) / len(origins):.2f}",
             )
+            bar.update(1)
+            done = step + 1
+            final = _periodic_evaluation(
+                "stage 2", done, config, field, data, sampler, pixels.background, bar
+            )
+            history += [final] if final else []
+            checkpoints.due(done)
+    except KeyboardInterrupt:
+        bar.close()
+        checkpoints.interrupted(done, "stage 2")
+        raise
+    if final is None and done == config.steps:  # resumed after the last step, before its evaluation
+        final = _periodic_evaluation("stage 2", done, config, field, data, sampler, pixels.background, bar)
+        history.append(final)
     bar.close()
     return {"history": history, "final": history[-1] if history else final}

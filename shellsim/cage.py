@@ -57,6 +57,7 @@ from .embed import (
     outside_distance,
 )
 from .npz import load_npz, save_npz
+from .outputs import check_writable_file
 from .tetwild import tetrahedralize
 
 logger = logging.getLogger(__name__)
@@ -492,6 +493,7 @@ def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = 
                 logger.info("rebuilding %s: other cage settings requested", path)
             else:
                 return cage
+    check_writable_file(path)  # before the build, not after it
     cage = build_cage(outer, inner, config, what=str(asset.file("shell_outer")))
     save_cage(path, cage, embedding=False)
     return cage

@@ -2,8 +2,9 @@
 
 Every sub-command module defines ``register(subparsers)``, which adds its parser and sets
 ``func=run`` on it. Errors a user can act on (:class:`neural.errors.ShellsimError`) print one line
-``shellsim: error: ...`` and exit with status 2; an interrupt exits with 130 after the command has saved
-what it made.
+``shellsim: error: ...`` and exit with status 2. Ctrl-C (SIGINT) and SIGTERM both unwind the command as a
+``KeyboardInterrupt``, so it saves what it made; they exit with 130 and 143 (128 + the signal number).
+Warp's banner and module-load lines are shown only with ``--verbose``.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import signal
 import sys
 
 from neural.errors import ShellsimError
@@ -31,24 +33,39 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is so that ``with`` blocks and writers close as for Ctrl-C."""
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise Terminated()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
     )
-    if not args.verbose:
-        import warp
+    import warp
 
-        warp.config.quiet = True  # no banner or kernel-cache lines on stdout; -v shows them
+    # warp 1.19 reads config.log_level (it has no config.quiet): LOG_WARNING hides the banner and the
+    # "Module ... load" lines that it prints on stdout; --verbose shows them
+    warp.config.log_level = warp.LOG_INFO if args.verbose else warp.LOG_WARNING
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         args.func(args)
     except ShellsimError as err:
         print(f"shellsim: error: {err}", file=sys.stderr)
         return 2
+    except Terminated:
+        print("shellsim: terminated; what was written so far is kept", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print("shellsim: interrupted; what was written so far is kept", file=sys.stderr)
         return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     return 0
 
 

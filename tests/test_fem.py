@@ -258,6 +258,7 @@ def test_settings_and_inputs_are_validated():
         Simulator(v, t + 100, RUBBER, device="cpu")
 
 
+@pytest.mark.slow
 def test_serial_pcg_matches_warp_optim_cg():
     """The one-kernel CPU solver against the CUDA path (warp.optim.linear.cg), here run on the CPU."""
     v, t = box_tets((2, 2, 2), (0.1, 0.1, 0.1), origin=(0.0, 0.0, 0.002))
@@ -330,7 +331,10 @@ def test_cli_reports_the_collapsing_frame_in_one_line_keeping_the_frames_before(
         (["--damping", "-0.1"], "--damping: expected a time in seconds in [0, 10], got -0.1"),
         (["--tets", "5"], "--tets: expected an integer in [10, 1000000], got 5"),
         (["--velocity", "300,0,0"], "--velocity: expected a speed in m/s"),
-        (["--spin", "0,0,1000", "--size", "0.3"], "--spin: expected an angular speed in rad/s at --size 0.3 in [0, 333.333)"),
+        (
+            ["--spin", "0,0,1000", "--size", "0.3"],
+            "--spin: expected an angular speed in rad/s at --size 0.3 in [0, 333.333)",
+        ),
         (["--sphere", "0,0,0,-1"], "--sphere: expected a radius in (0, inf), got -1"),
         (["--box", "0,0,0,1,0,1"], "--box: expected half extents in (0, inf), got 0"),
     ],

@@ -21,7 +21,7 @@ from neural.train import Stage1Config, Stage2Config
 from shellsim.cli import main
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="module")  # trains for about 40 s on 2 cores: its tests are marked slow
 def fuzzy(tmp_path_factory):
     root = tmp_path_factory.mktemp("fuzzy")
     data = write_fuzzy_scene(root / "data", n_views=24, size=32)
@@ -55,6 +55,7 @@ def _widths(asset) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(outer.vertices), np.sqrt(d2)
 
 
+@pytest.mark.slow
 def test_shell_is_wider_over_the_cloud_than_over_the_solid(fuzzy):
     _, asset_dir = fuzzy
     asset = load_asset(asset_dir)
@@ -64,6 +65,7 @@ def test_shell_is_wider_over_the_cloud_than_over_the_solid(fuzzy):
     assert cloud > 1.25 * solid, (cloud, solid)
 
 
+@pytest.mark.slow
 def test_asset_records_training_and_the_narrow_band_renders_well(fuzzy):
     _, asset_dir = fuzzy
     meta = json.loads((asset_dir / "asset.json").read_text())
@@ -73,6 +75,7 @@ def test_asset_records_training_and_the_narrow_band_renders_well(fuzzy):
     assert not (asset_dir / "checkpoints").exists()
 
 
+@pytest.mark.slow
 def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     data, asset_dir = fuzzy
     out = tmp_path / "eval.json"
@@ -105,3 +108,53 @@ def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     assert "shell parameters" in capsys.readouterr().err
     assert main(["extract", "--asset", str(asset_dir), "--max-peel", "0"]) == 2
     assert "--max-peel" in capsys.readouterr().err
+
+
+def test_a_resumed_run_keeps_shells_time_and_normal_permissions(tmp_path, monkeypatch):
+    """Interrupted in stage 2, a run leaves its checkpoints and shells; the next run does not extract again,
+    and asset.json's wall time is the sum of both runs. Files get 0666 less the umask (not 0600)."""
+    import os
+    import time
+
+    from scenes import write_sphere_scene
+
+    import neural.pipeline as pipeline
+
+    data = write_sphere_scene(tmp_path / "data", n_views=8, size=16)
+    config = PipelineConfig(
+        field=FieldConfig(hashgrid=HashGridConfig(log2_table_size=12, max_resolution=64)),
+        stage1=Stage1Config(steps=10, target_samples=2048, initial_rays=128, occupancy_resolution=16),
+        shell=ShellConfig(resolution=32),
+        stage2=Stage2Config(steps=4, rays=256),
+        bound=1.0,
+    )
+    stage2 = pipeline.train_stage2
+
+    def interrupted_stage2(*args, **kwargs):
+        time.sleep(1.5)  # this run's time must count in the asset's wall time
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pipeline, "train_stage2", interrupted_stage2)
+    out = tmp_path / "asset"
+    first = time.time()
+    with pytest.raises(KeyboardInterrupt):
+        train_asset(data, out, config, "cpu")
+    first = time.time() - first
+    assert {"stage1.safetensors", "shells.json", "shell_outer.ply", "runs.json"} <= {
+        p.name for p in (out / "checkpoints").iterdir()
+    }
+    monkeypatch.setattr(pipeline, "train_stage2", stage2)
+    monkeypatch.setattr(pipeline, "extract_field_shells", lambda *a: pytest.fail("extracted again"))
+    umask = os.umask(0o022)
+    try:
+        second = time.time()
+        train_asset(data, out, config, "cpu")
+        second = time.time() - second
+    finally:
+        os.umask(umask)
+    training = json.loads((out / "asset.json").read_text())["training"]
+    assert training["runs"] == 2
+    assert abs(training["wall_minutes"] * 60 - (first + second)) < 1.0, (training, first, second)
+    for name in ("field.safetensors", "shell_outer.ply", "asset.json"):
+        assert (out / name).stat().st_mode & 0o777 == 0o644, name
+    assert not (out / "checkpoints").exists()

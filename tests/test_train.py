@@ -72,6 +72,7 @@ def test_random_background_only_behind_empty_pixels(sphere_data):
     torch.testing.assert_close(rgb, stored_rgb)
 
 
+@pytest.mark.slow  # about a minute on 2 cores
 def test_stage1_improves_psnr_on_a_rendered_sphere(sphere_data, tmp_path):
     torch.manual_seed(0)
     field = build_field(sphere_data, SMALL_FIELD, "cpu")
@@ -138,3 +139,58 @@ def test_train_cli_keeps_a_finished_asset(tmp_path, capsys):
     (done / "asset.json").write_text("{}")
     code, err = _run_cli(["train", "--data", str(data), "--out", str(done)], capsys)
     assert code == 2 and "finished asset" in err and (done / "asset.json").read_text() == "{}"
+
+
+def _failing_sampler(monkeypatch, at_call: int, error: BaseException):
+    """Make the pixel sampler raise ``error`` on its ``at_call``-th call (a crash or Ctrl-C mid-stage)."""
+    original, calls = PixelSampler.sample, []
+
+    def sample(self, n):
+        calls.append(n)
+        if len(calls) == at_call:
+            raise error
+        return original(self, n)
+
+    monkeypatch.setattr(PixelSampler, "sample", sample)
+
+
+def test_stage1_checkpoints_by_time_and_on_interrupt(sphere_data, tmp_path, monkeypatch):
+    from neural.checkpoint import load_checkpoint
+
+    ckpt = tmp_path / "checkpoints" / "stage1.safetensors"
+    config = dataclasses.replace(small_stage1(40), checkpoint_every=10**6, checkpoint_seconds=0.0)
+    _failing_sampler(monkeypatch, 7, RuntimeError("killed"))  # no handler runs: only what is on disk counts
+    with pytest.raises(RuntimeError):
+        train_stage1(build_field(sphere_data, SMALL_FIELD, "cpu"), sphere_data, tmp_path, config, "cpu")
+    field = build_field(sphere_data, SMALL_FIELD, "cpu")
+    assert load_checkpoint(ckpt, field)[0]["step"] == 6  # by time: every step when checkpoint_seconds is 0
+
+    config = dataclasses.replace(config, checkpoint_seconds=1e9)  # neither by steps nor by time...
+    _failing_sampler(monkeypatch, 4, KeyboardInterrupt())
+    with pytest.raises(KeyboardInterrupt):
+        train_stage1(field, sphere_data, tmp_path, config, "cpu")
+    assert load_checkpoint(ckpt, build_field(sphere_data, SMALL_FIELD, "cpu"))[0]["step"] == 9  # ...on Ctrl-C
+
+
+def test_a_short_run_scales_stage2_and_the_grids_with_its_steps(tmp_path, monkeypatch, capsys):
+    """--steps 200 (a first try) must not run the default 1000 stage-2 steps nor the 256^3 extraction;
+    explicit options win; --help says so."""
+    import neural.pipeline
+
+    configs = []
+    monkeypatch.setattr(
+        neural.pipeline, "train_asset", lambda data, out, config, *a, **k: configs.append(config)
+    )
+    base = ["train", "--data", str(tmp_path), "--out", str(tmp_path / "out")]
+    assert main([*base, "--steps", "200", "--checkpoint-minutes", "0.5"]) == 0
+    assert main([*base, "--steps", "200", "--stage2-steps", "7", "--shell-resolution", "64"]) == 0
+    assert main(base) == 0
+    quick, explicit, default = configs
+    assert quick.stage2.steps <= 200 // 5 and quick.shell.resolution <= 128
+    assert quick.stage1.target_samples <= default.stage1.target_samples // 4
+    assert quick.stage1.checkpoint_seconds == quick.stage2.checkpoint_seconds == 30.0
+    assert (explicit.stage2.steps, explicit.shell.resolution) == (7, 64)
+    assert (default.stage1.steps, default.stage2.steps, default.shell.resolution) == (6000, 1000, 256)
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    assert "--steps / 6" in capsys.readouterr().out

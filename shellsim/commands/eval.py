@@ -42,8 +42,13 @@ def run(args: argparse.Namespace) -> None:
     from neural.render.narrowband import ShellIntersector
     from neural.render.view import full_ray_sampler, narrow_band_sampler
     from neural.train import evaluate
+    from shellsim.outputs import check_writable_dir, check_writable_file
 
+    if args.json:
+        check_writable_file(args.json, "--json")
     asset = load_asset(args.asset)
+    if args.record:
+        check_writable_dir(asset.root, "--record")  # asset.json is rewritten there
     device = pick_device(args.device)
     downscale = args.downscale or asset.training_downscale
     background = asset.background

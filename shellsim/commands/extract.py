@@ -44,8 +44,10 @@ def run(args: argparse.Namespace) -> None:
     from neural.errors import InputError
     from neural.shell import ShellConfig
     from neural.shell.from_field import extract_field_shells
+    from shellsim.outputs import check_writable_dir
 
     asset = load_asset(args.asset)
+    check_writable_dir(asset.root, "--asset")  # new shells and asset.json are written there
     device = pick_device(args.device)
     known = {f.name for f in dataclasses.fields(ShellConfig)}
     stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}

@@ -49,6 +49,7 @@ def run(args: argparse.Namespace) -> None:
     from neural.errors import InputError
     from shellsim.commands.args import parse_size
     from shellsim.motion import load_motion
+    from shellsim.outputs import check_writable_file
 
     size = parse_size("--size", args.size)
     if args.asset is None and args.motion is None:
@@ -63,6 +64,7 @@ def run(args: argparse.Namespace) -> None:
             raise InputError(f"--screenshot {shot}: screenshots are written as PNG; give a name ending .png")
         if not shot.parent.is_dir():
             raise InputError(f"--screenshot {shot}: directory {shot.parent} does not exist")
+        check_writable_file(shot, "--screenshot")
     motion = load_motion(args.motion) if args.motion else None
     frame = 0 if args.frame is None else args.frame
     if motion is not None and not -motion.n_frames <= frame < motion.n_frames:

@@ -50,6 +50,11 @@ def run(args: argparse.Namespace) -> None:
     import math
 
     from neural.errors import InputError
+    from shellsim.outputs import check_writable_dir, check_writable_file
+
+    check_writable_dir(args.out, "--out")
+    if args.video:
+        check_writable_file(args.video, "--video")
 
     size = None
     if args.width is not None or args.height is not None:

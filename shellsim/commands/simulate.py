@@ -20,6 +20,7 @@ import numpy as np
 
 from neural.errors import InputError
 from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats, parse_rule, parse_size
+from shellsim.outputs import check_writable_dir, check_writable_file
 
 log = logging.getLogger(__name__)
 
@@ -129,6 +130,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     size = parse_size("--video-size", args.video_size) if args.video else None
+    if args.video:
+        video = check_writable_file(args.video, "--video")
+        check_writable_dir(video.with_name(video.stem + "_frames"), "--video")
     out = simulate_to_file(args)
     log.info("motion written to %s", out)
     if args.video:
@@ -340,7 +344,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     rules = [parse_rule("--pin", text) for text in args.pin]
     device = _device(args.device)
     name = Path(args.mesh).stem if args.mesh else Path(args.asset).name
-    out = Path(args.out) if args.out else Path(f"{name}_sim.npz")
+    out = check_writable_file(Path(args.out) if args.out else Path(f"{name}_sim.npz"), "--out")
 
     writer = None
     if out.is_file() and not args.overwrite:  # same settings: continue the file; other settings: refuse

@@ -86,6 +86,7 @@ def run(args: argparse.Namespace) -> None:
     from shellsim.cage import CageConfig, load_or_build_cage
     from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats, parse_rule
     from shellsim.motion import MotionWriter
+    from shellsim.outputs import check_writable_file
     from shellsim.wind import RANGES, WindSettings, animate_wind, max_frequency, wind_meta
 
     check_range("--frames", args.frames, 1, MAX_FRAMES, "an integer")
@@ -122,9 +123,9 @@ def run(args: argparse.Namespace) -> None:
     if args.direction is not None:
         options["direction"] = parse_floats("--direction", args.direction, 3)  # WindSettings rejects 0,0,0
     settings = WindSettings(up=tuple(asset.up), **{k: v for k, v in options.items() if v is not None})
+    out = check_writable_file(Path(args.out) if args.out else Path(f"{asset.name}_wind.npz"), "--out")
     # the stored cage whatever its settings (unless --margin asks for another), else a default one
     cage = load_or_build_cage(asset, None if args.margin is None else CageConfig(margin=args.margin))
-    out = Path(args.out) if args.out else Path(f"{asset.name}_wind.npz")
     meta = {**wind_meta(settings, args.fps), "asset": asset.name}
     if out.is_file() and not args.overwrite:
         writer = _reopen(out, meta, cage, asset.name)

@@ -133,7 +133,7 @@ def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
     asset = rod_asset(tmp_path / "rod")
     out = tmp_path / "m.npz"
     proc = _cli(
-        tmp_path, "simulate", "--asset", str(asset), "--frames", "100000", "--pin", "z<0.1", "--out", str(out)
+        tmp_path, "simulate", "--asset", str(asset), "--frames", "10000", "--pin", "z<0.1", "--out", str(out)
     )
     try:
         deadline = time.monotonic() + 120

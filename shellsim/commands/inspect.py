@@ -62,9 +62,9 @@ def run(args: argparse.Namespace) -> None:
         shot = Path(args.screenshot)
         if shot.suffix.lower() != ".png":
             raise InputError(f"--screenshot {shot}: screenshots are written as PNG; give a name ending .png")
+        check_writable_file(shot, "--screenshot")
         if not shot.parent.is_dir():
             raise InputError(f"--screenshot {shot}: directory {shot.parent} does not exist")
-        check_writable_file(shot, "--screenshot")
     motion = load_motion(args.motion) if args.motion else None
     frame = 0 if args.frame is None else args.frame
     if motion is not None and not -motion.n_frames <= frame < motion.n_frames:

@@ -349,10 +349,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     writer = None
     if out.is_file() and not args.overwrite:  # same settings: continue the file; other settings: refuse
         replace = "give --overwrite to start it anew, or another --out"
-        try:
-            writer = MotionWriter.resume(out)
-        except InputError as err:
-            raise InputError(f"{err}; {replace}") from None
+        writer = MotionWriter.resume(out)  # not a motion file: refused as it is, never replaced
         meta = writer.motion.meta
         if not {"params", "world", "state"} <= set(meta):
             raise InputError(f"{out}: not a 'shellsim simulate' motion file; {replace}")

@@ -155,10 +155,7 @@ def _reopen(out, meta: dict, cage, asset_name: str):
     from shellsim.motion import MotionWriter, describe_changes
 
     replace = "give --overwrite to start it anew, or another --out"
-    try:
-        writer = MotionWriter.resume(out)
-    except InputError as err:
-        raise InputError(f"{err}; {replace}") from None
+    writer = MotionWriter.resume(out)  # not a motion file: refused as it is, never replaced
     stored = writer.motion.meta
     if "settings" not in stored:
         raise InputError(f"{out}: not a 'shellsim wind' motion file; {replace}")

@@ -11,7 +11,7 @@ other settings) and the render where they stopped (a frame is kept only when it 
 frame, camera and size).
 
     python examples/drop_on_ground.py                          # the shipped lego, rubber, 45 frames
-    python examples/drop_on_ground.py --asset PATH --frames 10 --size 96 --material jelly
+    python examples/drop_on_ground.py --asset PATH --frames 10 --size 96 --material foam
 """
 
 from __future__ import annotations

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import signal
 import sys
 
@@ -41,6 +42,20 @@ def _raise_terminated(signum, frame) -> None:
     raise Terminated()
 
 
+def _init_warp_quietly(warp) -> None:
+    """Initialise Warp with file descriptor 2 silenced: its native CUDA probe writes "Could not find or load
+    the NVIDIA CUDA driver" straight to stderr on every machine without a GPU, whatever the log level."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            warp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -52,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     # warp 1.19 reads config.log_level (it has no config.quiet): LOG_WARNING hides the banner and the
     # "Module ... load" lines that it prints on stdout; --verbose shows them
     warp.config.log_level = warp.LOG_INFO if args.verbose else warp.LOG_WARNING
+    if not args.verbose:
+        _init_warp_quietly(warp)
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         args.func(args)

@@ -215,10 +215,14 @@ def test_a_colmap_model_directory_loads_with_its_cameras(tmp_path):
         assert data.images[3, 0, 0] * 255 == pytest.approx([3, 6, 9], abs=1e-4)
 
 
-def test_a_colmap_model_without_its_images_is_one_line(tmp_path, capsys):
+def test_a_colmap_model_without_images_or_unreadable_is_an_input_error(tmp_path):
     write_colmap_model(tmp_path, ring_cameras(4), [FOCAL, FOCAL, 80, 60, 0, 0, 0, 0])
     (tmp_path / "images").rename(tmp_path / "photos")
     with pytest.raises(InputError, match="COLMAP model without its photos"):
+        load_dataset(tmp_path)
+    (tmp_path / "photos").rename(tmp_path / "images")
+    (tmp_path / "sparse" / "0" / "cameras.bin").write_bytes(b"\x07" * 64)
+    with pytest.raises(InputError, match="cannot read the COLMAP model"):
         load_dataset(tmp_path)
 
 

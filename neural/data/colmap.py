@@ -424,9 +424,8 @@ def model_transforms(model: Path) -> tuple[dict, Path]:
     try:
         reconstruction = pycolmap.Reconstruction(str(model))
     except Exception as err:  # pycolmap raises bare ValueError / RuntimeError on a corrupt model
-        raise InputError(
-            f"{model}: cannot read the COLMAP model: {str(err).strip().splitlines()[-1]}"
-        ) from None
+        reason = (str(err).strip().splitlines() or [type(err).__name__])[-1]
+        raise InputError(f"{model}: cannot read the COLMAP model: {reason}") from None
     label = model / ("images.bin" if (model / "images.bin").is_file() else "images.txt")
     try:
         return transforms_from_reconstruction(reconstruction, image_dir, model), label

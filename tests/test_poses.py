@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -115,6 +116,11 @@ def solved(tmp_path_factory):
     root = tmp_path_factory.mktemp("orbit")
     cameras = ring_cameras()
     write_images(root / "images", cameras)
+    # photos that cannot be posed: unrelated noise, another size, a broken file
+    noise = np.random.default_rng(1).integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)
+    Image.fromarray(noise).save(root / "images" / "noise.png")
+    Image.fromarray(noise[::2, ::2]).save(root / "images" / "small.png")
+    (root / "images" / "broken.jpg").write_bytes(b"\xff\xd8\xff not really a jpeg")
     assert main(["poses", "--images", str(root / "images"), "--out", str(root / "out")]) == 0
     return cameras, root / "images", root / "out"
 
@@ -137,7 +143,12 @@ def test_poses_recovers_the_cameras_of_a_rendered_orbit(solved):
     meta = json.loads((out / "transforms.json").read_text())
     frames = meta["frames"]
     assert len(frames) >= 0.9 * len(cameras)
-    assert len(frames) + len(meta["unregistered"]) == len(cameras)  # nothing dropped silently
+    # nothing dropped silently: every photo is posed or listed with its reason
+    unregistered = {Path(u["file_path"]).name: u["reason"] for u in meta["unregistered"]}
+    assert unregistered.pop("noise.png") == "not posed by structure from motion"
+    assert unregistered.pop("small.png") == "80x60, the other images are 160x120"
+    assert unregistered.pop("broken.jpg").startswith("unreadable")
+    assert len(frames) + len(unregistered) == len(cameras)
     # file_path relative to OUT; the index in the name is the true camera
     assert all((out / f["file_path"]).resolve().parent == images.resolve() for f in frames)
     true = cameras[[int(f["file_path"][-6:-4]) for f in frames]]
@@ -201,7 +212,7 @@ def test_a_colmap_model_directory_loads_with_its_cameras(tmp_path):
     cameras = ring_cameras(12)
     params = [150.0, 152.0, 81.5, 58.5, 0.05, -0.08, -0.001, 0.0002]
     write_colmap_model(tmp_path, cameras, params)
-    for path in (tmp_path, tmp_path / "sparse" / "0"):
+    for path in (tmp_path, tmp_path / "sparse", tmp_path / "sparse" / "0"):
         data = load_dataset(path, holdout_every=0)
         assert data.format == "colmap" and data.cameras.names == [f"view_{k:02d}" for k in range(12)]
         np.testing.assert_allclose(data.cameras.fx, 150.0)

@@ -395,9 +395,9 @@ def _is_model(path: Path) -> bool:
 
 
 def find_model(path: Path) -> Path | None:
-    """The COLMAP model directory of ``path``: ``path/sparse/0`` or ``path`` itself when it holds
-    ``cameras``, ``images`` and ``points3D`` (``.bin`` or ``.txt``); else None."""
-    for candidate in (path / "sparse" / "0", path):
+    """The COLMAP model directory of ``path``: ``path/sparse/0``, ``path/0`` or ``path`` itself, the first
+    that holds ``cameras``, ``images`` and ``points3D`` (``.bin`` or ``.txt``); else None."""
+    for candidate in (path / "sparse" / "0", path / "0", path):
         if _is_model(candidate):
             return candidate
     return None

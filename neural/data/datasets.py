@@ -10,7 +10,7 @@ image's size. Every pose must be rigid (:func:`camera_pose`) and every intrinsic
 errors name the file and the frame with its ``file_path``, or the top-level key.
 
 A COLMAP model (``SCENE/sparse/0/{cameras,images,points3D}.bin`` beside ``SCENE/images/``; ``--data`` is
-``SCENE`` or ``SCENE/sparse/0``) is read with pycolmap and converted by
+``SCENE``, ``SCENE/sparse`` or ``SCENE/sparse/0``) is read with pycolmap and converted by
 :func:`neural.data.colmap.transforms_from_reconstruction`, the conversion ``shellsim poses`` writes, then
 loaded and normalised as instant-ngp (format ``"colmap"``).
 

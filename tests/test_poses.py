@@ -94,9 +94,10 @@ def render(c2w: np.ndarray, supersample: int = 2) -> np.ndarray:
 
 
 def write_images(directory, cameras: np.ndarray) -> list[str]:
-    """Render ``cameras`` (N, 4, 4) into ``directory/view_KK.png``; returns the names."""
+    """Render ``cameras`` (N, 4, 4) into ``directory/view KK.png`` (a space, as phones name photos);
+    returns the names."""
     directory.mkdir(parents=True, exist_ok=True)
-    names = [f"view_{k:02d}.png" for k in range(len(cameras))]
+    names = [f"view {k:02d}.png" for k in range(len(cameras))]
     for name, c2w in zip(names, cameras, strict=True):
         Image.fromarray(render(c2w)).save(directory / name)
     return names

@@ -22,6 +22,7 @@ import it.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import logging
 import math
@@ -126,7 +127,8 @@ def run_sfm(
 ) -> SfmResult:
     """Recover the poses of the photos in ``image_dir`` with COLMAP; files go to ``work_dir``.
 
-    Writes ``work_dir/database.db`` (features and matches) and ``work_dir/sparse/0`` (the model).
+    Writes ``work_dir/database.db`` (features and matches) and ``work_dir/sparse/0`` (the model), both
+    with the image names of ``image_dir``.
 
     Args:
         image_dir: directory of photos of one size (see :func:`list_images`).
@@ -162,6 +164,11 @@ def run_sfm(
     work_dir.mkdir(parents=True, exist_ok=True)
     database = work_dir / "database.db"
     sparse = work_dir / "sparse"
+    # COLMAP sees links 00000.jpg, ... (its pair lists split names at spaces); names are restored at the end
+    staged = _fresh_dir(work_dir / "staged")
+    links = [f"{k:05d}{Path(name).suffix.lower()}" for k, name in enumerate(names)]
+    for link, name in zip(links, names, strict=True):
+        (staged / link).symlink_to((image_dir / name).resolve())
     pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 2  # COLMAP's own log lines
     pycolmap.set_random_seed(0)
     device = pycolmap.Device.cpu
@@ -177,10 +184,10 @@ def run_sfm(
     with Image.open(image_dir / names[0]) as im:
         extraction.sift.first_octave = -1 if max(im.size) <= UPSAMPLE_BELOW else 0
     with tqdm(total=len(names), desc="SIFT features", unit="image", disable=not progress) as bar:
-        for chunk in _chunks(names, threads):
+        for chunk in _chunks(links, threads):
             pycolmap.extract_features(
                 database,
-                image_dir,
+                staged,
                 image_names=chunk,
                 camera_mode=pycolmap.CameraMode.SINGLE,
                 reader_options=reader,
@@ -188,14 +195,14 @@ def run_sfm(
                 device=device,
             )
             if reader.existing_camera_id < 0:
-                with _open_database(pycolmap, database) as db:
+                with contextlib.closing(pycolmap.Database.open(str(database))) as db:
                     reader.existing_camera_id = db.read_all_cameras()[0].camera_id
             bar.update(len(chunk))
     seconds["features"] = time.perf_counter() - start
 
     # matching: explicit pairs, in chunks, each verified geometrically (two-view RANSAC)
     start = time.perf_counter()
-    pairs = _pairs(names, matching)
+    pairs = _pairs(links, matching)
     options = pycolmap.FeatureMatchingOptions()
     options.num_threads = threads
     with (
@@ -214,14 +221,12 @@ def run_sfm(
             bar.update(len(chunk))
     seconds["matching"] = time.perf_counter() - start
 
-    # incremental mapping: one model, the bar counts registered images
+    # incremental mapping: a new model where one stops growing, the largest kept; the bar counts poses
     start = time.perf_counter()
-    if sparse.exists():
-        shutil.rmtree(sparse)
-    sparse.mkdir()
+    _fresh_dir(sparse)
     mapper = pycolmap.IncrementalPipelineOptions()
     mapper.num_threads = threads
-    mapper.multiple_models = False
+    mapper.multiple_models = True
     mapper.random_seed = 0
     with tqdm(total=len(names), desc="mapping", unit="image", disable=not progress) as bar:
 
@@ -229,17 +234,24 @@ def run_sfm(
             bar.update(1)
 
         models = pycolmap.incremental_mapping(
-            database, image_dir, sparse, options=mapper, next_image_callback=registered
+            database, staged, sparse, options=mapper, next_image_callback=registered
         )
         reconstruction = pycolmap.Reconstruction()
         if models:
-            best = max(models, key=lambda k: models[k].num_reg_images())
-            reconstruction = models[best]
-            if best != 0:  # keep the chosen model at sparse/0
-                reconstruction.write(_fresh_dir(sparse / "0"))
+            reconstruction = models[max(models, key=lambda k: models[k].num_reg_images())]
         bar.n = reconstruction.num_reg_images()  # the first pair registers two images in one callback
         bar.refresh()
     seconds["mapping"] = time.perf_counter() - start
+    original = dict(zip(links, names, strict=True))
+    for image in reconstruction.images.values():
+        image.name = original[image.name]
+    with contextlib.closing(pycolmap.Database.open(str(database))) as db:
+        for image in db.read_all_images():
+            image.name = original[image.name]
+            db.update_image(image)
+    shutil.rmtree(sparse)
+    reconstruction.write(_fresh_dir(sparse / "0"))  # the chosen model, named as in image_dir
+    shutil.rmtree(staged)
     posed = {im.name for im in reconstruction.images.values() if im.has_pose}
     unregistered = [name for name in names if name not in posed]
     for name in unregistered:
@@ -258,19 +270,6 @@ def _pairs(names: list[str], matching: str) -> list[tuple[str, str]]:
     n = len(names)
     steps = range(1, min(SEQUENTIAL_OVERLAP, n // 2) + 1)
     return sorted({tuple(sorted((names[i], names[(i + k) % n]))) for i in range(n) for k in steps})
-
-
-class _open_database:
-    """``with _open_database(pycolmap, path) as db``: a COLMAP database, closed on exit."""
-
-    def __init__(self, pycolmap, path: Path):
-        self.db = pycolmap.Database.open(str(path))
-
-    def __enter__(self):
-        return self.db
-
-    def __exit__(self, *exc):
-        self.db.close()
 
 
 def _fresh_dir(path: Path) -> Path:

@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> None:
 
     log = logging.getLogger("shellsim")
     images, out = Path(args.images), Path(args.out)
-    check_range("--min-registered", args.min_registered, 0.0, 1.0, "a fraction", "(]")
+    check_range("--min-registered", args.min_registered, 0.0, 1.0, "a fraction")
     check_range("--max-features", args.max_features, 64, 1_000_000, "a number of features")
     if args.threads is not None:
         check_range("--threads", args.threads, 1, 1024, "a number of threads")

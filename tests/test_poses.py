@@ -191,18 +191,21 @@ def test_train_loader_reads_poses_output_and_the_colmap_model_alike(solved):
     np.testing.assert_allclose(model.images, data.images)
 
 
-def write_colmap_model(root, c2w: np.ndarray, params: list[float]) -> None:
+def write_colmap_model(root, c2w: np.ndarray, params: list[float], *more_cameras) -> None:
     """A COLMAP scene ``root/sparse/0`` + ``root/images`` for OpenGL cameras ``c2w`` (N, 4, 4) and one
-    OPENCV camera ``params`` (fx fy cx cy k1 k2 p1 p2), converted here from first principles."""
+    OPENCV camera ``params`` (fx fy cx cy k1 k2 p1 p2), converted here from first principles.
+    ``more_cameras``: (COLMAP model name, params) of further cameras; image k uses camera k % count."""
     rec = pycolmap.Reconstruction()
-    camera = pycolmap.Camera.create_from_model_name(1, "OPENCV", FOCAL, WIDTH, HEIGHT)
-    camera.params = params
-    rec.add_camera_with_trivial_rig(camera)
+    for camera_id, (model, values) in enumerate([("OPENCV", params), *more_cameras], start=1):
+        camera = pycolmap.Camera.create_from_model_name(camera_id, model, FOCAL, WIDTH, HEIGHT)
+        camera.params = values
+        rec.add_camera_with_trivial_rig(camera)
     (root / "images").mkdir(parents=True)
     for k, m in enumerate(c2w):
         opencv = m.copy()
         opencv[:3, 1:3] *= -1  # camera y up -> down, looking down -z -> +z
-        image = pycolmap.Image(name=f"view_{k:02d}.png", camera_id=1, image_id=k + 1)
+        camera_id = k % (1 + len(more_cameras)) + 1
+        image = pycolmap.Image(name=f"view_{k:02d}.png", camera_id=camera_id, image_id=k + 1)
         rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(np.linalg.inv(opencv)[:3]))
         Image.new("RGB", (WIDTH, HEIGHT), (k, 2 * k, 3 * k)).save(root / "images" / image.name)
     (root / "sparse" / "0").mkdir(parents=True)
@@ -225,6 +228,29 @@ def test_a_colmap_model_directory_loads_with_its_cameras(tmp_path):
         np.testing.assert_allclose(data.cameras.c2w[:, :3, :3], cameras[:, :3, :3], atol=1e-9)
         np.testing.assert_allclose(data.cameras.c2w[:, :3, 3], cameras[:, :3, 3] * 4 / RING_RADIUS, atol=1e-9)
         assert data.images[3, 0, 0] * 255 == pytest.approx([3, 6, 9], abs=1e-4)
+
+
+def test_a_colmap_model_with_two_cameras_gives_per_frame_intrinsics(tmp_path):
+    write_colmap_model(
+        tmp_path, ring_cameras(6), [150.0, 152.0, 81.5, 58.5, 0.05, -0.08, -0.001, 0.0002],
+        ("SIMPLE_RADIAL", [130.0, 79.0, 61.0, -0.03]),
+    )  # fmt: skip
+    data = load_dataset(tmp_path, holdout_every=0)
+    np.testing.assert_allclose(data.cameras.fx, [150.0, 130.0] * 3)
+    np.testing.assert_allclose(data.cameras.fy, [152.0, 130.0] * 3)
+    np.testing.assert_allclose(data.cameras.cx, [81.5, 79.0] * 3)
+    np.testing.assert_allclose(data.cameras.distortion[1::2], [[-0.03, 0.0, 0.0, 0.0]] * 3)
+    np.testing.assert_allclose(data.cameras.distortion[0], [0.05, -0.08, -0.001, 0.0002])
+
+
+def test_a_colmap_model_of_an_unsupported_camera_model_is_one_line(tmp_path):
+    write_colmap_model(tmp_path, ring_cameras(4), [FOCAL, FOCAL, 80, 60, 0, 0, 0, 0])
+    rec = pycolmap.Reconstruction(str(tmp_path / "sparse" / "0"))
+    fisheye = pycolmap.Camera.create_from_model_name(1, "OPENCV_FISHEYE", FOCAL, WIDTH, HEIGHT)
+    rec.cameras[1].model, rec.cameras[1].params = fisheye.model, fisheye.params
+    rec.write_binary(str(tmp_path / "sparse" / "0"))
+    with pytest.raises(InputError, match="COLMAP camera model OPENCV_FISHEYE is not supported"):
+        load_dataset(tmp_path)
 
 
 def test_a_colmap_model_without_images_or_unreadable_is_an_input_error(tmp_path):

@@ -18,7 +18,7 @@ import sys
 
 from neural.errors import ShellsimError
 
-COMMANDS = ("train", "extract", "render", "eval", "cage", "simulate", "wind", "inspect")
+COMMANDS = ("poses", "train", "extract", "render", "eval", "cage", "simulate", "wind", "inspect")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,6 +9,11 @@ Both formats store per-frame ``transform_matrix`` camera-to-world in OpenGL axes
 image's size. Every pose must be rigid (:func:`camera_pose`) and every intrinsic valid (:func:`_number`);
 errors name the file and the frame with its ``file_path``, or the top-level key.
 
+A COLMAP model (``SCENE/sparse/0/{cameras,images,points3D}.bin`` beside ``SCENE/images/``; ``--data`` is
+``SCENE``, ``SCENE/sparse`` or ``SCENE/sparse/0``) is read with pycolmap and converted by
+:func:`neural.data.colmap.transforms_from_reconstruction`, the conversion ``shellsim poses`` writes, then
+loaded and normalised as instant-ngp (format ``"colmap"``).
+
 Normalisation into the field's unit cube ``u = (x - center) * scale``:
 
 - NeRF-synthetic: ``center = 0``, ``scale = 1 / bound`` with ``bound = 1.5`` (lego fits [-1.5, 1.5]^3);
@@ -64,7 +69,7 @@ class SceneData:
         up: (3,) float64 unit world up axis (gravity points along -up).
         background: (3,) float32 RGB the alpha images were composited on.
         source: the dataset directory.
-        format: ``"nerf-synthetic"`` or ``"instant-ngp"``.
+        format: ``"nerf-synthetic"``, ``"instant-ngp"`` or ``"colmap"``.
         scene_radius: world distance from ``normalisation.center`` within which the whole scene lies
             (``bound`` for NeRF-synthetic; ``aabb_scale * bound`` for instant-ngp).
     """
@@ -254,13 +259,23 @@ def _locate(path: Path) -> tuple[Path, str, list[Path]]:
         return path, "nerf-synthetic", synthetic
     if (path / "transforms.json").is_file():
         return path, "instant-ngp", [path / "transforms.json"]
+    from .colmap import find_model  # a COLMAP model: SCENE/sparse/0 (or that directory itself)
+
+    model = find_model(path)
+    if model is not None:
+        return path, "colmap", [model]
     raise InputError(
-        f"{path}: not a dataset: expected transforms_train.json (NeRF-synthetic) or transforms.json "
-        f"(instant-ngp / nerfstudio)"
+        f"{path}: not a dataset: expected transforms_train.json (NeRF-synthetic), transforms.json "
+        f"(instant-ngp / nerfstudio) or a COLMAP model sparse/0 beside images/"
     )
 
 
 def _read_frames(json_path: Path, need_images: bool = True) -> list[_Frame]:
+    if json_path.is_dir():  # a COLMAP model directory (see _locate), converted as `shellsim poses` does
+        from .colmap import model_transforms
+
+        meta, json_path = model_transforms(json_path)
+        return _parse_frames(json_path, meta, need_images)
     try:
         text = json_path.read_text(encoding="utf-8")
     except OSError as err:
@@ -279,6 +294,11 @@ def _read_frames(json_path: Path, need_images: bool = True) -> list[_Frame]:
         raise InputError(f"{json_path}: expected a JSON object at the top level")
     if not isinstance(meta.get("frames"), list):
         raise InputError(f"{json_path}: no 'frames' list")
+    return _parse_frames(json_path, meta, need_images)
+
+
+def _parse_frames(json_path: Path, meta: dict, need_images: bool) -> list[_Frame]:
+    """The frames of a parsed ``transforms*.json`` dict; errors name ``json_path``."""
     frames = []
     for i, frame in enumerate(meta["frames"]):
         if not isinstance(frame, dict):

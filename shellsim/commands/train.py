@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "are a quick try (4x smaller batches, 64^3 occupancy and 128^3 shell grids): --steps 200 "
         "--downscale 8 makes a rough asset in a few minutes.",
     )
-    p.add_argument("--data", required=True, help="dataset directory (transforms_*.json or transforms.json)")
+    p.add_argument("--data", required=True, help="dataset dir: transforms*.json or COLMAP sparse/0")
     p.add_argument(
         "--out", required=True, help="asset directory to write (checkpoints go in OUT/checkpoints)"
     )

@@ -17,7 +17,7 @@ import torch
 from PIL import Image
 from test_render_deformed import make_asset
 
-from neural.data import load_dataset
+from neural.data import load_camera_file, load_dataset
 from neural.train import PixelSampler
 from shellsim.cli import main
 from shellsim.render import DeformedRenderer
@@ -162,3 +162,16 @@ def test_render_cameras_at_another_size_scale_the_intrinsics(tmp_path, monkeypat
     render_d = np.stack([seen[f][1][r * w + c] for f, r, c in zip(frame, row, col, strict=True)])
     np.testing.assert_allclose(o, render_o, atol=1e-5)
     np.testing.assert_allclose(d, render_d, atol=1e-5)
+
+
+def test_a_nerf_synthetic_directory_names_its_cameras_by_split(tmp_path):
+    """As for ``train --data``: every split's file in order; stems repeated across splits get the split."""
+    for split, n in (("train", 2), ("test", 1)):
+        frames = [{"file_path": f"./{split}/r_{i}", "transform_matrix": _c2w(i).tolist()} for i in range(n)]
+        (tmp_path / f"transforms_{split}.json").write_text(
+            json.dumps({"camera_angle_x": 0.8, "frames": frames})
+        )
+    cameras = load_camera_file(tmp_path, width=8, height=6)
+    assert cameras.names == ["train_r_0", "train_r_1", "test_r_0"]
+    np.testing.assert_allclose(cameras.c2w, np.stack([_c2w(0), _c2w(1), _c2w(0)]))
+    np.testing.assert_allclose(cameras.fx, 4 / math.tan(0.4))

@@ -8,6 +8,11 @@ asset's shells (narrow band, paper Procedure 3) and with fixed steps through the
 reference full-ray renderer); rays that leave the box show the field's learnt environment map in both.
 Prints the figures as JSON. Nothing trained on the fox may be shipped: OUT defaults to /tmp.
 
+Measured on the shared 2-core CPU, ``--steps 1000 --downscale 8`` (135x240, 39 training and 6 held-out
+views): 13.1 minutes in all (10.6 training), held-out PSNR 18.13 dB narrow band at 7.86 samples/pixel and
+18.78 dB full ray at 164.5, shells of 176488 (M+) and 135228 (M-) faces, peak RSS 7.15 GiB (the full-ray
+evaluation's 16384-ray chunks).
+
     python bench/fox_bench.py [--steps N] [--downscale 4|8] [--data DIR] [--out DIR] [--device cpu|cuda]
 """
 

@@ -62,8 +62,11 @@ def scaled_defaults(stage1_steps: int) -> dict:
 
 
 def build_field(data: SceneData, config: FieldConfig, device: str) -> ShellField:
-    """A freshly initialised field covering the dataset's normalised unit cube."""
+    """A freshly initialised field covering the dataset's normalised unit cube, with an environment map
+    (``FieldConfig.env_map``) when the images have no alpha: photos whose background lies beyond the box."""
     norm = data.normalisation
+    if data.alphas is None:
+        config = dataclasses.replace(config, env_map=True)
     return ShellField(config, center=tuple(float(c) for c in norm.center), scale=float(norm.scale)).to(device)
 
 

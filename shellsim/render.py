@@ -157,7 +157,7 @@ class DeformedRenderer:
 
     def _render_chunk(self, frame: _Frame, o: torch.Tensor, d: torch.Tensor, times: dict):
         """One chunk of rays: colours (R, 3), samples per ray (R,) and the number of samples dropped."""
-        from neural.render.fullray import render_rays, render_samples
+        from neural.render.fullray import ray_background, render_rays, render_samples
         from neural.render.narrowband import narrow_band_samples
         from neural.render.samples import RaySamples
 
@@ -192,7 +192,7 @@ class DeformedRenderer:
             kept.deltas * scale,
             (kept.t_mid - kept.t_starts) * scale,
             kept,
-            self.background,
+            ray_background(self.field, d, self.background),
         )
         times["field"] += time.perf_counter() - tick
         return out["color"], nb_stats.counts, int((~inside).sum())

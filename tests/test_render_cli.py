@@ -104,7 +104,7 @@ def test_rest_render_writes_one_png_per_camera(tmp_path, asset_dir, capsys):
     assert "3 frames rendered" in capsys.readouterr().out
     assert render(asset_dir, out, "--width", "20", "--height", "14", cameras=cams) == 0
     assert "0 frames rendered" in capsys.readouterr().out
-    assert render(asset_dir, out, "--width", "16", cameras=cams) == 0  # another size: rendered again
+    assert render(asset_dir, out, "--width", "16", "--height", "16", cameras=cams) == 0  # another size
     assert "3 frames rendered" in capsys.readouterr().out
     assert all(np.asarray(Image.open(p)).shape == (16, 16, 3) for p in out.iterdir())
 

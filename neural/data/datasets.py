@@ -196,36 +196,60 @@ def load_dataset(
 
 
 def load_camera_file(path: str | os.PathLike, width: int | None = None, height: int | None = None) -> Cameras:
-    """Cameras from a ``transforms*.json``-style file whose images may be absent (e.g. a render path).
+    """Cameras from a ``transforms*.json``-style file, or a dataset directory as ``train --data`` takes it,
+    whose images may be absent (e.g. a render path, or held-out views of a capture).
 
-    The image size is ``width`` x ``height`` when given, else the file's ``w``/``h`` keys, else the size
-    of the first listed image that exists; otherwise an :class:`InputError`. Intrinsics given in pixels
-    (``fl_x``, ``cx``, ...) refer to the file's ``w``/``h`` and are rescaled to a requested size.
+    Every listed frame is a camera, with or without its image, in the file's own world coordinates (the
+    ones a field trained on it uses), with the intrinsics and distortion of :func:`_cameras`. The file's
+    image size is its ``w``/``h`` keys, else the size of the first listed image that exists, else the
+    requested size (square when only one is given). ``width`` and/or ``height`` ask for another size: a
+    missing one keeps each camera's aspect ratio, and pixel intrinsics are rescaled (``fx, cx`` by
+    ``W'/W``, ``fy, cy`` by ``H'/H``; distortion is unitless and unchanged). Names are the image stems,
+    or the image paths relative to the dataset (``train_r_0``) where stems repeat. Anything unusable is an
+    :class:`InputError`.
     """
-    if (width is None) != (height is None):
-        raise ValueError(f"width, height: give both or neither, got {width!r}, {height!r}")
+    for name, value in (("width", width), ("height", height)):
+        if value is not None and not (int(value) == value and value >= 1):
+            raise ValueError(f"{name}: expected a positive int, got {value!r}")
     path = Path(path)
     if path.is_dir():
-        raise InputError(f"{path}: is a directory, not a camera file")
-    if not path.is_file():
+        try:
+            root, _, json_paths = _locate(path)
+        except InputError:
+            raise InputError(f"{path}: is a directory, not a camera file") from None
+    elif path.is_file():
+        root, json_paths = path.parent, [path]
+    else:
         raise InputError(f"{path}: camera file not found")
-    frames = _read_frames(path, need_images=False)
+    frames = [f for jp in json_paths for f in _read_frames(jp, need_images=False)]
     if not frames:
-        raise InputError(f"{path}: no frames listed")
+        raise InputError(f"{', '.join(map(str, json_paths))}: no frames listed")
     size = None  # used only by frames without 'w'/'h' keys
     if any(_get(f, "w") is None or _get(f, "h") is None for f in frames):
-        if width is not None:
-            size = (width, height)
-        else:
-            image = next((f.image_path for f in frames if f.image_path and f.image_path.is_file()), None)
-            if image is None:
-                raise InputError(
-                    f"{path}: no image size: no 'w'/'h' keys, none of the listed images exists, and no "
-                    f"width/height was given"
-                )
+        image = next((f.image_path for f in frames if f.image_path and f.image_path.is_file()), None)
+        if image is not None:
             size = _image_size(image)
+        elif width is not None or height is not None:
+            size = (width or height, height or width)  # nothing to keep the aspect ratio of: square
+        else:
+            raise InputError(
+                f"{path}: no image size: no 'w'/'h' keys, none of the listed images exists, and no "
+                f"width/height was given"
+            )
     cameras = _cameras(frames, [size] * len(frames), check_size=False)
-    return cameras if width is None else cameras.resized(width, height)
+    if len(set(cameras.names)) != len(cameras.names):
+        cameras.names = [
+            f"frame_{f.index}" if f.image_path is None else _relative(f.image_path.with_suffix(""), root)
+            for f in frames
+        ]
+        cameras.names = [n.replace(os.sep, "_").replace("/", "_").lstrip("._") for n in cameras.names]
+    if width is None and height is None:
+        return cameras
+    if width is None:
+        width = np.maximum(1, np.round(cameras.width * height / cameras.height)).astype(np.int64)
+    if height is None:
+        height = np.maximum(1, np.round(cameras.height * width / cameras.width)).astype(np.int64)
+    return cameras.resized(width, height)
 
 
 def _normalisation(fmt: str, cameras: Cameras, json_path: Path, meta: dict, bound: float | None):

@@ -55,6 +55,7 @@ class FieldConfig:
     inv_s_max: float = 1e5
     backend: str = "warp"
     cpu_threads: int = 2
+    env_map: bool = False  # learn the colour of rays that leave the box, by direction (real captures)
 
     def __post_init__(self):
         if not isinstance(self.hashgrid, HashGridConfig):
@@ -72,6 +73,8 @@ class FieldConfig:
             )
         if self.backend not in BACKENDS:
             raise ValueError(f"FieldConfig.backend: expected one of {BACKENDS}, got {self.backend!r}")
+        if not isinstance(self.env_map, bool):
+            raise ValueError(f"FieldConfig.env_map: expected true or false, got {self.env_map!r}")
 
     def to_dict(self) -> dict:
         """Plain JSON-ready dict (the hash grid as a nested dict)."""
@@ -172,6 +175,11 @@ class ShellField(nn.Module):
             nn.ReLU(),
             nn.Linear(cfg.rad_hidden, 3),
         )
+        self.env = None
+        if cfg.env_map:
+            self.env = nn.Sequential(
+                nn.Linear(N_COEFFS, cfg.rad_hidden), nn.ReLU(), nn.Linear(cfg.rad_hidden, 3)
+            )
         self._sphere_init()
 
     @torch.no_grad()
@@ -231,6 +239,14 @@ class ShellField(nn.Module):
             )
         sh = spherical_harmonics(F.normalize(d.to(torch.float32), dim=1))
         return torch.sigmoid(self.rad(torch.cat([sh, geo.feature, geo.normal, u], dim=1)))
+
+    def environment(self, d: torch.Tensor) -> torch.Tensor | None:
+        """Colour (R, 3) in [0, 1] of what lies beyond the box along directions d (R, 3) (any length), from
+        the environment map ``sigmoid(MLP(SH(d)))``; None for a field without one (``env_map`` false)."""
+        if self.env is None:
+            return None
+        _check_points(d, "d")
+        return torch.sigmoid(self.env(spherical_harmonics(F.normalize(d.to(torch.float32), dim=1))))
 
     def forward(self, x: torch.Tensor, d: torch.Tensor) -> tuple[Geometry, torch.Tensor]:
         """World points x (N, 3), directions d (N, 3) -> (:class:`Geometry`, rgb (N, 3))."""

@@ -244,6 +244,13 @@ def importance_samples(
     )
 
 
+def ray_background(field: Any, dirs: torch.Tensor, background: torch.Tensor | None) -> torch.Tensor | None:
+    """What rays along ``dirs`` (R, 3) see behind the field: its environment map's colours (R, 3) when it
+    has one, else ``background`` unchanged."""
+    env = field.environment(dirs) if hasattr(field, "environment") else None
+    return background if env is None else env.to(dirs.dtype)
+
+
 def render_rays(
     field: Any,
     origins: torch.Tensor,
@@ -257,10 +264,12 @@ def render_rays(
     The field is evaluated once on all S samples ``x = o + t_mid d`` (see :func:`render_samples`), with
     section lengths ``delta |d|`` in world units.
 
-    origins, dirs : (R, 3) ; samples : packed samples of these R rays ; background : (3,), (R, 3) or None.
+    origins, dirs : (R, 3) ; samples : packed samples of these R rays ; background : (3,), (R, 3) or None;
+    a field with an environment map (``field.environment(dirs)`` not None) shows it instead.
     Returns :func:`render_samples`'s dictionary.
     """
     _check_rays(origins, dirs)
+    background = ray_background(field, dirs, background)
     if samples.n_rays != origins.shape[0]:
         raise ValueError(f"samples are for {samples.n_rays} rays but {origins.shape[0]} rays were given")
     ray_indices = samples.ray_indices

@@ -27,7 +27,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--motion", default=None, help="motion file (.npz) from 'shellsim simulate' or 'shellsim wind'"
     )
     view = p.add_mutually_exclusive_group(required=True)
-    view.add_argument("--cameras", default=None, help="camera file (transforms*.json style)")
+    view.add_argument(
+        "--cameras",
+        default=None,
+        help="camera file or dataset directory, any format 'train --data' reads (NeRF-synthetic "
+        "transforms_*.json, instant-ngp / nerfstudio transforms.json with fl_x fl_y cx cy k1 k2 p1 p2 w h); "
+        "every listed frame is a camera, its image may be absent",
+    )
     view.add_argument(
         "--orbit", action="store_true", help="with --motion: one camera revolution around the asset per clip"
     )
@@ -38,7 +44,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--width", type=int, default=None, help="image width (default: the camera file's; orbit 400)"
     )
-    p.add_argument("--height", type=int, default=None, help="image height (default: as --width)")
+    p.add_argument(
+        "--height",
+        type=int,
+        default=None,
+        help="image height (default: the camera file's, or the file's aspect ratio with --width alone; "
+        "orbit: as --width); the file's pixel intrinsics are scaled to the size",
+    )
     p.add_argument("--video", default=None, help="with --motion: also write the frames as this MP4")
     p.add_argument("--fps", type=float, default=None, help="video frame rate (default: the motion's)")
     p.add_argument("--overwrite", action="store_true", help="render frames already in OUT again")
@@ -58,11 +70,12 @@ def run(args: argparse.Namespace) -> None:
 
     size = None
     if args.width is not None or args.height is not None:
-        width = args.width if args.width is not None else args.height
-        height = args.height if args.height is not None else args.width
-        if width < 1 or height < 1:
-            raise InputError(f"--width/--height: expected positive sizes, got {width}x{height}")
-        size = (width, height)
+        for flag in ("width", "height"):
+            if getattr(args, flag) is not None and getattr(args, flag) < 1:
+                raise InputError(f"--{flag}: expected a positive size, got {getattr(args, flag)}")
+        size = (args.width, args.height)  # a missing one keeps the camera file's aspect ratio
+        if args.orbit:
+            size = (args.width or args.height, args.height or args.width)
     if args.motion is None:
         for flag in ("orbit", "frames", "video", "fps"):
             if getattr(args, flag) not in (None, False):

@@ -56,6 +56,7 @@ def test_rays_leaving_the_box_show_the_environment_not_the_background():
     assert not torch.allclose(out["color"], white.expand(64, 3), atol=0.05)
 
 
+@pytest.mark.slow
 def test_the_environment_map_learns_a_background_through_the_renderer():
     torch.manual_seed(0)
     field = ShellField(FieldConfig(hashgrid=SMALL, env_map=True))

@@ -86,6 +86,7 @@ def test_stage1_improves_psnr_on_a_rendered_sphere(sphere_data, tmp_path):
     assert after["psnr"] > before["psnr"] + 4.0, (before["psnr"], after["psnr"])
 
 
+@pytest.mark.slow
 def test_stage1_resumes_from_its_checkpoint(sphere_data, tmp_path):
     field = build_field(sphere_data, SMALL_FIELD, "cpu")
     train_stage1(field, sphere_data, tmp_path, small_stage1(20), "cpu")

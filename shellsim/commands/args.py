@@ -53,3 +53,17 @@ def parse_rule(flag: str, text: str) -> Selection:
         return parse_selection(text)
     except InputError as err:
         raise InputError(f"{flag} {err}") from None
+
+
+def add_resume_options(parser) -> None:
+    """``--resume`` / ``--overwrite`` of a command writing the motion file OUT (argparse parser)."""
+    again = parser.add_mutually_exclusive_group()
+    again.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue OUT after its last frame (what happens anyway when OUT exists and was made with the "
+        "same settings; other settings are refused)",
+    )
+    again.add_argument(
+        "--overwrite", action="store_true", help="start OUT anew even if it was made with other settings"
+    )

@@ -19,7 +19,15 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats, parse_rule, parse_size
+from shellsim.commands.args import (
+    MAX_FPS,
+    MAX_FRAMES,
+    add_resume_options,
+    check_range,
+    parse_floats,
+    parse_rule,
+    parse_size,
+)
 from shellsim.outputs import check_writable_dir, check_writable_file
 
 log = logging.getLogger(__name__)
@@ -107,16 +115,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--damping", type=float, default=0.0, help="Kelvin-Voigt damping in seconds (default 0)")
     p.add_argument("--tets", type=int, help="target cage tet count when the cage is built")
     p.add_argument("--out", help="motion file (default NAME_sim.npz)")
-    again = p.add_mutually_exclusive_group()
-    again.add_argument(
-        "--resume",
-        action="store_true",
-        help="continue OUT after its last frame (what happens anyway when OUT exists and was made with the "
-        "same settings; other settings are refused)",
-    )
-    again.add_argument(
-        "--overwrite", action="store_true", help="start OUT anew even if it was made with other settings"
-    )
+    add_resume_options(p)
     p.add_argument(
         "--video",
         help="then render the motion (orbiting camera) to this MP4 and its frames to VIDEO_frames/ (with "

@@ -9,6 +9,7 @@ log = logging.getLogger(__name__)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from shellsim.commands.args import add_resume_options
     from shellsim.wind import WindSettings as W  # numpy only: cheap to import
 
     p = sub.add_parser(
@@ -65,16 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="dilation of the outer shell when the cage is built, relative to its diagonal (default 0.02)",
     )
     p.add_argument("--out", default=None, help="motion file to write (default ASSETNAME_wind.npz)")
-    again = p.add_mutually_exclusive_group()
-    again.add_argument(
-        "--resume",
-        action="store_true",
-        help="continue OUT after its last frame (what happens anyway when OUT exists and was made with the "
-        "same settings; other settings are refused)",
-    )
-    again.add_argument(
-        "--overwrite", action="store_true", help="start OUT anew even if it was made with other settings"
-    )
+    add_resume_options(p)
     p.set_defaults(func=run)
 
 

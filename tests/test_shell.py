@@ -341,3 +341,43 @@ def test_sample_grid_validates():
         sample_grid(good, [0.0, 0.0, 0.0], [1.0, 2.0, 1.0], 8)
     with pytest.raises(ValueError, match=r"\(N,\)"):
         sample_grid(lambda x: (x, x[:, 0]), [0.0] * 3, [1.0] * 3, 8)
+
+
+class _AnalyticSphere(torch.nn.Module):
+    """Exact SDF ``|x| - 1`` with a constant kernel size, in the ``ShellField`` interface the bench uses."""
+
+    scale = torch.tensor(1.0)
+
+    def sdf(self, x):
+        return x.norm(dim=1) - 1.0
+
+    def sdf_and_kernel(self, x):
+        return self.sdf(x), torch.full((len(x),), 0.01)
+
+
+def test_adaptive_bench_measures_band_width_on_concentric_spheres():
+    import importlib.util
+    from pathlib import Path
+
+    import trimesh
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "adaptive_bench.py"
+    spec = importlib.util.spec_from_file_location("adaptive_bench", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    outer = trimesh.creation.icosphere(subdivisions=5, radius=1.06)
+    inner = trimesh.creation.icosphere(subdivisions=5, radius=0.97)
+    points, normals, grad_norm, s = bench.surface_points(_AnalyticSphere(), outer, 500)
+    assert len(points) > 490
+    np.testing.assert_allclose(np.linalg.norm(points, axis=1), 1.0, atol=1e-3)  # moved onto f = 0
+    np.testing.assert_allclose(normals, points / np.linalg.norm(points, axis=1)[:, None], atol=2e-3)
+    np.testing.assert_allclose(grad_norm, 1.0, atol=2e-3)
+    np.testing.assert_allclose(s, 0.01)
+    # 0.06 to M+ and 0.03 to M-, less the icospheres' chord sag (< 1e-3 at 5 subdivisions)
+    np.testing.assert_allclose(bench.band_width(points, outer, inner), 0.09, atol=1.5e-3)
+    # fur: upward-facing and high on the bunny; skin: low; the pedestal's top and the cube: neither
+    z0, z1 = bench.PEDESTAL_TOP, bench.PEDESTAL_TOP + 1.4
+    pts = np.array([[0, 0, z0 + 1.3], [0, 0, z0 + 1.3], [0.3, 0, z0 + 0.3], [0.6, 0.6, z0 + 0.05]])
+    up, side = [0, 0, 1.0], [1.0, 0, 0]
+    labels = bench.label_points(pts, np.array([up, side, side, up]), (z0, z1))
+    assert labels.tolist() == [1, -1, 0, -1]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import sys
 from pathlib import Path
 
@@ -228,6 +229,22 @@ def test_a_colmap_model_directory_loads_with_its_cameras(tmp_path):
         np.testing.assert_allclose(data.cameras.c2w[:, :3, :3], cameras[:, :3, :3], atol=1e-9)
         np.testing.assert_allclose(data.cameras.c2w[:, :3, 3], cameras[:, :3, 3] * 4 / RING_RADIUS, atol=1e-9)
         assert data.images[3, 0, 0] * 255 == pytest.approx([3, 6, 9], abs=1e-4)
+
+
+def test_a_colmap_model_is_a_camera_file_even_without_its_photos(tmp_path):
+    """render --cameras takes a COLMAP model like train --data does; cameras need no photos."""
+    from neural.data.datasets import load_camera_file
+
+    write_colmap_model(tmp_path, ring_cameras(6), [150.0, 152.0, 81.5, 58.5, 0.05, -0.08, -0.001, 0.0002])
+    trained = load_dataset(tmp_path, holdout_every=0).cameras
+    shutil.rmtree(tmp_path / "images")
+    for path in (tmp_path, tmp_path / "sparse" / "0"):
+        cameras = load_camera_file(path, width=WIDTH // 2)
+        assert cameras.names == trained.names
+        np.testing.assert_allclose(cameras.c2w, trained.c2w, atol=1e-12)
+        np.testing.assert_allclose(cameras.fx, 75.0)  # half the width: fx and cx halve
+        np.testing.assert_allclose(cameras.cx, 81.5 / 2)
+        np.testing.assert_allclose(cameras.distortion, trained.distortion)
 
 
 def test_a_colmap_model_with_two_cameras_gives_per_frame_intrinsics(tmp_path):

@@ -402,24 +402,28 @@ def find_model(path: Path) -> Path | None:
     return None
 
 
-def model_image_dir(model: Path) -> Path:
+def model_image_dir(model: Path, must_exist: bool = True) -> Path:
     """The ``images/`` directory of the scene a model belongs to: ``SCENE/images`` for a model at
-    ``SCENE/sparse/0`` (or ``SCENE/sparse``); an InputError when there is none."""
+    ``SCENE/sparse/0`` (or ``SCENE/sparse``); when there is none, an InputError, or with ``must_exist``
+    False (cameras only, e.g. ``render --cameras``) the first candidate."""
     model = model.resolve()
     candidates = [model.parent.parent / "images", model.parent / "images"]
     for candidate in candidates:
         if candidate.is_dir():
             return candidate
+    if not must_exist:
+        return candidates[0]
     raise InputError(
         f"{model}: COLMAP model without its photos: no {' or '.join(map(str, candidates))} directory"
     )
 
 
-def model_transforms(model: Path) -> tuple[dict, Path]:
+def model_transforms(model: Path, need_images: bool = True) -> tuple[dict, Path]:
     """(``transforms.json`` dict, the model file errors should name) for a COLMAP model directory;
-    ``file_path`` is relative to the model directory. Used by :func:`load_dataset`."""
+    ``file_path`` is relative to the model directory. Used by :func:`load_dataset` and, without
+    ``need_images`` (the photos may be elsewhere or gone), by :func:`load_camera_file`."""
     pycolmap = require_pycolmap()
-    image_dir = model_image_dir(model)
+    image_dir = model_image_dir(model, must_exist=need_images)
     try:
         reconstruction = pycolmap.Reconstruction(str(model))
     except Exception as err:  # pycolmap raises bare ValueError / RuntimeError on a corrupt model

@@ -298,7 +298,7 @@ def _read_frames(json_path: Path, need_images: bool = True) -> list[_Frame]:
     if json_path.is_dir():  # a COLMAP model directory (see _locate), converted as `shellsim poses` does
         from .colmap import model_transforms
 
-        meta, json_path = model_transforms(json_path)
+        meta, json_path = model_transforms(json_path, need_images)
         return _parse_frames(json_path, meta, need_images)
     try:
         text = json_path.read_text(encoding="utf-8")

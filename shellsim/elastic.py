@@ -2,7 +2,8 @@
 (closed-form eigenvalues; shift or SVD eigen-projection) and :func:`tet_terms`, the kernel that accumulates
 each tet's energy, forces and 3x3 Hessian blocks (with Kelvin-Voigt damping) for :mod:`shellsim.fem`; plus
 NumPy/host helpers (:func:`tet_volumes`, :func:`snh_energy_reference`, :func:`elastic_energy`) used by tests
-and benchmarks. The model and its definiteness fix are described in :mod:`shellsim.fem`.
+and benchmarks. The model (with its volume barrier below det F = ``BARRIER_J``) and its definiteness fix
+are described in :mod:`shellsim.fem`.
 """
 
 from __future__ import annotations
@@ -26,15 +27,33 @@ SHIFT_LIMIT = 0.1  # largest Hessian shift (in units of mu) used instead of the 
 ENERGY, FORCE, HESSIAN = (wp.constant(k) for k in (0, 1, 2))  # what an evaluation computes
 
 
+BARRIER_J = 0.5  # volume ratio below which the volume barrier acts
+BARRIER_STIFFNESS = 10.0  # its stiffness, in units of lam
+
+
+@wp.func
+def volume_terms(J: f64, lam: f64) -> vec3:
+    """(phi, phi', phi'') of the volumetric energy phi(J) = lam/2 (J - 1)^2 + b(J), with the barrier
+    b(J) = -kb lam (J - Jb)^2 log(J / Jb) for J < Jb, kb = BARRIER_STIFFNESS (C2 at Jb, infinite at J = 0)."""
+    d = J - f64(1.0)
+    out = vec3(f64(0.5) * lam * d * d, lam * d, lam)
+    jb = f64(BARRIER_J)
+    if J < jb:
+        if J <= f64(0.0):
+            return vec3(f64(1.0e300), f64(0.0), f64(0.0))
+        e = J - jb
+        g = wp.log(J / jb)
+        db = -(f64(2.0) * e * g + e * e / J)
+        ddb = -(f64(2.0) * g + f64(4.0) * e / J - e * e / (J * J))
+        out += f64(BARRIER_STIFFNESS) * lam * vec3(-e * e * g, db, ddb)
+    return out
+
+
 @wp.func
 def snh_energy(F: mat33, mu: f64, lam: f64) -> f64:
-    """Psi(F) = mu/2 (|F|^2 - 3) - mu (J - 1) + lam/2 (J - 1)^2."""
+    """Psi(F) = mu/2 (|F|^2 - 3) - mu (J - 1) + phi(J) (:func:`volume_terms`)."""
     J = wp.determinant(F)
-    return (
-        f64(0.5) * mu * (wp.ddot(F, F) - f64(3.0))
-        - mu * (J - f64(1.0))
-        + f64(0.5) * lam * (J - f64(1.0)) * (J - f64(1.0))
-    )
+    return f64(0.5) * mu * (wp.ddot(F, F) - f64(3.0)) - mu * (J - f64(1.0)) + volume_terms(J, lam)[0]
 
 
 @wp.func
@@ -46,9 +65,9 @@ def det_gradient(F: mat33) -> mat33:
 
 @wp.func
 def snh_stress(F: mat33, mu: f64, lam: f64) -> mat33:
-    """First Piola-Kirchhoff stress P = dPsi/dF = mu F + (lam (J - 1) - mu) dJ/dF."""
+    """First Piola-Kirchhoff stress P = dPsi/dF = mu F + (phi'(J) - mu) dJ/dF."""
     J = wp.determinant(F)
-    return mu * F + (lam * (J - f64(1.0)) - mu) * det_gradient(F)
+    return mu * F + (volume_terms(J, lam)[1] - mu) * det_gradient(F)
 
 
 @wp.func
@@ -61,7 +80,7 @@ def flat(M: mat33) -> vec9:
 def scaling_modes(s: vec3, mu: f64, lam: f64, k: f64) -> mat33:
     """The 3x3 matrix whose eigenpairs are the scaling modes of d2Psi/dF2 at singular values ``s``
     (Smith et al. 2019): ``mu I + lam c c^T + k [[0, s2, s1], [s2, 0, s0], [s1, s0, 0]]``,
-    ``c = (s1 s2, s0 s2, s0 s1)``, ``k = lam (J - 1) - mu``."""
+    ``c = (s1 s2, s0 s2, s0 s1)``; pass ``lam = phi''(J)``, ``k = phi'(J) - mu`` (:func:`volume_terms`)."""
     c = vec3(s[1] * s[2], s[0] * s[2], s[0] * s[1])
     zero = f64(0.0)
     return (
@@ -83,7 +102,8 @@ def snh_hessian_psd(F: mat33, mu: f64, lam: f64) -> mat99:
         s[2] = -s[2]
     Ut = wp.transpose(U)
     Vt = wp.transpose(V)
-    k = lam * (s[0] * s[1] * s[2] - f64(1.0)) - mu
+    phi = volume_terms(s[0] * s[1] * s[2], lam)
+    k = phi[1] - mu
     r = f64(0.7071067811865476)
     H = mat99()
     for m in range(3):
@@ -95,7 +115,7 @@ def snh_hessian_psd(F: mat33, mu: f64, lam: f64) -> mat99:
         flip = flat(r * (a + b))
         H += wp.max(mu + k * s[m], f64(0.0)) * wp.outer(twist, twist)
         H += wp.max(mu - k * s[m], f64(0.0)) * wp.outer(flip, flip)
-    A = scaling_modes(s, mu, lam, k)
+    A = scaling_modes(s, mu, phi[2], k)
     Q = mat33()
     d = vec3()
     wp.eig3(A, Q, d)
@@ -136,15 +156,17 @@ def snh_min_eigenvalue(F: mat33, mu: f64, lam: f64) -> f64:
     )
     if J < f64(0.0):
         s[2] = -s[2]
-    k = lam * (J - f64(1.0)) - mu
+    phi = volume_terms(J, lam)
+    k = phi[1] - mu
     twist_flip = mu - wp.abs(k) * s[0]
-    A = scaling_modes(s, mu, lam, k)
+    A = scaling_modes(s, mu, phi[2], k)
     return wp.min(twist_flip, sym_eigenvalues(A)[2])
 
 
 @wp.func
 def snh_block(F: mat33, cof: mat33, mu: f64, lam: f64, k: f64, ga: vec3, gb: vec3) -> mat33:
-    """Exact Hessian block d2Psi/dx_a dx_b = mu (ga.gb) I + lam (cof ga)(cof gb)^T + k d2J/dx_a dx_b,
+    """Exact Hessian block d2Psi/dx_a dx_b = mu (ga.gb) I + lam (cof ga)(cof gb)^T + k d2J/dx_a dx_b
+    (``lam = phi''(J)``, ``k = phi'(J) - mu``),
     with d2J/dx_a dx_b [i, k] = eps_ikm (F (ga x gb))_m."""
     return (
         mu * wp.dot(ga, gb) * wp.identity(n=3, dtype=f64)
@@ -260,7 +282,8 @@ def tet_terms(
     if not exact:
         H = snh_hessian_psd(F, mu, lam)
     cof = det_gradient(F)
-    k = lam * (wp.determinant(F) - f64(1.0)) - mu
+    phi = volume_terms(wp.determinant(F), lam)
+    k = phi[1] - mu
     for a in range(4):
         if pinned[tets[t, a]] != 0:
             continue
@@ -270,7 +293,7 @@ def tet_terms(
                 gb = shape_gradient(Dinv, b)
                 block = mat33()
                 if exact:
-                    block = snh_block(F, cof, mu + shift, lam, k, ga, gb)
+                    block = snh_block(F, cof, mu + shift, phi[2], k, ga, gb)
                 else:
                     block = contract(H, ga, gb)
                 block += damping_block(Fp, damp_mu, damp_lam, ga, gb)
@@ -286,7 +309,16 @@ def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
 def snh_energy_reference(F: np.ndarray, mu: float, lam: float) -> np.ndarray:
     """NumPy twin of the stable Neo-Hookean energy density: F (..., 3, 3) -> Psi (...)."""
     J = np.linalg.det(F)
-    return 0.5 * mu * (np.sum(F * F, axis=(-2, -1)) - 3.0) - mu * (J - 1.0) + 0.5 * lam * (J - 1.0) ** 2
+    e = np.minimum(J - BARRIER_J, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log = np.log(np.minimum(J, BARRIER_J) / BARRIER_J)
+        barrier = np.where(J > 0, -BARRIER_STIFFNESS * lam * e * e * log, np.inf)
+    return (
+        0.5 * mu * (np.sum(F * F, axis=(-2, -1)) - 3.0)
+        - mu * (J - 1.0)
+        + 0.5 * lam * (J - 1.0) ** 2
+        + barrier
+    )
 
 
 def elastic_energy(

@@ -10,14 +10,19 @@ rest volume ``V_t``, deformation gradient ``F = D_s D_m^-1`` and ``J = det F``:
 
 - **Stable Neo-Hookean** (Smith et al. 2018, in the form of Kim & Eberle 2022, Sec. 6.5)::
 
-      Psi(F) = mu/2 (|F|^2 - 3) - mu (J - 1) + lam/2 (J - 1)^2,      lam = lambda_Lame + mu,
+      Psi(F) = mu/2 (|F|^2 - 3) - mu (J - 1) + phi(J),     phi(J) = lam/2 (J - 1)^2 + b(J),
 
-  rest-stable, defined for inverted elements, linearising to Lamé's ``mu``, ``lambda``. Its stress is
-  ``P = mu F + (lam (J - 1) - mu) dJ/dF`` and its Hessian ``mu I + lam dJ dJ^T + k d2J``,
-  ``k = lam (J - 1) - mu``, has the analytic eigensystem of Smith et al. 2019: with ``F = U diag(s) V^T``
-  (rotations U, V; ``J = s0 s1 s2``) the twist and flip modes ``U t_m V^T``, ``U l_m V^T`` have eigenvalues
-  ``mu + k s_m`` and ``mu - k s_m``, and the three scaling modes ``U diag(q) V^T`` are the eigenvectors ``q``
-  of ``mu I + lam c c^T + k [[0, s2, s1], [s2, 0, s0], [s1, s0, 0]]``, ``c = (s1 s2, s0 s2, s0 s1)``.
+  ``lam = lambda_Lame + mu``: rest-stable, linearising to Lamé's ``mu``, ``lambda``, plus a volume barrier
+  ``b(J) = -kb lam (J - Jb)^2 log(J / Jb)`` for ``J < Jb`` (``Jb = 0.5``, ``kb = 10``: ``BARRIER_J``,
+  ``BARRIER_STIFFNESS`` in :mod:`shellsim.elastic`; C2, zero for ``J >= Jb``, infinite at ``J = 0``).
+  Without it a tet flattened to ``J = 0`` costs only ``(mu + lam) / 2`` per volume: soft bodies (10 kPa
+  jelly) squashed on impact flattened tets bridging concave creases, and the line search, which refuses
+  steps that invert a tet, then stalled at det F ~ 0. The stress is ``P = mu F + (phi'(J) - mu) dJ/dF``
+  and the Hessian ``mu I + phi''(J) dJ dJ^T + k d2J``, ``k = phi'(J) - mu``, has the analytic eigensystem
+  of Smith et al. 2019: with ``F = U diag(s) V^T`` (rotations U, V; ``J = s0 s1 s2``) the twist and flip
+  modes ``U t_m V^T``, ``U l_m V^T`` have eigenvalues ``mu + k s_m`` and ``mu - k s_m``, and the three
+  scaling modes ``U diag(q) V^T`` are the eigenvectors ``q`` of
+  ``mu I + phi'' c c^T + k [[0, s2, s1], [s2, 0, s0], [s1, s0, 0]]``, ``c = (s1 s2, s0 s2, s0 s1)``.
   Definiteness fix: the eigenvalues need only the singular values (closed form, no SVD); where the smallest
   is above ``-SHIFT_LIMIT mu`` the exact Hessian is shifted by it (``+ shift I`` in F-space, cheap), else
   the element takes the SVD and every negative eigenvalue is clamped to 0.

@@ -20,6 +20,17 @@ import torch
 from PIL import Image
 
 
+def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """(4, 4) OpenGL camera-to-world at ``eye`` (3,) looking at ``target`` (3,): camera +z points away from
+    the target, camera +y towards the world direction ``up``."""
+    back = (eye - target) / np.linalg.norm(eye - target)
+    right = np.cross(up, back)
+    right /= np.linalg.norm(right)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, np.cross(back, right), back, eye
+    return m
+
+
 def orbit_cameras(n: int, radius: float, seed: int = 0) -> np.ndarray:
     """(n, 4, 4) camera-to-world matrices (OpenGL axes) on a sphere around the origin, z up."""
     rng = np.random.default_rng(seed)
@@ -30,13 +41,7 @@ def orbit_cameras(n: int, radius: float, seed: int = 0) -> np.ndarray:
         eye = radius * np.array(
             [math.cos(elev) * math.cos(azim), math.cos(elev) * math.sin(azim), math.sin(elev)]
         )
-        back = eye / np.linalg.norm(eye)  # camera +z points away from the target
-        right = np.cross([0.0, 0.0, 1.0], back)
-        right /= np.linalg.norm(right)
-        up = np.cross(back, right)
-        m = np.eye(4)
-        m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, up, back, eye
-        mats.append(m)
+        mats.append(look_at(eye, np.zeros(3)))
     return np.stack(mats)
 
 

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from scenes import look_at
 from test_render_deformed import make_asset
 
 from neural.data import load_camera_file, load_dataset
@@ -42,12 +43,7 @@ def _c2w(i: int) -> np.ndarray:
     """OpenGL camera-to-world of frame ``i``: around TARGET, y axis (the file's own 'up') tilted."""
     a = 2 * math.pi * i / N_FRAMES
     eye = TARGET + 3.0 * np.array([math.cos(a), 0.5, math.sin(a)])
-    back = (eye - TARGET) / np.linalg.norm(eye - TARGET)
-    right = np.cross([0.1, 1.0, 0.0], back)
-    right /= np.linalg.norm(right)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, np.cross(back, right), back, eye
-    return c2w
+    return look_at(eye, TARGET, up=(0.1, 1.0, 0.0))
 
 
 def _intrinsics(i: int) -> dict:

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from scenes import look_at
 
 from neural.data import load_dataset
 from neural.data.colmap import align_similarity
@@ -29,16 +30,6 @@ WIDTH, HEIGHT, FOCAL = 160, 120, 140.0
 BOX = 0.6  # the box is [-BOX, BOX]^3; the ground is the plane z = -BOX
 RING_RADIUS = 3.2
 TRUE_K = np.array([[FOCAL, 0, WIDTH / 2], [0, FOCAL, HEIGHT / 2], [0, 0, 1]])
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(4, 4) OpenGL camera-to-world at ``eye`` looking at ``target``, world z up."""
-    back = (eye - target) / np.linalg.norm(eye - target)
-    right = np.cross([0.0, 0.0, 1.0], back)
-    right /= np.linalg.norm(right)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, np.cross(back, right), back, eye
-    return m
 
 
 def ring_cameras(n: int = 24) -> np.ndarray:

@@ -18,14 +18,12 @@ import argparse
 import logging
 from pathlib import Path
 
-import numpy as np
-
 from neural.asset import load_asset
 from neural.errors import ShellsimError
 from shellsim.cage import load_or_build_cage
-from shellsim.motion import MotionWriter, describe_changes
+from shellsim.motion import MotionWriter
 from shellsim.render import render_motion
-from shellsim.wind import WindSettings, animate_wind, wind_meta
+from shellsim.wind import WindSettings, animate_wind, motion_changes, wind_meta
 
 log = logging.getLogger(__name__)
 
@@ -49,13 +47,9 @@ class Example:
         writer = None
         if self.motion_path.is_file():
             old = MotionWriter.resume(self.motion_path)
-            changes = describe_changes({k: old.motion.meta.get(k) for k in meta}, meta)
+            changes = motion_changes(old.motion, meta, self.cage.vertices, self.cage.tets)
             if old.n_frames > self.frames:
                 changes.append(f"--frames: {old.n_frames} -> {self.frames}")
-            rest, tets = old.motion.rest_vertices, old.motion.tets
-            same_cage = rest.shape == self.cage.vertices.shape and np.array_equal(tets, self.cage.tets)
-            if not (same_cage and np.allclose(rest, self.cage.vertices)):
-                changes.append("the asset's cage")
             if changes:
                 log.info("replacing %s, made with other settings (%s)", self.motion_path, "; ".join(changes))
             else:

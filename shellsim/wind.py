@@ -309,6 +309,25 @@ def wind_meta(settings: WindSettings, fps: float) -> dict:
     }
 
 
+def motion_changes(motion, wanted: dict, rest_vertices: np.ndarray, tets: np.ndarray) -> list[str]:
+    """What keeps the wind motion ``motion`` (a :class:`shellsim.motion.Motion`) from being continued with
+    the ``wanted`` meta (keys of :func:`wind_meta`, and ``asset`` where given) on the cage ``rest_vertices``
+    (V, 3), ``tets`` (T, 4): ``"name: old -> new"`` lines (:func:`shellsim.motion.describe_changes`),
+    empty when nothing differs."""
+    from .motion import describe_changes
+
+    changes = describe_changes({k: motion.meta.get(k) for k in wanted}, wanted, _SETTING_NAMES)
+    rest = motion.rest_vertices
+    same_cage = rest.shape == rest_vertices.shape and np.array_equal(motion.tets, tets)
+    if not (same_cage and np.allclose(rest, rest_vertices)):
+        changes.append(f"the cage: the file's has {len(motion.tets)} tets, this one {len(tets)}")
+    return changes
+
+
+#: Names of the wind meta keys whose option is not ``--key-with-dashes``.
+_SETTING_NAMES = {"settings.up": "the asset's up axis", "settings.base_fraction": "base fraction"}
+
+
 def animate_wind(
     rest_vertices, tets, settings: WindSettings, frames: int, fps: float, writer, progress: bool = True
 ) -> None:
@@ -336,14 +355,11 @@ def animate_wind(
         )
     meta = writer.motion.meta
     wanted = wind_meta(settings, fps)
-    if writer.n_frames and (meta.get("settings") != wanted["settings"] or meta.get("fps") != wanted["fps"]):
+    changes = motion_changes(writer.motion, wanted if writer.n_frames else {}, rest, tets)
+    if changes:
         raise InputError(
-            f"{writer.path}: was made with other wind settings or fps ({meta.get('settings')}, "
-            f"fps {meta.get('fps')}); drop --resume to start over"
+            f"{writer.path}: was made with other wind settings or another cage ({'; '.join(changes)})"
         )
-    same_cage = writer.motion.rest_vertices.shape == rest.shape and np.array_equal(writer.motion.tets, tets)
-    if not (same_cage and np.allclose(writer.motion.rest_vertices, rest)):
-        raise InputError(f"{writer.path}: its rest cage is not this asset's cage")
     meta.update(wanted)
     stats = meta.setdefault("stats", {})
     start, wall = time.perf_counter(), float(stats.get("wall_seconds", 0.0))

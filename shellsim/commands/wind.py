@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> None:
     cage = load_or_build_cage(asset, None if args.margin is None else CageConfig(margin=args.margin))
     meta = {**wind_meta(settings, args.fps), "asset": asset.name}
     if out.is_file() and not args.overwrite:
-        writer = _reopen(out, meta, cage, asset.name)
+        writer = _reopen(out, meta, cage)
     else:
         if out.exists():
             log.info("--overwrite: replacing %s", out)
@@ -138,30 +138,18 @@ def run(args: argparse.Namespace) -> None:
     )
 
 
-def _reopen(out, meta: dict, cage, asset_name: str):
+def _reopen(out, meta: dict, cage):
     """A :class:`MotionWriter` continuing the wind motion ``out`` when it was made with ``meta``'s settings
     of this ``cage``; else an InputError listing what differs (old -> new) and how to start anew."""
-    import numpy as np
-
     from neural.errors import InputError
-    from shellsim.motion import MotionWriter, describe_changes
+    from shellsim.motion import MotionWriter
+    from shellsim.wind import motion_changes
 
     replace = "give --overwrite to start it anew, or another --out"
     writer = MotionWriter.resume(out)  # not a motion file: refused as it is, never replaced
-    stored = writer.motion.meta
-    if "settings" not in stored:
+    if "settings" not in writer.motion.meta:
         raise InputError(f"{out}: not a 'shellsim wind' motion file; {replace}")
-    keys = ("asset", "fps", "settings")
-    changes = describe_changes(
-        {k: stored.get(k) for k in keys},
-        {k: meta[k] for k in keys},
-        {"settings.up": "the asset's up axis", "settings.base_fraction": "base fraction"},
-    )
-    rest, tets = writer.motion.rest_vertices, writer.motion.tets
-    if not (rest.shape == cage.vertices.shape and np.allclose(rest, cage.vertices)) or not np.array_equal(
-        tets, cage.tets
-    ):
-        changes.append(f"the cage: the file's has {len(tets)} tets, {asset_name}'s {len(cage.tets)}")
+    changes = motion_changes(writer.motion, meta, cage.vertices, cage.tets)
     if changes:
         raise InputError(f"{out}: made with other settings ({'; '.join(changes)}); {replace}")
     log.info("continuing %s after frame %d", out, writer.n_frames - 1)

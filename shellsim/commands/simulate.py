@@ -131,12 +131,10 @@ def run(args: argparse.Namespace) -> None:
     size = parse_size("--video-size", args.video_size) if args.video else None
     if args.video:
         video = check_writable_file(args.video, "--video")
-        check_writable_dir(video.with_name(video.stem + "_frames"), "--video")
+        frames_dir = check_writable_dir(video.with_name(video.stem + "_frames"), "--video")
     out = simulate_to_file(args)
     log.info("motion written to %s", out)
     if args.video:
-        video = Path(args.video)
-        frames_dir = video.with_name(video.stem + "_frames")
         # each frame is kept only if it records this motion frame and camera
         if args.asset:
             from shellsim.render import render_motion
@@ -227,8 +225,9 @@ def _check_scale_options(args: argparse.Namespace) -> None:
 
 
 def _load_cage(args: argparse.Namespace):
-    """(vertices, tets, up) of the rest cage, world frame. An asset's cage is its stored one when it fits
-    --tets/--margin; a --mesh is tetrahedralised undilated (margin 0)."""
+    """(vertices, tets, up, surface) of the rest cage, world frame. An asset's cage is its stored one when it
+    fits --tets/--margin (surface None); a --mesh is tetrahedralised undilated (margin 0) and its surface
+    embedded in the cage (:func:`_mesh_surface`)."""
     from neural.asset import load_asset, load_mesh
     from shellsim import cage as cages
 
@@ -237,13 +236,11 @@ def _load_cage(args: argparse.Namespace):
         settings = {k: v for k, v in settings.items() if v is not None}
         asset = load_asset(args.asset)
         cage = cages.load_or_build_cage(asset, cages.CageConfig(**settings) if settings else None)
-        up = asset.up
-    else:
-        mesh = load_mesh(Path(args.mesh))
-        config = cages.CageConfig(margin=0.0, **({"target_tets": args.tets} if args.tets else {}))
-        cage = cages.build_cage(mesh, mesh, config, what=str(args.mesh))
-        up = np.array([0.0, 0.0, 1.0])
-    return cage.vertices, cage.tets, up
+        return cage.vertices, cage.tets, asset.up, None
+    mesh = load_mesh(Path(args.mesh))
+    config = cages.CageConfig(margin=0.0, **({"target_tets": args.tets} if args.tets else {}))
+    cage = cages.build_cage(mesh, mesh, config, what=str(args.mesh))
+    return cage.vertices, cage.tets, np.array([0.0, 0.0, 1.0]), _mesh_surface(mesh, cage.vertices, cage.tets)
 
 
 MAX_SUBSTEPS = 1000  # per frame; a retried frame runs up to 4 times as many
@@ -297,14 +294,12 @@ def _failure_line(err, out: Path, args: argparse.Namespace, material) -> str:
     return f"{err}; frames 0-{err.frame - 1} are kept in {out}; {advice}"
 
 
-def _mesh_surface(path: Path, vertices: np.ndarray, tets: np.ndarray):
-    """The surface of the mesh file ``path`` embedded in its cage (vertices (V, 3), tets (T, 4)), so the
+def _mesh_surface(mesh, vertices: np.ndarray, tets: np.ndarray):
+    """The surface of the trimesh ``mesh`` embedded in its cage (vertices (V, 3), tets (T, 4)), so the
     motion file can show it: a :class:`shellsim.motion.Surface`."""
-    from neural.asset import load_mesh
     from shellsim.embed import embed_points
     from shellsim.motion import Surface
 
-    mesh = load_mesh(path)
     tet, bary = embed_points(vertices, tets, np.asarray(mesh.vertices, np.float64))
     return Surface(tet, bary, np.asarray(mesh.faces, np.int64))
 
@@ -361,8 +356,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
         world = WorldMap(tuple(meta["world"]["origin"]), float(meta["world"]["scale"]))
         log.info("resuming %s after frame %d", out, writer.n_frames - 1)
     else:
-        vertices, tets, up = _load_cage(args)
-        surface = None if args.asset else _mesh_surface(Path(args.mesh), vertices, tets)
+        vertices, tets, up, surface = _load_cage(args)
         if args.up is not None:
             up = parse_floats("--up", args.up, 3)
         params = _parameters(args, material, up)

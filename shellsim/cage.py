@@ -59,6 +59,7 @@ from .embed import (
 from .npz import load_npz, save_npz
 from .outputs import check_writable_file
 from .tetwild import tetrahedralize
+from .validity import tet_volumes
 
 logger = logging.getLogger(__name__)
 
@@ -141,13 +142,6 @@ class Cage:
     inner_bary: np.ndarray
     shell_digest: str
     config: CageConfig = field(default_factory=CageConfig)
-
-
-def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """Signed volumes ``det[v1 - v0, v2 - v0, v3 - v0] / 6``: vertices (V, 3), tets (T, 4) -> (T,) float64."""
-    p = np.asarray(vertices, dtype=np.float64)[np.asarray(tets)]  # (T, 4, 3)
-    e = p[:, 1:] - p[:, :1]
-    return np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
 
 
 def tet_quality(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:

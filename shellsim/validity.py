@@ -15,15 +15,15 @@ import numpy as np
 MIN_VOLUME_RATIO = 0.2  # smallest det F a written frame may have
 
 
-def volumes6(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """(T,) six times the signed tet volumes; vertices (V, 3), tets (T, 4) int."""
-    e = vertices[tets[:, 1:]] - vertices[tets[:, :1]]
-    return np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2]))
+def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes ``det[v1 - v0, v2 - v0, v3 - v0] / 6``: vertices (V, 3), tets (T, 4) -> (T,) float64."""
+    p = np.asarray(vertices, dtype=np.float64)[np.asarray(tets)]  # (T, 4, 3)
+    e = p[:, 1:] - p[:, :1]
+    return np.einsum("ti,ti->t", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
 
 
 def volume_ratios(rest_vertices: np.ndarray, positions: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """(T,) deformed / rest volume of each tet (``det F``); rest_vertices, positions (V, 3), tets (T, 4)
     positively oriented at rest."""
-    rest = np.asarray(rest_vertices, np.float64)
     tets = np.asarray(tets, np.int64)
-    return volumes6(np.asarray(positions, np.float64), tets) / volumes6(rest, tets)
+    return tet_volumes(positions, tets) / tet_volumes(rest_vertices, tets)

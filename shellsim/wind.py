@@ -45,7 +45,7 @@ import numpy as np
 from neural.errors import InputError
 
 from .selection import Selection, parse_selection
-from .validity import MIN_VOLUME_RATIO, volumes6
+from .validity import MIN_VOLUME_RATIO, tet_volumes
 
 log = logging.getLogger(__name__)
 
@@ -264,13 +264,14 @@ def limited_wind_displacement(
     """
     rest = _as_vertices(rest_vertices)
     tets = np.asarray(tets, dtype=np.int64)
-    rest6 = volumes6(rest, tets)
-    if not (rest6 > 0).all():
-        raise ValueError(f"tets: {(rest6 <= 0).sum()} of {len(tets)} are not positively oriented at rest")
+    rest_volumes = tet_volumes(rest, tets)
+    if not (rest_volumes > 0).all():
+        bad = int((rest_volumes <= 0).sum())
+        raise ValueError(f"tets: {bad} of {len(tets)} are not positively oriented at rest")
     bend, sink = _bend_and_sink(rest, t, settings)
 
     def worst(s: float) -> float:
-        return float((volumes6(rest + s * bend - s * s * sink, tets) / rest6).min())
+        return float((tet_volumes(rest + s * bend - s * s * sink, tets) / rest_volumes).min())
 
     scale, ratio = 1.0, worst(1.0)
     if not ratio >= floor:

@@ -10,6 +10,7 @@ again).
 
     python examples/wind_animation.py                        # the shipped lego, 48 frames, 160x160
     python examples/wind_animation.py --asset PATH --frames 12 --size 96
+    python examples/wind_animation.py --asset furry_bunny --anchor "z<10%"   # pedestal held, bunny sways
 """
 
 from __future__ import annotations
@@ -31,11 +32,21 @@ log = logging.getLogger(__name__)
 class Example:
     """Animate ``asset`` (name or directory) in the wind for ``frames`` frames at ``fps`` into ``out``."""
 
-    def __init__(self, asset: str, out: Path, frames: int = 48, fps: float = 24.0, strength: float = 0.08):
+    def __init__(
+        self,
+        asset: str,
+        out: Path,
+        frames: int = 48,
+        fps: float = 24.0,
+        strength: float = 0.08,
+        anchor: str | None = None,
+    ):
         self.asset_spec = asset
         self.asset = load_asset(asset)
         self.cage = load_or_build_cage(self.asset)
-        self.settings = WindSettings(up=tuple(self.asset.up), strength=strength, gust=0.4, frequency=0.8)
+        self.settings = WindSettings(
+            up=tuple(self.asset.up), strength=strength, gust=0.4, frequency=0.8, anchor=anchor
+        )
         self.frames, self.fps = frames, fps
         self.out = Path(out)
         self.motion_path = self.out / "wind.npz"
@@ -80,13 +91,18 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=48, help="frames of the clip (default 48)")
     parser.add_argument("--fps", type=float, default=24.0, help="frames per second (default 24)")
     parser.add_argument("--strength", type=float, default=0.08, help="mean tip deflection / height (0.08)")
+    parser.add_argument(
+        "--anchor",
+        default=None,
+        help='the cage nodes held still, "AXIS OP VALUE[%%]" as in shellsim wind (default: the lowest 5%%)',
+    )
     parser.add_argument("--size", type=int, default=160, help="images are SIZE x SIZE (default 160)")
     parser.add_argument("--out", default="wind_animation", help="output directory (default wind_animation)")
     parser.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
-        example = Example(args.asset, Path(args.out), args.frames, args.fps, args.strength)
+        example = Example(args.asset, Path(args.out), args.frames, args.fps, args.strength, args.anchor)
         example.animate()
         summary = example.render(args.size, args.device)
     except ShellsimError as err:

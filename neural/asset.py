@@ -35,20 +35,28 @@ REQUIRED_FILES = ("field", "shell_outer", "shell_inner")
 CAGE_FILE = "cage.npz"
 
 
+SHIPPED_PACKAGE = "shellsim_assets"  # the repository's assets/, installed as package data (pyproject.toml)
+
+
 def shipped_assets_dir() -> Path:
-    """Directory of the assets shipped with the project (``$SHELLSIM_ASSETS`` overrides it)."""
+    """Directory of the assets shipped with the installed package (``$SHELLSIM_ASSETS`` overrides it)."""
     env = os.environ.get("SHELLSIM_ASSETS")
-    return Path(env) if env else Path(__file__).resolve().parents[1] / "assets"
+    if env:
+        return Path(env)
+    from importlib.resources import files
+
+    return Path(str(files(SHIPPED_PACKAGE)))
 
 
-def resolve_asset(spec: str | os.PathLike) -> Path:
-    """``--asset NAME`` (a shipped asset) or ``--asset PATH`` (any asset directory) -> its directory."""
+def resolve_asset(spec: str | os.PathLike) -> tuple[Path, bool]:
+    """``--asset PATH`` (any asset directory) or ``--asset NAME`` (a shipped asset) -> (its directory,
+    whether it was found by name among the shipped ones, which are never written to)."""
     path = Path(spec)
     if path.is_dir():
-        return path
+        return path, False
     shipped = shipped_assets_dir() / str(spec)
     if os.sep not in str(spec) and shipped.is_dir():
-        return shipped
+        return shipped, True
     available = sorted(p.name for p in shipped_assets_dir().glob("*/asset.json") for p in [p.parent])
     raise InputError(
         f"asset {str(spec)!r}: no such directory and no shipped asset of that name "
@@ -67,10 +75,13 @@ def _inside(root: Path, name: str, what: str) -> Path:
 
 @dataclass
 class Asset:
-    """A validated asset directory. ``meta`` is the parsed ``asset.json``."""
+    """A validated asset directory. ``meta`` is the parsed ``asset.json``; ``shipped``: found by name among
+    the installed package's assets, so nothing may be written into it (its cages with other settings go to
+    the cache, see :func:`shellsim.cage.load_or_build_cage`)."""
 
     root: Path
     meta: dict
+    shipped: bool = False
 
     @property
     def name(self) -> str:
@@ -146,7 +157,7 @@ def load_mesh(path: Path, require_closed: bool = True):
 
 def load_asset(spec: str | os.PathLike) -> Asset:
     """Find and validate an asset; every problem is one :class:`InputError` naming the file."""
-    root = resolve_asset(spec)
+    root, shipped = resolve_asset(spec)
     meta_path = root / "asset.json"
     if not meta_path.is_file():
         raise InputError(f"{root}: not an asset (asset.json missing)")
@@ -173,7 +184,7 @@ def load_asset(spec: str | os.PathLike) -> Asset:
     if center.shape != (3,) or not np.isfinite(center).all() or not (scale > 0 and np.isfinite(scale)):
         raise InputError(f"{meta_path}: normalisation needs center [x, y, z] and scale > 0")
     _check_optional_keys(meta_path, meta)
-    asset = Asset(root, meta)
+    asset = Asset(root, meta, shipped)
     for key in REQUIRED_FILES:
         if key not in meta["files"]:
             raise InputError(f"{meta_path}: files.{key} is missing")
@@ -266,6 +277,15 @@ def load_field(asset: Asset, device: str = "cpu"):
             f"{path}: weights do not match the field configuration in asset.json ({err})"
         ) from None
     return field.to(device).eval()
+
+
+def refuse_shipped(asset: Asset, what: str) -> None:
+    """An :class:`InputError` when ``asset`` is a shipped one: ``what`` would write into it."""
+    if asset.shipped:
+        raise InputError(
+            f"asset {asset.name!r} is shipped with shellsim and is never modified ({what} would write into "
+            f"{asset.root}); copy that directory and give the copy's path"
+        )
 
 
 def replace_shells(asset: Asset, outer, inner, shell_meta: dict) -> None:

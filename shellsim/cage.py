@@ -131,7 +131,8 @@ class Cage:
     vertices : (V, 3) float64, tets : (T, 4) int64 (positive volumes),
     outer_tet : (Vo,) int64 and outer_bary : (Vo, 4) float64 for the vertices of ``M+``,
     inner_tet : (Vi,) int64 and inner_bary : (Vi, 4) float64 for those of ``M-``,
-    shell_digest : :func:`shell_digest` of the shells embedded, config : the settings it was built with.
+    shell_digest : :func:`shell_digest` of the shells embedded, config : the settings it was built with,
+    path : the file it was read from or saved to ("" for one only in memory).
     """
 
     vertices: np.ndarray
@@ -142,6 +143,7 @@ class Cage:
     inner_bary: np.ndarray
     shell_digest: str
     config: CageConfig = field(default_factory=CageConfig)
+    path: str = ""
 
 
 def tet_quality(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
@@ -461,33 +463,117 @@ def load_cage(path: str | os.PathLike, shells=None) -> Cage:
         arrays["inner_bary"].astype(np.float64),
         str(arrays["shell_digest"]),
         config,
+        str(path),
     )
 
 
-def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = False) -> Cage:
-    """The cage of an asset, from ``asset.cage_path`` (``cage.npz``) when it matches, else built and saved
-    (without the embedding, which is computed again on loading).
+def cache_dir() -> Path:
+    """Where cages that may not live beside their asset are kept: ``$SHELLSIM_CACHE`` (``shellsim
+    --cache-dir``), else ``$XDG_CACHE_HOME/shellsim``, else ``~/.cache/shellsim``."""
+    env = os.environ.get("SHELLSIM_CACHE")
+    if env:
+        return Path(env)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "shellsim"
 
-    The stored cage is used unless ``rebuild``, or it is unreadable, or it was built from other shells
-    (:func:`shell_digest`), or ``config`` is given and differs from its settings. ``config=None`` takes
-    the stored cage whatever its settings, or builds with the defaults.
+
+def cached_cage_path(digest: str, config: CageConfig) -> Path:
+    """The cache's file for the cage of the shells with :func:`shell_digest` ``digest`` built with ``config``:
+    ``CACHE/cages/<shells>-<settings>.npz``, both parts digests, so no two cages share a file."""
+    settings = hashlib.sha256(json.dumps(dataclasses.asdict(config), sort_keys=True).encode()).hexdigest()
+    return cache_dir() / "cages" / f"{digest[:16]}-{settings[:16]}.npz"
+
+
+def _read(path: Path, shells, digest: str) -> Cage | None:
+    """The cage at ``path`` if it is readable and made from these shells, else None (logged)."""
+    if not path.is_file():
+        return None
+    try:
+        cage = load_cage(path, shells)
+    except InputError as err:
+        logger.warning("not using %s: %s", path, err)
+        return None
+    if cage.shell_digest != digest:
+        logger.info("not using %s: made from other shells", path)
+        return None
+    return cage
+
+
+def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = False) -> Cage:
+    """The cage of an asset with ``config`` (None: the asset's own cage whatever its settings, else the
+    defaults; with ``rebuild``, the own cage's settings), loaded when one was made from these shells, else
+    built and saved (without the embedding, which is computed again on loading).
+
+    Where cages live: the asset's ``cage.npz`` holds its own cage (shipped with ``assets/lego``). A cage
+    with other settings, any cage of a shipped asset that it does not ship, and a ``rebuild`` next to a
+    good own cage go to :func:`cached_cage_path`: a shipped asset is never written to, and a cage that
+    motions were made with is never replaced by another.
     """
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     digest = shell_digest(outer, inner)
-    path = asset.cage_path
-    if path.is_file() and not rebuild:
-        try:
-            cage = load_cage(path, (outer, inner))
-        except InputError as err:
-            logger.warning("rebuilding the cage: %s", err)
-        else:
-            if cage.shell_digest != digest:
-                logger.info("rebuilding %s: the shells have changed", path)
-            elif config is not None and cage.config != config:
-                logger.info("rebuilding %s: other cage settings requested", path)
-            else:
-                return cage
+    own = _read(asset.cage_path, (outer, inner), digest)
+    if own is not None and not rebuild and (config is None or own.config == config):
+        return own
+    config = config or (own.config if own is not None else CageConfig())
+    cached = cached_cage_path(digest, config)
+    if not rebuild:
+        cage = _read(cached, (outer, inner), digest)
+        if cage is not None:
+            return cage
+    path = cached if asset.shipped or own is not None else asset.cage_path
     check_writable_file(path)  # before the build, not after it
     cage = build_cage(outer, inner, config, what=str(asset.file("shell_outer")))
+    path.parent.mkdir(parents=True, exist_ok=True)
     save_cage(path, cage, embedding=False)
-    return cage
+    logger.info("cage saved to %s", path)
+    return dataclasses.replace(cage, path=str(path))
+
+
+def asset_cages(asset) -> list[Path]:
+    """Files that may hold a cage of the asset's current shells: its own ``cage.npz`` and the cache's."""
+    digest = shell_digest(asset.outer_mesh(), asset.inner_mesh())
+    return [asset.cage_path, *sorted((cache_dir() / "cages").glob(f"{digest[:16]}-*.npz"))]
+
+
+def cage_for_motion(asset, motion, source: str) -> Cage:
+    """The asset's cage (its own or a cached one) that ``motion`` (:class:`shellsim.motion.Motion`, read from
+    ``source``) moves; an :class:`InputError` saying how they differ when there is none."""
+    outer, inner = asset.outer_mesh(), asset.inner_mesh()
+    digest = shell_digest(outer, inner)
+    for path in asset_cages(asset):
+        cage = _read(path, (outer, inner), digest)
+        if cage is not None and same_cage(cage.vertices, cage.tets, motion.rest_vertices, motion.tets):
+            return cage
+    try:
+        cage = load_or_build_cage(asset)
+    except (ImportError, RuntimeError, ValueError, OSError) as err:  # fTetWild and friends
+        raise InputError(f"{asset.cage_path}: no usable cage and building one failed ({err})") from None
+    check_motion(motion, cage, source)  # raises, saying how the motion's cage differs
+    raise AssertionError("unreachable: no cage matched, so the check raised")
+
+
+def check_motion(motion, cage: Cage, source: str = "motion") -> None:
+    """:class:`InputError` (``source: problem``) unless ``motion`` moves ``cage``: the same vertex count, the
+    same tets and the same rest positions."""
+    n_motion, n_cage = motion.positions.shape[1], len(cage.vertices)
+    if n_motion != n_cage:
+        raise InputError(
+            f"{source}: the motion moves {n_motion} cage vertices but the asset's cage has {n_cage}; it was "
+            "made for another cage"
+        )
+    if not same_cage(cage.vertices, cage.tets, motion.rest_vertices, motion.tets):
+        raise InputError(
+            f"{source}: the motion's rest cage differs from the asset's cage (rebuilt since?); "
+            "make the motion again"
+        )
+
+
+def same_cage(
+    vertices: np.ndarray, tets: np.ndarray, other_vertices: np.ndarray, other_tets: np.ndarray
+) -> bool:
+    """Whether two rest cages are one: the same tets and vertices within 1e-6 of the cage's size."""
+    return (
+        np.shape(vertices) == np.shape(other_vertices)
+        and np.array_equal(tets, other_tets)
+        and np.allclose(vertices, other_vertices, rtol=0, atol=1e-6 * float(np.ptp(vertices, axis=0).max()))
+    )

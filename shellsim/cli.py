@@ -15,6 +15,7 @@ import logging
 import os
 import signal
 import sys
+from pathlib import Path
 
 from neural.errors import ShellsimError
 
@@ -28,6 +29,13 @@ def build_parser() -> argparse.ArgumentParser:
         "render it (Wang et al., Adaptive Shells, SIGGRAPH Asia 2023).",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser.add_argument(
+        "--cache-dir",
+        default=None,
+        help="where cages are kept that may not be written beside their asset (those of shipped assets, "
+        "or built with other settings); default $SHELLSIM_CACHE, else $XDG_CACHE_HOME/shellsim, else "
+        "~/.cache/shellsim",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
         importlib.import_module(f"shellsim.commands.{name}").register(sub)
@@ -59,6 +67,8 @@ def _init_warp_quietly(warp) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.cache_dir is not None:
+        os.environ["SHELLSIM_CACHE"] = str(Path(args.cache_dir).resolve())
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
     )

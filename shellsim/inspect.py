@@ -36,6 +36,7 @@ import numpy as np
 
 from neural.errors import InputError, ShellsimError
 
+from .cage import check_motion
 from .embed import interpolate
 
 #: Point-data array of ``M+`` holding the colouring, per ``color`` option.
@@ -66,26 +67,6 @@ def quiet_vtk() -> None:
 
     vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
     vtkObject.GlobalWarningDisplayOff()
-
-
-def check_motion(motion, cage, source: str = "motion") -> None:
-    """Raise :class:`InputError` (``source: problem``) unless ``motion`` moves this ``cage``: the same vertex
-    count, the same tets and the same rest positions. motion : :class:`shellsim.motion.Motion`,
-    cage : :class:`shellsim.cage.Cage`."""
-    n_motion, n_cage = motion.positions.shape[1], len(cage.vertices)
-    if n_motion != n_cage:
-        raise InputError(
-            f"{source}: the motion moves {n_motion} cage vertices but the asset's cage has {n_cage}; it was "
-            "made for another cage"
-        )
-    scale = float(np.ptp(cage.vertices, axis=0).max())
-    if not np.array_equal(motion.tets, cage.tets) or not np.allclose(
-        motion.rest_vertices, cage.vertices, rtol=0.0, atol=1e-6 * scale
-    ):
-        raise InputError(
-            f"{source}: the motion's rest cage differs from the asset's cage (rebuilt since?); "
-            "make the motion again"
-        )
 
 
 def _check_frame(motion, frame: int) -> int:

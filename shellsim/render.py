@@ -263,38 +263,6 @@ def orbit_framing(points) -> tuple[np.ndarray, float]:
     return 0.5 * (lo + hi), 1.05 * radius / math.sin(0.5 * math.radians(ORBIT_FOV_DEG))
 
 
-def load_cage_for(asset):
-    """The asset's cage (stored or built); failing to build one is an :class:`InputError` naming the file."""
-    from .cage import load_or_build_cage
-
-    try:
-        return load_or_build_cage(asset)
-    except InputError:
-        raise
-    except (ImportError, RuntimeError, ValueError, OSError) as err:
-        raise InputError(f"{asset.cage_path}: no usable cage and building one failed ({err})") from None
-
-
-def check_motion(motion, cage, motion_path, asset) -> None:
-    """A motion must move this asset's cage: same tets and rest vertices, else an :class:`InputError`."""
-    same = (
-        motion.rest_vertices.shape == cage.vertices.shape
-        and np.array_equal(motion.tets, cage.tets)
-        and np.allclose(
-            motion.rest_vertices,
-            cage.vertices,
-            rtol=0,
-            atol=1e-6 * float(np.ptp(cage.vertices, axis=0).max()),
-        )
-    )
-    if not same:
-        raise InputError(
-            f"{motion_path}: moves a cage of {len(motion.rest_vertices)} vertices and {len(motion.tets)} "
-            f"tets that is not the cage of asset {asset.name!r} ({len(cage.vertices)} vertices, "
-            f"{len(cage.tets)} tets, {asset.cage_path}); make the motion from this asset"
-        )
-
-
 # --------------------------------------------------------------------------- files
 
 
@@ -330,12 +298,12 @@ def digest(*parts) -> str:
     return h.hexdigest()[:16]
 
 
-def asset_identity(asset, cage: bool) -> str:
+def asset_identity(asset, cage=None) -> str:
     """Digest of what an asset's images depend on: its field weights and configuration, normalisation,
-    shells and (``cage``) its cage file."""
+    shells and the rest ``cage`` (:class:`shellsim.cage.Cage`, when it deforms them) by content."""
     meta = {k: asset.meta.get(k) for k in ("normalisation", "field")}
     files = [asset.file("field"), asset.file("shell_outer"), asset.file("shell_inner")]
-    return digest(json.dumps(meta, sort_keys=True), *files, *([asset.cage_path] if cage else []))
+    return digest(json.dumps(meta, sort_keys=True), *files, *([cage.vertices, cage.tets] if cage else []))
 
 
 def frame_record(motion: str, camera, asset: str, renderer: str) -> dict:
@@ -512,7 +480,7 @@ def render_views(
     if len(set(names)) != len(names):
         names = [f"{i:05d}" for i in range(len(cameras))]
     asset = load_asset(asset_spec)
-    identity, settings = asset_identity(asset, cage=False), renderer_identity(asset)
+    identity, settings = asset_identity(asset), renderer_identity(asset)
     device, field = _field(asset, device)
     renderer = DeformedRenderer(asset, field, None, device)
     out_dir = Path(out_dir)
@@ -563,6 +531,7 @@ def render_motion(
     from neural.asset import load_asset
     from neural.data import load_camera_file
 
+    from .cage import cage_for_motion
     from .motion import load_motion
 
     if (cameras is None) == (not orbit):
@@ -577,9 +546,8 @@ def render_motion(
     else:
         view = load_camera_file(cameras, *(size or (None, None))).subset([0])
     asset = load_asset(asset_spec)
-    cage = load_cage_for(asset)
-    check_motion(motion, cage, motion_path, asset)
-    identity, settings = asset_identity(asset, cage=True), renderer_identity(asset)
+    cage = cage_for_motion(asset, motion, str(motion_path))
+    identity, settings = asset_identity(asset, cage), renderer_identity(asset)
     device, field = _field(asset, device)
     renderer = DeformedRenderer(asset, field, cage, device)
     frame_ids = motion_frame_ids(motion)

@@ -1,9 +1,11 @@
-"""Shared test settings: small thread counts and deterministic seeds."""
+"""Shared test settings: small thread counts, deterministic seeds, and a cage cache of the test run's own."""
 
 import os
+import tempfile
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
+os.environ["SHELLSIM_CACHE"] = tempfile.mkdtemp(prefix="shellsim-test-cache-")  # never the user's cache
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402

@@ -15,6 +15,9 @@ from shellsim.cage import (
     CageConfig,
     boundary_faces,
     build_cage,
+    cache_dir,
+    cached_cage_path,
+    cage_for_motion,
     cage_summary,
     load_cage,
     load_or_build_cage,
@@ -25,6 +28,7 @@ from shellsim.cage import (
 )
 from shellsim.cli import main
 from shellsim.embed import interpolate, outside_distance
+from shellsim.motion import Motion
 
 #: Small, quick cages: a coarse dilation grid, one fTetWild run, any count within a factor 3 of 1000.
 QUICK = CageConfig(margin=0.05, target_tets=1000, surface_faces=1000, tolerance=3.0, max_attempts=1)
@@ -150,6 +154,10 @@ def test_corrupt_cage_file_is_input_error(sphere_cage, tmp_path, damage, message
 
 
 def test_load_or_build_reuses_and_rebuilds(sphere_asset, sphere_cage, tmp_path, monkeypatch):
+    """The asset's own cage is reused whatever its settings; other settings and rebuilds go to the cache
+    (the own cage, which motions were made with, is never replaced by another) and are reused from there;
+    new shells or an unreadable own cage are rebuilt in place."""
+    monkeypatch.setenv("SHELLSIM_CACHE", str(tmp_path / "cache"))
     root = tmp_path / "ball"
     shutil.copytree(sphere_asset, root)
     asset = load_asset(root)
@@ -157,18 +165,52 @@ def test_load_or_build_reuses_and_rebuilds(sphere_asset, sphere_cage, tmp_path, 
     monkeypatch.setattr(
         cage_module, "build_cage", lambda outer, inner, config, what: calls.append(config) or sphere_cage
     )
+    own = (root / "cage.npz").read_bytes()
     assert np.array_equal(load_or_build_cage(asset, QUICK).tets, sphere_cage.tets)
     assert np.array_equal(load_or_build_cage(asset).tets, sphere_cage.tets)  # any settings will do
     assert calls == []
-    load_or_build_cage(asset, QUICK, rebuild=True)
-    load_or_build_cage(asset, CageConfig(target_tets=3000))  # other settings
-    assert calls == [QUICK, CageConfig(target_tets=3000)]
+    assert load_or_build_cage(asset, QUICK, rebuild=True).path != str(root / "cage.npz")
+    other = CageConfig(target_tets=3000)
+    load_or_build_cage(asset, other)
+    assert calls == [QUICK, other]
+    assert (root / "cage.npz").read_bytes() == own
+    digest = shell_digest(asset.outer_mesh(), asset.inner_mesh())
+    assert cached_cage_path(digest, other).is_file() and cached_cage_path(digest, QUICK).is_file()
+    assert len(set(cached_cage_path(digest, c) for c in (QUICK, other, CageConfig()))) == 3
+    load_or_build_cage(asset, other)  # from the cache now
+    assert len(calls) == 2
     trimesh.creation.icosphere(subdivisions=3, radius=1.1).export(root / "shell_outer.ply")
-    load_or_build_cage(asset)  # the shells changed
+    assert load_or_build_cage(asset).path == str(root / "cage.npz")  # the shells changed: rebuilt in place
     assert len(calls) == 3
     (root / "cage.npz").write_bytes(b"garbage")
-    load_or_build_cage(asset, QUICK)  # unreadable cache: rebuilt, not an error
+    load_or_build_cage(asset, QUICK)  # unreadable own cage: rebuilt, not an error
     assert len(calls) == 4
+
+
+def test_shipped_assets_are_never_written_to(sphere_asset, sphere_cage, tmp_path, monkeypatch, capsys):
+    """An asset found by name among the shipped ones: its cages go to the cache, extract and eval --record
+    refuse it in one line, and a motion made with a cached cage finds that cage again."""
+    monkeypatch.setenv("SHELLSIM_CACHE", str(tmp_path / "cache"))
+    shipped = tmp_path / "shipped"
+    shutil.copytree(sphere_asset, shipped / "ball")
+    (shipped / "ball" / "cage.npz").unlink(missing_ok=True)
+    monkeypatch.setenv("SHELLSIM_ASSETS", str(shipped))
+    before = sorted(p.name for p in (shipped / "ball").iterdir())
+    monkeypatch.setattr(cage_module, "build_cage", lambda outer, inner, config, what: sphere_cage)
+    asset = load_asset("ball")
+    assert asset.shipped and not load_asset(shipped / "ball").shipped
+    cage = load_or_build_cage(asset, QUICK)
+    assert sorted(p.name for p in (shipped / "ball").iterdir()) == before
+    assert len(list((tmp_path / "cache" / "cages").glob("*.npz"))) == 1
+    motion = Motion(cage.vertices, cage.tets, cage.vertices[None].astype(np.float32), np.zeros(1))
+    assert np.array_equal(cage_for_motion(asset, motion, "m.npz").vertices, cage.vertices)
+    moved = Motion(cage.vertices * 1.1, cage.tets, motion.positions, motion.times)
+    with pytest.raises(InputError, match="m.npz: the motion's rest cage differs"):
+        cage_for_motion(asset, moved, "m.npz")
+    for argv in (["extract", "--asset", "ball"], ["eval", "--asset", "ball", "--data", ".", "--record"]):
+        assert main(argv) == 2
+        assert "'ball' is shipped with shellsim and is never modified" in capsys.readouterr().err
+    assert sorted(p.name for p in (shipped / "ball").iterdir()) == before
 
 
 def test_cli_summary(sphere_asset, sphere_cage, tmp_path, capsys):
@@ -190,7 +232,7 @@ def test_cli_passes_settings(sphere_asset, sphere_cage, tmp_path, capsys, monkey
     assert main(["cage", "--asset", str(root), "--tets", "1500", "--margin", "0.03"]) == 0
     assert calls == [CageConfig(target_tets=1500, margin=0.03)]
     assert main(["cage", "--asset", str(root), "--rebuild"]) == 0
-    assert calls[1:] == [None]
+    assert calls[1:] == [QUICK]  # the settings of the asset's own cage
     assert "outside the cage" in capsys.readouterr().out
 
 
@@ -286,3 +328,17 @@ def test_shipped_lego_cage_is_what_the_builder_makes():
     rebuilt = build_cage(asset.outer_mesh(), asset.inner_mesh(), shipped.config)
     for key in ("vertices", "tets", "outer_tet", "outer_bary", "inner_tet", "inner_bary"):
         np.testing.assert_array_equal(getattr(rebuilt, key), getattr(shipped, key), err_msg=key)
+
+
+def test_cache_directory_follows_the_environment(tmp_path, monkeypatch):
+    """$SHELLSIM_CACHE (what --cache-dir sets), else $XDG_CACHE_HOME/shellsim, else ~/.cache/shellsim."""
+    monkeypatch.delenv("SHELLSIM_CACHE")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    assert cache_dir() == tmp_path / "home" / ".cache" / "shellsim"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_dir() == tmp_path / "xdg" / "shellsim"
+    monkeypatch.setenv("SHELLSIM_CACHE", str(tmp_path / "mine"))
+    assert cache_dir() == tmp_path / "mine"
+    assert main(["--cache-dir", str(tmp_path / "flag"), "cage", "--asset", str(tmp_path / "none")]) == 2
+    assert cache_dir() == tmp_path / "flag"

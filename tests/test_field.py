@@ -198,3 +198,70 @@ def test_fast_softplus_matches_torch_softplus():
     torch.testing.assert_close(g_ours, g_ref, rtol=0, atol=1e-6)
     inner = (torch.rand(20, dtype=torch.float64) - 0.5) * 0.2  # |beta z| < 15: exact, so gradcheck applies
     assert torch.autograd.gradcheck(lambda t: SoftplusBeta.apply(t, 100.0), (inner.requires_grad_(),))
+
+
+def test_files_without_the_newer_settings_mean_the_papers_field():
+    """A field config written before kernel_grid and view_encoding existed (the shipped lego) loads as the
+    paper's field: no kernel grid, SH of the view direction."""
+    old = {k: v for k, v in small_config().to_dict().items() if k not in ("kernel_grid", "view_encoding")}
+    config = FieldConfig.from_dict(old)
+    assert (config.kernel_grid, config.view_encoding) == (0, "direction")
+    assert "kernel_grid" not in dict(ShellField(config).named_parameters())
+    new = small_config(kernel_grid=8)
+    assert FieldConfig.from_dict(json.loads(json.dumps(new.to_dict()))) == new
+    with pytest.raises(InputError, match="kernel_grid"):
+        FieldConfig.from_dict(old | {"kernel_grid": 1})
+    with pytest.raises(InputError, match="view_encoding"):
+        FieldConfig.from_dict(old | {"view_encoding": "normal"})
+
+
+def trilinear_reference(grid: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Slow twin: trilinear value of grid[z, y, x] (K, K, K) at unit points u (N, 3); node (i, j, k) sits at
+    u = -1 + 2 (k, j, i) / (K - 1)."""
+    k = grid.shape[0]
+    out = np.zeros(len(u))
+    for n, p in enumerate(u):
+        g = (p + 1.0) * 0.5 * (k - 1)  # (x, y, z) in node units
+        lo = np.floor(g).astype(int).clip(0, k - 2)
+        t = g - lo
+        for corner in np.ndindex(2, 2, 2):
+            w = np.prod([t[a] if corner[a] else 1 - t[a] for a in range(3)])
+            out[n] += w * grid[lo[2] + corner[2], lo[1] + corner[1], lo[0] + corner[0]]
+    return out
+
+
+def test_kernel_grid_adds_a_trilinear_log_kernel_offset_and_leaves_the_sdf_alone():
+    """log(1/s) = the network's value + the grid's trilinear value (a slow twin), per place; f is unchanged
+    and only the grid's nodes around a point get its gradient."""
+    plain = ShellField(small_config(kernel_grid=0), scale=0.5)
+    field = ShellField(small_config(kernel_grid=5), scale=0.5)
+    field.load_state_dict(plain.state_dict() | {"kernel_grid": field.kernel_grid.detach()})
+    values = torch.randn(1, 1, 5, 5, 5, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    with torch.no_grad():
+        field.kernel_grid.copy_(values)
+    x = (torch.rand(200, 3, generator=torch.Generator().manual_seed(1)) * 2 - 1) * 1.9  # world; u = x / 2
+    offset = torch.log(field.geometry(x).inv_s) - torch.log(plain.geometry(x).inv_s)
+    ref = trilinear_reference(values[0, 0].numpy(), (x * 0.5).double().numpy())
+    np.testing.assert_allclose(offset.detach().numpy(), ref, atol=2e-5)
+    torch.testing.assert_close(field.sdf(x), plain.sdf(x))
+    node = torch.tensor([[-1.0, 0.0, 1.0]]) * 2.0  # u = (-1, 0, 1): node x=0, y=2, z=4
+    torch.log(field.geometry(node).inv_s).sum().backward()
+    grad = field.kernel_grid.grad[0, 0]
+    assert float(grad[4, 2, 0]) == pytest.approx(1.0)
+    assert float(grad.abs().sum()) == pytest.approx(1.0)
+
+
+def test_reflected_view_encoding_sees_the_direction_mirrored_about_the_normal():
+    """A 'reflected' field's colour along d is the same network's colour along d - 2 (d.n) n under the
+    'direction' encoding (a twin that mirrors by hand); mirroring twice gives d back."""
+    reflected = ShellField(small_config(view_encoding="reflected"))
+    direct = ShellField(small_config(view_encoding="direction"))
+    direct.load_state_dict(reflected.state_dict())
+    x = unit_ball_points(64)
+    d = torch.nn.functional.normalize(torch.randn(64, 3, generator=torch.Generator().manual_seed(3)), dim=1)
+    geo = reflected.geometry(x)
+    n = geo.normal
+    mirrored = d - 2 * (d * n).sum(1, keepdim=True) * n
+    torch.testing.assert_close(reflected.radiance(x, d, geo), direct.radiance(x, mirrored, geo))
+    torch.testing.assert_close(mirrored - 2 * (mirrored * n).sum(1, keepdim=True) * n, d)
+    assert not torch.allclose(reflected.radiance(x, d, geo), direct.radiance(x, d, geo))

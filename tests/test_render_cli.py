@@ -160,7 +160,7 @@ def test_motion_of_another_cage_is_one_error_line(tmp_path, asset_dir, capsys):
     code = render(asset_dir, tmp_path / "o", motion=motion, cameras=cams)
     assert code == 2
     line = error_line(capsys)
-    assert str(motion) in line and "7 vertices" in line and "not the cage" in line
+    assert str(motion) in line and "moves 7 cage vertices" in line and "made for another cage" in line
 
 
 @pytest.mark.parametrize("spec", ["x:y", "3:9", "2:1"])

@@ -168,7 +168,7 @@ def test_a_bend_moves_only_what_it_moves(renderer):
     h = np.clip((verts[:, 2] - CENTER[2]) / 0.36, 0, None)  # 0 on and below the centre plane
     positions = verts + np.stack([0.3 * h**2, np.zeros_like(h), np.zeros_like(h)], 1)
     side = camera(EYE)
-    assert psnr(renderer.render(side, 0, positions)[0], renderer.render(side, 0)[0]) < 30
+    assert psnr(renderer.render(side, 0, positions)[0], renderer.render(side, 0)[0]) < 40  # rigid: >= 50
     below = camera(CENTER - np.array([0.0, 0.0, 1.0]), up=(0.0, 1.0, 0.0))
     rest, _ = renderer.render(below, 0)
     bent, _ = renderer.render(below, 0, positions)

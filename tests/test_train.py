@@ -11,10 +11,10 @@ import torch
 from scenes import write_sphere_scene
 
 from neural.data import load_dataset
-from neural.field import FieldConfig, HashGridConfig
+from neural.field import FieldConfig, HashGridConfig, ShellField
 from neural.pipeline import build_field
 from neural.render.view import field_occupancy_grid, occupancy_sampler
-from neural.train import PixelSampler, Stage1Config, evaluate, train_stage1
+from neural.train import PixelSampler, Stage1Config, evaluate, regularisers, train_stage1
 from shellsim.cli import main
 
 SMALL_FIELD = FieldConfig(hashgrid=HashGridConfig(log2_table_size=14, max_resolution=256))
@@ -195,3 +195,18 @@ def test_a_short_run_scales_stage2_and_the_grids_with_its_steps(tmp_path, monkey
     with pytest.raises(SystemExit):
         main(["train", "--help"])
     assert "--steps / 6" in capsys.readouterr().out
+
+
+def test_sharpness_prior_is_the_log_kernel_excess_over_its_floor():
+    """mean(relu(log(s / s_floor))) with s_floor = sharp_floor * step_size in unit space (world: / scale):
+    closed form on chosen kernels, and zero gradient for kernels already below the floor."""
+    field = ShellField(SMALL_FIELD, scale=0.5)
+    config = Stage1Config()
+    floor = config.sharp_floor * config.step_size / 0.5  # world units
+    s = torch.tensor([floor * 4.0, floor * 0.5, floor * 2.0], requires_grad=True)
+    points = torch.zeros(3, 3)
+    normals = torch.nn.functional.normalize(torch.ones(3, 3), dim=1)
+    reg = regularisers(field, points, normals, 1.0 / s, config, torch.Generator().manual_seed(0))
+    assert float(reg["sharp"].detach()) == pytest.approx((np.log(4.0) + np.log(2.0)) / 3, rel=1e-5)
+    (grad,) = torch.autograd.grad(reg["sharp"], s)
+    np.testing.assert_allclose(grad.numpy(), [1 / (3 * floor * 4.0), 0.0, 1 / (3 * floor * 2.0)], rtol=1e-4)

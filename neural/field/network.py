@@ -1,7 +1,10 @@
 """The paper's neural field (Sec. 4.1): ``(c, f, s) = NN(x, d)``, kernel size s varying in space (Sec. 3.2).
 
 Geometry network ``(f, 1/s, f_geo, n) = NN_geo([Psi(u), u])``, one hidden layer 31 -> 64 -> 31;
-radiance network ``c = NN_rad([SH(d), f_geo, n, u])``, 48 -> 64 -> 64 -> 3 with a sigmoid.
+radiance network ``c = NN_rad([SH(d'), f_geo, n, u])``, 48 -> 64 -> 64 -> 3 with a sigmoid, where ``d'`` is
+the view direction mirrored about the predicted normal (``view_encoding="reflected"``, Ref-NeRF's
+reparametrisation: a glossy highlight is then a smooth function of ``d'`` that a surface can show, instead of
+a depth-dependent colour that only a wide kernel can fake) or ``d`` itself (``"direction"``, the paper's).
 
 Units: the field takes WORLD points ``x`` and works on ``u = (x - center) * scale``, whose domain is the cube
 ``[-1, 1]^3`` (the hash grid sees ``(u + 1) / 2``). Its outputs are returned in world units:
@@ -12,7 +15,11 @@ uniform scaling).
 
 Kernel size: the network's raw output ``r`` gives ``inv_s_unit = exp(clamp(r + ln init_inv_s, ln inv_s_min,
 ln inv_s_max))``, positive, equal to ``init_inv_s`` at initialisation; outside the clamp range the gradient
-with respect to ``r`` is zero.
+with respect to ``r`` is zero. With ``kernel_grid = K`` (ours), ``r`` has a second term: a trilinear K^3 grid
+over the unit cube (zeros at the start). The network's ``r`` is one row of a layer whose hidden units and
+hash features the SDF and colour share and dominate, so on its own s varies little from place to place (the
+furry bunny's bare skin kept the kernel of its fur); the grid's entries are moved only by the losses on s,
+so fur can keep a wide kernel while bare surfaces next to it sharpen.
 
 Spatial derivatives: with the Warp encoding (the default) autograd sees ``x`` only through the MLPs' direct
 ``u`` input, not through the hash grid; take ``grad f`` by finite differences of :meth:`ShellField.sdf`, as
@@ -37,6 +44,9 @@ from ..errors import InputError
 from .hashgrid import BACKENDS, HashGridConfig, HashGridEncoding
 from .sh import N_COEFFS, spherical_harmonics
 
+VIEW_ENCODINGS = ("reflected", "direction")
+# Fields written before these settings existed had neither: absent from a file, they mean the paper's.
+LEGACY_DEFAULTS = {"view_encoding": "direction", "kernel_grid": 0}
 SOFTPLUS_BETA = 100.0  # NeuS's geometry activation: a smooth ReLU, so finite-difference normals are smooth
 SOFTPLUS_CUTOFF = 15.0  # |beta z| beyond which softplus is taken as relu: value error < 3e-7 / beta
 
@@ -56,6 +66,8 @@ class FieldConfig:
     backend: str = "warp"
     cpu_threads: int = 2
     env_map: bool = False  # learn the colour of rays that leave the box, by direction (real captures)
+    view_encoding: str = "reflected"  # SH of d mirrored about n; "direction": SH(d), the paper's
+    kernel_grid: int = 64  # nodes per axis of the kernel-size grid (see ShellField); 0: none, the paper's
 
     def __post_init__(self):
         if not isinstance(self.hashgrid, HashGridConfig):
@@ -73,6 +85,12 @@ class FieldConfig:
             )
         if self.backend not in BACKENDS:
             raise ValueError(f"FieldConfig.backend: expected one of {BACKENDS}, got {self.backend!r}")
+        if not isinstance(self.kernel_grid, int) or not (self.kernel_grid == 0 or self.kernel_grid >= 2):
+            raise ValueError(f"FieldConfig.kernel_grid: expected 0 or an int >= 2, got {self.kernel_grid!r}")
+        if self.view_encoding not in VIEW_ENCODINGS:
+            raise ValueError(
+                f"FieldConfig.view_encoding: expected one of {VIEW_ENCODINGS}, got {self.view_encoding!r}"
+            )
         if not isinstance(self.env_map, bool):
             raise ValueError(f"FieldConfig.env_map: expected true or false, got {self.env_map!r}")
 
@@ -89,7 +107,7 @@ class FieldConfig:
         unknown = sorted(set(data) - known)
         if unknown:
             raise InputError(f"field config: unknown keys {unknown} (known: {sorted(known)})")
-        values = dict(data)
+        values = {**LEGACY_DEFAULTS, **data}
         if "hashgrid" in values:
             grid = values["hashgrid"]
             grid_known = {f.name for f in fields(HashGridConfig)}
@@ -175,6 +193,10 @@ class ShellField(nn.Module):
             nn.ReLU(),
             nn.Linear(cfg.rad_hidden, 3),
         )
+        self.kernel_grid = None
+        if cfg.kernel_grid:
+            k = cfg.kernel_grid
+            self.kernel_grid = nn.Parameter(torch.zeros(1, 1, k, k, k))
         self.env = None
         if cfg.env_map:
             self.env = nn.Sequential(
@@ -218,8 +240,11 @@ class ShellField(nn.Module):
         out = self.geo_out(self._hidden(self.to_unit(x)))
         n_feat = self.config.geo_feature_dim
         cfg = self.config
+        raw = out[:, 1]
+        if self.kernel_grid is not None:
+            raw = raw + self._kernel_offset(self.to_unit(x))
         log_inv_s = torch.clamp(
-            out[:, 1] + math.log(cfg.init_inv_s), math.log(cfg.inv_s_min), math.log(cfg.inv_s_max)
+            raw + math.log(cfg.init_inv_s), math.log(cfg.inv_s_min), math.log(cfg.inv_s_max)
         )
         return Geometry(
             sdf=out[:, 0] / self.scale,
@@ -227,6 +252,11 @@ class ShellField(nn.Module):
             feature=out[:, 2 : 2 + n_feat],
             normal=F.normalize(out[:, 2 + n_feat :], dim=1, eps=1e-12),
         )
+
+    def _kernel_offset(self, u: torch.Tensor) -> torch.Tensor:
+        """(N,) trilinear value of the kernel-size grid at unit points u (N, 3); 0 outside the cube."""
+        grid = u.view(1, -1, 1, 1, 3)  # grid_sample's last axis is (x, y, z) = (W, H, D) of the volume
+        return F.grid_sample(self.kernel_grid, grid, align_corners=True, padding_mode="zeros").view(-1)
 
     def radiance(self, x: torch.Tensor, d: torch.Tensor, geo: Geometry) -> torch.Tensor:
         """Colour (N, 3) in [0, 1] at world points x (N, 3) seen along directions d (N, 3) (any length)."""
@@ -237,7 +267,10 @@ class ShellField(nn.Module):
                 f"d: expected {u.shape[0]} directions matching x and geo, got d {tuple(d.shape)}, "
                 f"geo.feature {tuple(geo.feature.shape)}"
             )
-        sh = spherical_harmonics(F.normalize(d.to(torch.float32), dim=1))
+        d = F.normalize(d.to(torch.float32), dim=1)
+        if self.config.view_encoding == "reflected":
+            d = d - 2.0 * (d * geo.normal).sum(1, keepdim=True) * geo.normal
+        sh = spherical_harmonics(d)
         return torch.sigmoid(self.rad(torch.cat([sh, geo.feature, geo.normal, u], dim=1)))
 
     def environment(self, d: torch.Tensor) -> torch.Tensor | None:

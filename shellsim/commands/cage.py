@@ -8,11 +8,14 @@ import argparse
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "cage",
-        help="build or load the tetrahedral cage of an asset (ASSET/cage.npz)",
+        help="build or load the tetrahedral cage of an asset (ASSET/cage.npz or the cache)",
         description="Dilate the outer shell M+, tetrahedralize it with fTetWild and embed the vertices of "
-        "both shells (barycentric coordinates). The cage is stored in the asset as cage.npz and rebuilt "
-        "when the shells change, when --tets/--margin ask for other settings (those not given take their "
-        "defaults), or with --rebuild.",
+        "both shells (barycentric coordinates). An asset's own cage is ASSET/cage.npz (built when missing "
+        "or when the shells changed). Cages with other settings (--tets/--margin; those not given take "
+        "their defaults), --rebuild next to a good own cage, and every cage of a shipped asset that it "
+        "does not ship go to the cache directory (shellsim --cache-dir), keyed by the shells and the "
+        "settings: a shipped asset is never written to, and a cage that motions were made with is never "
+        "replaced.",
     )
     p.add_argument("--asset", required=True, help="asset directory, or the name of a shipped asset")
     p.add_argument("--tets", type=int, default=None, help="target number of tets (default 5000)")
@@ -47,7 +50,7 @@ def run(args: argparse.Namespace) -> None:
     cage = load_or_build_cage(asset, config, rebuild=args.rebuild)
     seconds = time.perf_counter() - start
     s = cage_summary(cage)
-    print(f"cage of {asset.name}: {asset.cage_path}")
+    print(f"cage of {asset.name}: {cage.path}")
     print(f"  {s['vertices']} vertices, {s['tets']} tets, volume {s['volume']:.6g}")
     print(f"  tet quality: min {s['min_quality']:.3f}, median {s['median_quality']:.3f} (1 = regular)")
     print(

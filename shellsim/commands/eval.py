@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> None:
     import numpy as np
     import torch
 
-    from neural.asset import command_line, load_asset, load_field, write_meta
+    from neural.asset import command_line, load_asset, load_field, refuse_shipped, write_meta
     from neural.data import load_dataset
     from neural.device import pick_device
     from neural.metrics import lpips_status
@@ -48,6 +48,7 @@ def run(args: argparse.Namespace) -> None:
         check_writable_file(args.json, "--json")
     asset = load_asset(args.asset)
     if args.record:
+        refuse_shipped(asset, "--record")
         check_writable_dir(asset.root, "--record")  # asset.json is rewritten there
     device = pick_device(args.device)
     downscale = args.downscale or asset.training_downscale

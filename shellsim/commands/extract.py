@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> None:
     import logging
     import time
 
-    from neural.asset import command_line, load_asset, load_field, replace_shells
+    from neural.asset import command_line, load_asset, load_field, refuse_shipped, replace_shells
     from neural.device import pick_device
     from neural.errors import InputError
     from neural.shell import ShellConfig
@@ -47,6 +47,7 @@ def run(args: argparse.Namespace) -> None:
     from shellsim.outputs import check_writable_dir
 
     asset = load_asset(args.asset)
+    refuse_shipped(asset, "extract")
     check_writable_dir(asset.root, "--asset")  # new shells and asset.json are written there
     device = pick_device(args.device)
     known = {f.name for f in dataclasses.fields(ShellConfig)}

@@ -83,12 +83,10 @@ def run(args: argparse.Namespace) -> None:
             return surface_plotter(motion, frame, size, off_screen=off_screen, slider=slider)
     else:
         from neural.asset import load_asset
-        from shellsim.cage import load_or_build_cage
+        from shellsim.cage import cage_for_motion, load_or_build_cage
 
         asset = load_asset(args.asset)
-        cage = load_or_build_cage(asset)
-        if motion is not None:
-            inspect.check_motion(motion, cage, args.motion)
+        cage = load_or_build_cage(asset) if motion is None else cage_for_motion(asset, motion, args.motion)
 
         def plotter(off_screen, slider):
             return inspect.make_plotter(

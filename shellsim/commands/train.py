@@ -64,6 +64,27 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also write a checkpoint when this many minutes have passed since the last (default 2)",
     )
     p.add_argument("--table-size", type=int, default=None, help="log2 of the hash-table size (default 17)")
+    p.add_argument(
+        "--kernel-grid",
+        type=int,
+        default=None,
+        help="nodes per axis of the grid that lets the kernel size vary in space on its own (default 64; 0: "
+        "only the network's output, as in the paper)",
+    )
+    p.add_argument(
+        "--sharpness",
+        type=float,
+        default=None,
+        help="weight of the prior that makes the kernel sharp where the photos do not ask for a volume "
+        "(default 0.001; 0: the paper's losses only)",
+    )
+    p.add_argument(
+        "--view-encoding",
+        choices=("reflected", "direction"),
+        default=None,
+        help="colour input: the view direction mirrored about the normal (default; glossy surfaces stay "
+        "surfaces) or the view direction itself (the paper's)",
+    )
     p.add_argument("--name", default=None, help="asset name (default: the output directory's name)")
     p.add_argument("--keep-checkpoints", action="store_true", help="keep OUT/checkpoints after success")
     p.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
@@ -85,6 +106,10 @@ def run(args: argparse.Namespace) -> None:
     ):
         if value is not None and value < 1:
             raise InputError(f"{flag}: expected a positive integer, got {value}")
+    if args.kernel_grid is not None and args.kernel_grid not in range(2, 513) and args.kernel_grid != 0:
+        raise InputError(f"--kernel-grid: expected 0 or an integer in 2..512, got {args.kernel_grid}")
+    if args.sharpness is not None and not 0 <= args.sharpness < float("inf"):
+        raise InputError(f"--sharpness: expected a number >= 0, got {args.sharpness}")
     if not 0 < args.checkpoint_minutes < float("inf"):
         raise InputError(f"--checkpoint-minutes: expected a positive number, got {args.checkpoint_minutes}")
     check_writable_dir(args.out, "--out")
@@ -99,6 +124,11 @@ def run(args: argparse.Namespace) -> None:
     config.stage1.occupancy_resolution = scaled["occupancy_resolution"]
     config.stage2.steps = args.stage2_steps if args.stage2_steps is not None else scaled["stage2_steps"]
     config.shell.resolution = args.shell_resolution or scaled["shell_resolution"]
+    if args.sharpness is not None:
+        config.stage1.lambda_k = args.sharpness
+    for name, value in (("kernel_grid", args.kernel_grid), ("view_encoding", args.view_encoding)):
+        if value is not None:
+            config.field = dataclasses.replace(config.field, **{name: value})
     if args.table_size is not None:
         grid = dataclasses.replace(config.field.hashgrid, log2_table_size=args.table_size)
         config.field = dataclasses.replace(config.field, hashgrid=grid)

@@ -529,9 +529,9 @@ def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = 
     return dataclasses.replace(cage, path=str(path))
 
 
-def asset_cages(asset) -> list[Path]:
-    """Files that may hold a cage of the asset's current shells: its own ``cage.npz`` and the cache's."""
-    digest = shell_digest(asset.outer_mesh(), asset.inner_mesh())
+def asset_cages(asset, digest: str) -> list[Path]:
+    """Files that may hold a cage of the asset's shells, whose :func:`shell_digest` is ``digest``: its own
+    ``cage.npz`` and the cache's."""
     return [asset.cage_path, *sorted((cache_dir() / "cages").glob(f"{digest[:16]}-*.npz"))]
 
 
@@ -540,7 +540,7 @@ def cage_for_motion(asset, motion, source: str) -> Cage:
     ``source``) moves; an :class:`InputError` saying how they differ when there is none."""
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     digest = shell_digest(outer, inner)
-    for path in asset_cages(asset):
+    for path in asset_cages(asset, digest):
         cage = _read(path, (outer, inner), digest)
         if cage is not None and same_cage(cage.vertices, cage.tets, motion.rest_vertices, motion.tets):
             return cage

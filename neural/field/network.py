@@ -237,12 +237,13 @@ class ShellField(nn.Module):
 
     def geometry(self, x: torch.Tensor) -> Geometry:
         """Geometry network at world points x (N, 3) -> :class:`Geometry` in world units."""
-        out = self.geo_out(self._hidden(self.to_unit(x)))
+        u = self.to_unit(x)
+        out = self.geo_out(self._hidden(u))
         n_feat = self.config.geo_feature_dim
         cfg = self.config
         raw = out[:, 1]
         if self.kernel_grid is not None:
-            raw = raw + self._kernel_offset(self.to_unit(x))
+            raw = raw + self._kernel_offset(u)
         log_inv_s = torch.clamp(
             raw + math.log(cfg.init_inv_s), math.log(cfg.inv_s_min), math.log(cfg.inv_s_max)
         )

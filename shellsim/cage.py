@@ -540,15 +540,20 @@ def cage_for_motion(asset, motion, source: str) -> Cage:
     ``source``) moves; an :class:`InputError` saying how they differ when there is none."""
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     digest = shell_digest(outer, inner)
+    first = None  # the first readable cage, the one a mismatch is reported against
     for path in asset_cages(asset, digest):
         cage = _read(path, (outer, inner), digest)
         if cage is not None and same_cage(cage.vertices, cage.tets, motion.rest_vertices, motion.tets):
             return cage
-    try:
-        cage = load_or_build_cage(asset)
-    except (ImportError, RuntimeError, ValueError, OSError) as err:  # fTetWild and friends
-        raise InputError(f"{asset.cage_path}: no usable cage and building one failed ({err})") from None
-    check_motion(motion, cage, source)  # raises, saying how the motion's cage differs
+        first = first or cage
+    if first is None:
+        try:
+            first = load_or_build_cage(asset)
+        except (ImportError, RuntimeError, ValueError, OSError) as err:  # fTetWild and friends
+            raise InputError(f"{asset.cage_path}: no usable cage and building one failed ({err})") from None
+        if same_cage(first.vertices, first.tets, motion.rest_vertices, motion.tets):
+            return first
+    check_motion(motion, first, source)  # raises, saying how the motion's cage differs
     raise AssertionError("unreachable: no cage matched, so the check raised")
 
 

@@ -1,0 +1,77 @@
+"""Settings dataclasses as options: the parser is derived from the dataclass, errors name the option."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+import pytest
+
+from neural.errors import InputError
+from shellsim.options import SettingError, add_options, check_range, floats, from_args, option
+
+
+@dataclasses.dataclass(frozen=True)
+class Toy:
+    name: str = option(help="what to call it", required=True, group="source")
+    mesh: str | None = option(help="a mesh file", group="source")
+    frames: int = option(90, help="number of frames")
+    fps: float = option(30.0, help="frames per second")
+    size: float | None = option(help="largest extent in metres", shown_default="the asset's")
+    velocity: tuple[float, ...] = option((0.0, 0.0, 0.0), help="initial velocity", parse=floats(3))
+    pin: tuple[str, ...] = option(help="a rule", repeat=True, metavar="RULE")
+    ground: bool = option(True, help="no ground plane", flag="--no-ground", negate=True)
+    mode: str = option("fast", help="how", choices=("fast", "slow"))
+    internal: int = 7
+
+    def __post_init__(self):
+        check_range("frames", self.frames, 1, 100, "an integer")
+
+
+def _parse(argv):
+    parser = argparse.ArgumentParser()
+    add_options(parser, Toy)
+    return parser, parser.parse_args(argv)
+
+
+def test_defaults_types_and_values_come_from_the_dataclass():
+    _, args = _parse(["--name", "a"])
+    toy = from_args(Toy, args)
+    assert toy == Toy(name="a")
+    _, args = _parse(
+        ["--mesh", "m.ply", "--frames", "5", "--velocity", "1,2,3", "--pin", "z<1", "--pin", "x>2"]
+    )
+    toy = from_args(Toy, args, internal=3)
+    assert (toy.mesh, toy.frames, toy.velocity, toy.pin, toy.internal) == (
+        "m.ply",
+        5,
+        (1.0, 2.0, 3.0),
+        ("z<1", "x>2"),
+        3,
+    )
+    _, args = _parse(["--name", "a", "--no-ground", "--mode", "slow"])
+    assert from_args(Toy, args).ground is False and from_args(Toy, args).mode == "slow"
+
+
+def test_help_shows_each_default_once_and_the_group_is_exclusive_and_required():
+    parser, _ = _parse(["--name", "a"])
+    text = " ".join(parser.format_help().split())
+    assert "number of frames (default 90)" in text
+    assert "frames per second (default 30)" in text
+    assert "(default the asset's)" in text and "(default 0,0,0)" in text
+    assert "internal" not in text
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--name", "a", "--mesh", "b"])
+    with pytest.raises(SystemExit):
+        parser.parse_args([])
+
+
+def test_errors_name_the_option_at_the_command_line_and_the_field_in_the_library():
+    _, args = _parse(["--name", "a", "--frames", "0"])
+    with pytest.raises(InputError, match=r"^--frames: expected an integer in \[1, 100\], got 0$"):
+        from_args(Toy, args)
+    with pytest.raises(SettingError, match=r"^frames: expected an integer"):
+        Toy(name="a", frames=0)
+    _, args = _parse(["--name", "a", "--velocity", "1,2"])
+    with pytest.raises(InputError, match=r"^--velocity: expected 3 comma-separated numbers, got '1,2'$"):
+        from_args(Toy, args)

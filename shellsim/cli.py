@@ -19,7 +19,7 @@ from pathlib import Path
 
 from neural.errors import ShellsimError
 
-COMMANDS = ("poses", "train", "extract", "render", "eval", "cage", "simulate", "wind", "inspect")
+COMMANDS = ("poses", "train", "extract", "render", "eval", "cage", "simulate", "wind", "inspect", "export")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,125 @@
+"""Export a motion (of an asset's cage, or of a simulated mesh) to USD, a VTU series or a PLY sequence."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neural.errors import InputError
+from shellsim.options import SettingError, option
+
+FORMATS = ("usd", "vtu", "ply")
+
+
+@dataclass(frozen=True)
+class ExportSettings:
+    """What :func:`export` writes: ``motion`` (a motion file) as ``format`` to ``out``."""
+
+    motion: str = option(help="motion file written by 'shellsim simulate' or 'shellsim wind'", required=True)
+    out: str = option(
+        help="file to write: a .usd/.usda/.usdc stage, a .pvd index (its .vtu files go in OUT_STEM_vtu/) or "
+        "a directory of .ply files",
+        required=True,
+    )
+    format: str = option("usd", help="usd, vtu or ply", choices=FORMATS)
+    asset: str | None = option(
+        help="asset directory or shipped asset name whose outer shell M+ the motion deforms (a motion of "
+        "'simulate --mesh' carries its own surface and needs none)"
+    )
+    frames: str | None = option(help="START:END (END exclusive) or one frame number", shown_default="all")
+    overwrite: bool = option(help="replace OUT if it exists")
+
+    def __post_init__(self):
+        if self.format not in FORMATS:
+            raise SettingError("format", f"expected one of {', '.join(FORMATS)}, got {self.format!r}")
+        suffix = Path(self.out).suffix.lower()
+        wanted = {"usd": (".usd", ".usda", ".usdc"), "vtu": (".pvd",), "ply": ("",)}[self.format]
+        if suffix not in wanted:
+            expected = " or ".join(w or "a directory name without suffix" for w in wanted)
+            raise SettingError("out", f"a {self.format} export is written to {expected}, got {self.out!r}")
+
+
+def _compact(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(used vertex indices (U,), faces (F, 3) renumbered into them) of faces indexing a larger vertex set."""
+    used, renumbered = np.unique(faces, return_inverse=True)
+    return used, renumbered.reshape(faces.shape)
+
+
+def _meshes(settings: ExportSettings, motion):
+    """The moving meshes of ``motion`` (list of AnimatedMesh): the asset's M+ (through its cage), the surface
+    a 'simulate --mesh' motion carries, and the cage's boundary last."""
+    from shellsim.cage import boundary_faces, cage_for_motion
+    from shellsim.deform import deform_points
+    from shellsim.export import AnimatedMesh
+
+    meshes = []
+    if settings.asset is not None:
+        from neural.asset import load_asset
+
+        asset = load_asset(settings.asset)
+        cage = cage_for_motion(asset, motion, settings.motion)
+        outer = np.asarray(asset.outer_mesh().faces, np.int64)
+        meshes.append(
+            AnimatedMesh(
+                "outer_shell",
+                outer,
+                lambda k: deform_points(motion.positions[k], cage.tets, cage.outer_tet, cage.outer_bary),
+            )
+        )
+    if motion.surface is not None:
+        meshes.append(AnimatedMesh("surface", motion.surface.faces, motion.surface_points))
+    if not meshes:
+        raise InputError(
+            f"{settings.motion}: the motion of an asset's cage needs --asset to export its shell"
+        )
+    used, faces = _compact(boundary_faces(motion.tets))
+    return [*meshes, AnimatedMesh("cage", faces, lambda k: motion.positions[k][used])]
+
+
+def export(settings: ExportSettings, progress: bool = True) -> list[Path]:
+    """Write the export ``settings`` describe; returns the files written (the index or stage last)."""
+    from tqdm import tqdm
+
+    from shellsim.export import require_usd, write_ply_sequence, write_usd, write_vtu_series
+    from shellsim.motion import load_motion, parse_frames
+    from shellsim.outputs import check_writable_dir, check_writable_file
+    from shellsim.render import motion_fps
+
+    if settings.format == "usd":
+        require_usd()
+    out = Path(settings.out)
+    taken = out.is_dir() and any(out.iterdir()) if settings.format == "ply" else out.exists()
+    if taken and not settings.overwrite:
+        raise InputError(f"{out}: exists; give --overwrite to replace it, or another --out")
+    (check_writable_dir if settings.format == "ply" else check_writable_file)(out, "--out")
+    motion = load_motion(settings.motion)
+    frames = parse_frames(settings.frames, motion.n_frames, settings.motion)
+    meshes = None if settings.format == "vtu" else _meshes(settings, motion)
+    bar = tqdm(total=len(frames), desc=f"export {settings.format}", unit="frame", disable=not progress)
+    with bar:
+        if settings.format == "vtu":
+            return write_vtu_series(
+                out,
+                motion.rest_vertices,
+                motion.tets,
+                lambda k: motion.positions[k],
+                frames,
+                [float(motion.times[k]) for k in frames],
+                bar.update,
+            )
+        if settings.format == "ply":
+            return write_ply_sequence(out, meshes[0], frames, bar.update)
+        up = motion.meta.get("params", {}).get("up") or _asset_up(settings)
+        metres = float(motion.meta.get("world", {}).get("scale", 1.0))
+        return [write_usd(out, meshes, frames, motion_fps(motion), up, metres, bar.update)]
+
+
+def _asset_up(settings: ExportSettings) -> list[float]:
+    """The up axis of the asset (+Z without one)."""
+    if settings.asset is None:
+        return [0.0, 0.0, 1.0]
+    from neural.asset import load_asset
+
+    return [float(c) for c in load_asset(settings.asset).up]

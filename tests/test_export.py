@@ -1,0 +1,170 @@
+"""`shellsim export`: USD, VTU series and PLY files read back by pxr, pyvista and trimesh, against an affine
+motion whose deformed shells and volume ratios are known in closed form."""
+
+from __future__ import annotations
+
+import sys
+import xml.etree.ElementTree as ET
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import trimesh
+from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
+
+from shellsim.cli import main
+from shellsim.embed import embed_points
+from shellsim.export import up_rotation
+from shellsim.motion import Motion, Surface, save_motion
+
+FRAMES = 4
+FPS = 24.0
+
+
+def affine(k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The map of frame ``k``: x -> A x + b with det A = (1 + 0.1 k)^3 (a scale and a shear)."""
+    a = (1.0 + 0.1 * k) * np.array([[1.0, 0.05 * k, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    return a, np.array([0.01 * k, -0.02 * k, 0.03 * k])
+
+
+def moved(points: np.ndarray, k: int) -> np.ndarray:
+    a, b = affine(k)
+    return points @ a.T + b
+
+
+@pytest.fixture
+def rod(tmp_path):
+    """(asset directory, its cage) : cylinder shells in a hand-made Kuhn-box cage, z up."""
+    from neural.asset import load_asset
+
+    outer = trimesh.creation.cylinder(radius=0.15, height=1.0, sections=16)
+    outer.apply_translation([0.0, 0.0, 0.5])
+    inner = trimesh.creation.cylinder(radius=0.1, height=0.9, sections=16)
+    inner.apply_translation([0.0, 0.0, 0.5])
+    root = write_asset_dir(tmp_path / "rod", outer, inner, "rod", center=(0, 0, 0.5), up=(0, 0, 1))
+    verts, tets, _ = kuhn_grid(0.0, (0.4, 0.4, 1.1), (2, 2, 4))
+    cage = save_embedded_cage(load_asset(root), verts - [0.2, 0.2, 0.05], tets)
+    return root, cage
+
+
+def write_motion(path, cage, meta=None, surface=None):
+    positions = np.stack([moved(cage.vertices, k) for k in range(FRAMES)]).astype(np.float32)
+    save_motion(
+        path, Motion(cage.vertices, cage.tets, positions, np.arange(FRAMES) / FPS, meta or {}, surface)
+    )
+    return positions
+
+
+def test_usd_holds_the_deformed_shell_and_cage_per_time_code(rod, tmp_path):
+    from pxr import Usd, UsdGeom
+
+    root, cage = rod
+    motion = tmp_path / "m.npz"
+    positions = write_motion(motion, cage, {"fps": FPS, "world": {"scale": 0.25}})
+    out = tmp_path / "rod.usd"
+    assert main(["export", "--asset", str(root), "--motion", str(motion), "--out", str(out)]) == 0
+    stage = Usd.Stage.Open(str(out))
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
+    assert UsdGeom.GetStageMetersPerUnit(stage) == pytest.approx(0.25)
+    assert stage.GetTimeCodesPerSecond() == FPS and stage.GetFramesPerSecond() == FPS
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, FRAMES - 1)
+    shell = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/outer_shell"))
+    rest_outer = trimesh.load(root / "shell_outer.ply", process=False)
+    assert np.array_equal(np.asarray(shell.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), rest_outer.faces)
+    assert shell.GetPointsAttr().GetTimeSamples() == list(range(FRAMES))
+    for k in range(FRAMES):
+        points = np.asarray(shell.GetPointsAttr().Get(k))
+        assert (
+            np.abs(points - moved(rest_outer.vertices, k)).max() < 1e-5
+        )  # barycentric maps keep affine maps
+    cage_prim = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/cage"))
+    cage_points = np.asarray(cage_prim.GetPointsAttr().Get(2))
+    faces = np.asarray(cage_prim.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
+    boundary = trimesh.Trimesh(cage_points, faces, process=False)
+    assert boundary.is_watertight and boundary.volume == pytest.approx(1.2**3 * 0.4 * 0.4 * 1.1, rel=1e-5)
+    assert np.abs(cage_points[:, None] - positions[2][None]).sum(-1).min(1).max() < 1e-6
+
+
+def test_vtu_series_carries_displacement_and_det_f(rod, tmp_path):
+    import pyvista as pv
+
+    _, cage = rod
+    motion = tmp_path / "m.npz"
+    write_motion(motion, cage)
+    out = tmp_path / "series.pvd"
+    assert (
+        main(["export", "--format", "vtu", "--motion", str(motion), "--out", str(out), "--frames", "1:4"])
+        == 0
+    )
+    entries = ET.parse(out).getroot().find("Collection").findall("DataSet")
+    assert [float(e.get("timestep")) for e in entries] == pytest.approx([1 / FPS, 2 / FPS, 3 / FPS])
+    for k, entry in zip(range(1, 4), entries, strict=True):
+        grid = pv.read(out.parent / entry.get("file"))
+        assert np.abs(grid.points - moved(cage.vertices, k)).max() < 1e-5
+        assert (
+            np.abs(grid.point_data["displacement"] - (moved(cage.vertices, k) - cage.vertices)).max() < 1e-5
+        )
+        assert grid.cell_data["volume_ratio"] == pytest.approx(
+            np.full(len(cage.tets), (1 + 0.1 * k) ** 3), 1e-5
+        )
+
+
+def test_ply_sequence_of_a_simulated_mesh_surface(tmp_path):
+    verts, tets, _ = kuhn_grid(0.0, 1.0, 2)
+    sphere = trimesh.creation.icosphere(1, radius=0.3)
+    sphere.apply_translation([0.5, 0.5, 0.5])
+    surface = Surface(*embed_points(verts, tets, sphere.vertices), np.asarray(sphere.faces))
+    motion = tmp_path / "m.npz"
+    write_motion(motion, SimpleNamespace(vertices=verts, tets=tets), surface=surface)
+    out = tmp_path / "ply"
+    assert main(["export", "--format", "ply", "--motion", str(motion), "--out", str(out)]) == 0
+    files = sorted(out.glob("*.ply"))
+    assert [f.name for f in files] == [f"surface_{k:05d}.ply" for k in range(FRAMES)]
+    for k, f in enumerate(files):
+        mesh = trimesh.load(f, process=False)
+        assert np.array_equal(mesh.faces, sphere.faces)
+        assert np.abs(mesh.vertices - moved(sphere.vertices, k)).max() < 1e-5
+    assert main(["export", "--format", "ply", "--motion", str(motion), "--out", str(out)]) == 2  # kept
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--format", "vtu", "--out", "x.usd"], "--out: a vtu export is written to .pvd, got 'x.usd'"),
+        (["--out", "x.usd", "--frames", "9"], "--frames '9': "),
+        (["--out", "x.usd"], "needs --asset to export its shell"),
+    ],
+)
+def test_errors_are_one_line(rod, tmp_path, capsys, args, message):
+    _, cage = rod
+    write_motion(tmp_path / "m.npz", cage)
+    assert main(["export", "--motion", str(tmp_path / "m.npz"), *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("up", [(0, 1, 0), (0, 0, 1), (1, 0, 0), (0, 0, -1), (0.3, -0.5, 0.8)])
+def test_up_rotation_is_a_rotation_taking_up_to_the_usd_axis(up):
+    r, axis = up_rotation(up)
+    u = np.asarray(up, float) / np.linalg.norm(up)
+    assert np.allclose(r @ r.T, np.eye(3)) and np.linalg.det(r) == pytest.approx(1.0)
+    assert np.allclose(r @ u, (0, 1, 0) if axis == "Y" else (0, 0, 1))
+
+
+def test_a_missing_usd_extra_is_one_line_naming_it(rod, tmp_path, capsys, monkeypatch):
+    root, cage = rod
+    write_motion(tmp_path / "m.npz", cage)
+    monkeypatch.setitem(sys.modules, "pxr", None)  # import pxr raises ImportError
+    args = [
+        "export",
+        "--asset",
+        str(root),
+        "--motion",
+        str(tmp_path / "m.npz"),
+        "--out",
+        str(tmp_path / "a.usd"),
+    ]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.endswith("pip install 'shellsim[usd]'\n") and err.count("\n") == 1
+    assert not (tmp_path / "a.usd").exists()

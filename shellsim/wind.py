@@ -24,7 +24,7 @@ No simulation: the object is treated as a cantilever anchored at its base and lo
 
 - **Limit.** The second-order drop leaves a tet the volume ratio ``1 - slope^2 / 2``, and turbulence
   compresses the cage along the wind: where a frame would squeeze a tet below
-  :data:`shellsim.validity.MIN_VOLUME_RATIO`, :func:`animate_wind` scales that frame's tip deflection down
+  :data:`shellsim.geometry.MIN_VOLUME_RATIO`, :func:`animate_wind` scales that frame's tip deflection down
   until none does (:func:`limited_wind_displacement`): a gust too strong for the cage bends it as far as it
   can go. ``strength`` itself is at most 1 (:data:`RANGES`).
 
@@ -44,8 +44,8 @@ import numpy as np
 
 from neural.errors import InputError
 
+from .geometry import MIN_VOLUME_RATIO, tet_volumes
 from .selection import Selection, parse_selection
-from .validity import MIN_VOLUME_RATIO, tet_volumes
 
 log = logging.getLogger(__name__)
 

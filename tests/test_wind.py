@@ -9,8 +9,8 @@ import pytest
 from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError
+from shellsim.geometry import MIN_VOLUME_RATIO, volume_ratios
 from shellsim.motion import MotionWriter, load_motion
-from shellsim.validity import MIN_VOLUME_RATIO, volume_ratios
 from shellsim.wind import (
     WindSettings,
     animate_wind,

@@ -46,6 +46,16 @@ def check_range(flag: str, value, low: float, high: float, what: str = "a number
     return value
 
 
+def device_option(name: str, warp: bool = False) -> str:
+    """:func:`neural.device.pick_device` for ``--device``: its errors name the option."""
+    from neural.device import pick_device
+
+    try:
+        return pick_device(name, warp)
+    except InputError as err:
+        raise InputError(f"--device: {err}") from None
+
+
 def parse_rule(flag: str, text: str) -> Selection:
     """A vertex selection ``AXIS OP VALUE[%]`` (:mod:`shellsim.selection`); junk is an InputError naming
     ``flag``."""

@@ -24,6 +24,7 @@ from shellsim.commands.args import (
     MAX_FRAMES,
     add_resume_options,
     check_range,
+    device_option,
     parse_floats,
     parse_rule,
     parse_size,
@@ -156,19 +157,6 @@ def run(args: argparse.Namespace) -> None:
             frames_dir,
             video,
         )
-
-
-def _device(name: str) -> str:
-    import warp as wp
-
-    has_cuda = wp.get_cuda_device_count() > 0
-    if name == "auto":
-        return "cuda:0" if has_cuda else "cpu"
-    if name not in ("cpu", "cuda"):
-        raise InputError(f"--device: expected auto, cpu or cuda, got {name!r}")
-    if name == "cuda" and not has_cuda:
-        raise InputError("--device cuda: no CUDA device is available on this machine")
-    return "cuda:0" if name == "cuda" else "cpu"
 
 
 def _parameters(args: argparse.Namespace, material, up) -> dict:
@@ -336,7 +324,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     _check_numbers(args)
     material = get_material(args.material, args.youngs, args.poisson, args.density)
     rules = [parse_rule("--pin", text) for text in args.pin]
-    device = _device(args.device)
+    device = device_option(args.device, warp=True)
     name = Path(args.mesh).stem if args.mesh else Path(args.asset).name
     out = check_writable_file(Path(args.out) if args.out else Path(f"{name}_sim.npz"), "--out")
 

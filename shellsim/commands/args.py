@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 from neural.errors import InputError
-from shellsim.selection import Selection, parse_selection
 
 
 def parse_size(flag: str, text: str) -> tuple[int, int]:
@@ -54,15 +53,6 @@ def device_option(name: str, warp: bool = False) -> str:
         return pick_device(name, warp)
     except InputError as err:
         raise InputError(f"--device: {err}") from None
-
-
-def parse_rule(flag: str, text: str) -> Selection:
-    """A vertex selection ``AXIS OP VALUE[%]`` (:mod:`shellsim.selection`); junk is an InputError naming
-    ``flag``."""
-    try:
-        return parse_selection(text)
-    except InputError as err:
-        raise InputError(f"{flag} {err}") from None
 
 
 def add_resume_options(parser) -> None:

@@ -63,17 +63,17 @@ def surface_points(field, outer, n: int, seed: int = 0):
     import torch
     import trimesh
 
-    from neural.train import finite_difference_gradient
+    from neural.losses import finite_difference_gradient
 
     x = torch.as_tensor(trimesh.sample.sample_surface(outer, n, seed=seed)[0], dtype=torch.float32)
     eps = 1e-3 / float(field.scale)
     with torch.no_grad():
         for _ in range(8):
             f = field.sdf(x)
-            g = finite_difference_gradient(field, x, eps)
+            g = finite_difference_gradient(field.sdf, x, eps)
             x = x - (f / (g * g).sum(1).clamp_min(1e-12))[:, None] * g
         f, s = field.sdf_and_kernel(x)
-        g = finite_difference_gradient(field, x, eps)
+        g = finite_difference_gradient(field.sdf, x, eps)
     ok = (f.abs() < 1e-3).numpy()
     gn = g.norm(dim=1)
     normals = (g / gn.clamp_min(1e-12)[:, None]).numpy()

@@ -20,15 +20,10 @@ import time
 from dataclasses import dataclass
 
 import torch
+from fullray_samplers import importance_samples, uniform_samples  # bench/, beside this script
 
 from neural.device import pick_device
-from neural.render.fullray import (
-    importance_samples,
-    ray_aabb,
-    render_rays,
-    stepped_samples,
-    uniform_samples,
-)
+from neural.render.fullray import ray_aabb, render_rays, stepped_samples
 from neural.render.occupancy import OccupancyGrid
 from neural.render.samples import RaySamples
 

@@ -21,7 +21,8 @@ import time
 import numpy as np
 import warp as wp
 
-from shellsim.fem import SimSettings, Simulator, tet_volumes
+from shellsim.fem import SimSettings, Simulator
+from shellsim.geometry import tet_volumes
 from shellsim.materials import get_material
 
 SIZE = 0.3  # metres

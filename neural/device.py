@@ -4,22 +4,35 @@ from __future__ import annotations
 
 from .errors import InputError
 
+DEVICES = ("auto", "cpu", "cuda")
 
-def pick_device(name: str | None = None) -> str:
-    """Return ``"cuda"`` or ``"cpu"``.
 
-    ``name`` None or ``"auto"`` picks ``cuda`` when torch sees a GPU; an explicit ``"cuda"`` without one
-    is an :class:`InputError`.
+def pick_device(name: str | None = "auto", warp: bool = False) -> str:
+    """The device to run on: torch's ``"cpu"`` or ``"cuda"``, or with ``warp`` Warp's ``"cpu"`` or
+    ``"cuda:0"``.
+
+    ``name`` is one of :data:`DEVICES`: ``"auto"`` (or None) picks CUDA when the library that will run on
+    it (torch, or Warp with ``warp``) sees a CUDA device, else the CPU. Another name, or ``"cuda"`` without
+    a CUDA device, is an :class:`InputError` that speaks of the value (the CLI adds the option's name).
     """
-    import torch
+    name = "auto" if name is None else name
+    if name not in DEVICES:
+        raise InputError(f"device {name!r}: expected one of {', '.join(map(repr, DEVICES))}")
+    if name == "cpu":
+        return "cpu"
+    if warp:
+        import warp as wp
 
-    if name in (None, "auto"):
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if name not in ("cpu", "cuda"):
-        raise InputError(f"--device: expected cpu, cuda or auto, got {name!r}")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise InputError("--device cuda: no CUDA device is available on this machine")
-    return name
+        has_cuda = wp.get_cuda_device_count() > 0
+    else:
+        import torch
+
+        has_cuda = torch.cuda.is_available()
+    if not has_cuda:
+        if name == "cuda":
+            raise InputError("device 'cuda' requested but no CUDA device is available")
+        return "cpu"
+    return "cuda:0" if warp else "cuda"
 
 
 def warp_device(torch_device: str) -> str:

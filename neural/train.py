@@ -22,6 +22,15 @@ from tqdm import tqdm
 from .checkpoint import load_checkpoint, save_checkpoint
 from .data import SceneData, pixel_to_ray
 from .field import ShellField
+from .losses import (
+    color_loss,
+    eikonal_loss,
+    finite_difference_gradient,
+    kernel_sharpness_loss,
+    kernel_smoothness_loss,
+    normal_loss,
+    total_loss,
+)
 from .metrics import psnr, ssim
 from .render.fullray import render_rays
 from .render.view import (
@@ -33,9 +42,6 @@ from .render.view import (
 )
 
 log = logging.getLogger(__name__)
-
-# Regular tetrahedron directions for finite-difference gradients (4 evaluations instead of 6).
-_TETRA = torch.tensor([[1.0, -1.0, -1.0], [-1.0, -1.0, 1.0], [-1.0, 1.0, -1.0], [1.0, 1.0, 1.0]])
 
 
 @dataclass
@@ -153,13 +159,6 @@ class PixelSampler:
         return origins, dirs, torch.where(empty, colours, rgb), torch.where(empty, colours, self.background)
 
 
-def finite_difference_gradient(field: ShellField, x: torch.Tensor, eps: float) -> torch.Tensor:
-    """(N, 3) world-space grad f at ``x`` (N, 3) by tetrahedral finite differences with step ``eps``."""
-    offsets = _TETRA.to(x) * eps
-    f = field.sdf((x[:, None, :] + offsets[None]).reshape(-1, 3)).reshape(-1, 4)
-    return (f[:, :, None] * offsets[None]).sum(1) / (4.0 * eps * eps)
-
-
 def regularisers(
     field: ShellField,
     points: torch.Tensor,
@@ -168,31 +167,23 @@ def regularisers(
     config: Stage1Config,
     generator: torch.Generator,
 ) -> dict[str, torch.Tensor]:
-    """Eikonal (Eq. 10), normal (Eq. 12), kernel-smoothness (Eq. 11) and kernel-sharpness losses on a subset
-    of samples.
-
-    Sharpness (ours): ``mean(relu(log(s / s_floor)))``. Where the images do not care how wide the kernel
-    is (a plain glossy surface away from silhouettes), nothing else sets s, and Eq. 11 carries the fur's wide
-    kernel onto the bare skin beside it; this weak constant pull makes such places surfaces, while content
-    whose colour needs a volume (fur) keeps its kernel against it. It stops at ``s_floor = sharp_floor *
-    step_size``, below which the training's ray marching could not tell the difference.
+    """Eikonal (Eq. 10), normal (Eq. 12), kernel-smoothness (Eq. 11) and kernel-sharpness losses
+    (:mod:`neural.losses`) of the field on a subset of samples.
 
     points (N, 3) world positions (detached), normals (N, 3) predicted normals, inv_s (N,) at them.
-    Lengths in ``config`` are in unit space and converted with the field's scale.
+    Lengths in ``config`` are in unit space and converted with the field's scale: the finite-difference
+    step, the perturbation of Eq. 11 and the sharpness floor ``s_floor = sharp_floor * step_size``.
     """
     scale = float(field.scale)
-    eps = config.fd_eps / scale
-    grad = finite_difference_gradient(field, points, eps)
-    grad_norm = grad.norm(dim=-1)
-    eikonal = ((grad_norm - 1.0) ** 2).mean()
-    target = (grad / grad_norm.clamp_min(1e-6)[:, None]).detach()
-    normal = (normals - target).norm(dim=-1).mean()
+    grad = finite_difference_gradient(field.sdf, points, config.fd_eps / scale)
     noise = torch.randn(points.shape, generator=generator).to(points) * (config.smooth_eps / scale)
     inv_s_perturbed = field.geometry(points + noise).inv_s
-    smooth = (torch.log(inv_s) - torch.log(inv_s_perturbed)).abs().mean()
-    s_floor = config.sharp_floor * config.step_size / scale
-    sharp = torch.relu(-torch.log(s_floor * inv_s)).mean()
-    return {"eikonal": eikonal, "normal": normal, "smooth": smooth, "sharp": sharp}
+    return {
+        "eikonal": eikonal_loss(grad),
+        "normal": normal_loss(normals, grad),
+        "smooth": kernel_smoothness_loss(inv_s, inv_s_perturbed),
+        "sharp": kernel_sharpness_loss(inv_s, config.sharp_floor * config.step_size / scale),
+    }
 
 
 def evaluate(field: ShellField, data: SceneData, views, sampler, background: torch.Tensor) -> dict:
@@ -279,6 +270,12 @@ def train_stage1(
     sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray, perturb=True)
     eval_sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray)
     scale = float(field.scale)
+    weights = {
+        "eikonal": config.lambda_e,
+        "normal": config.lambda_n,
+        "smooth": config.lambda_s,
+        "sharp": config.lambda_k,
+    }
     bar = _progress(config.steps, start, "stage 1")
     history = []
 
@@ -301,19 +298,12 @@ def train_stage1(
                 continue
             anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
             out = render_rays(field, origins, dirs, samples, ray_background, cos_anneal=anneal)
-            loss_c = (out["color"] - target).abs().mean()  # Eq. 9
             k = max(1, int(n_samples * config.reg_fraction))
             pick = torch.randperm(n_samples, generator=reg_gen)[:k].to(origins.device)
             reg = regularisers(
                 field, out["points"][pick].detach(), out["normal"][pick], out["inv_s"][pick], config, reg_gen
             )
-            loss = (
-                loss_c
-                + config.lambda_e * reg["eikonal"]
-                + config.lambda_n * reg["normal"]
-                + config.lambda_s * reg["smooth"]
-                + config.lambda_k * reg["sharp"]
-            )  # Eq. 8
+            loss = total_loss({"color": color_loss(out["color"], target), **reg}, weights)  # Eq. 8
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -384,7 +374,7 @@ def train_stage2(
             origins, dirs, target, ray_background = pixels.sample(config.rays)
             samples = sampler(origins, dirs)
             out = render_rays(field, origins, dirs, samples, ray_background)
-            loss = (out["color"] - target).abs().mean()  # Eq. 9 only: no regularisers in stage 2
+            loss = color_loss(out["color"], target)  # Eq. 9 only: no regularisers in stage 2
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()

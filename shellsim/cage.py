@@ -46,20 +46,11 @@ import numpy as np
 
 from neural.errors import InputError
 
-from .embed import (
-    BARY_TOL,
-    TET_FACES,
-    boundary_facets,
-    check_embedding,
-    check_tets,
-    embed_points,
-    interpolate,
-    outside_distance,
-)
+from .embed import BARY_TOL, check_embedding, embed_points, interpolate, outside_distance
+from .geometry import check_tets, connected_parts, tet_quality, tet_volumes
 from .npz import load_npz, save_npz
 from .outputs import check_writable_file
 from .tetwild import tetrahedralize
-from .validity import tet_volumes
 
 logger = logging.getLogger(__name__)
 
@@ -144,34 +135,6 @@ class Cage:
     shell_digest: str
     config: CageConfig = field(default_factory=CageConfig)
     path: str = ""
-
-
-def tet_quality(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """Shape quality ``6 sqrt(2) volume / rms_edge**3``: 1 for a regular tet, 0 for a flat one, negative
-    for an inverted one. vertices (V, 3), tets (T, 4) -> (T,) float64."""
-    p = np.asarray(vertices, dtype=np.float64)[np.asarray(tets)]
-    pairs = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
-    rms = np.sqrt(np.mean([np.sum((p[:, i] - p[:, j]) ** 2, axis=1) for i, j in pairs], axis=0))
-    return 6.0 * math.sqrt(2.0) * tet_volumes(vertices, tets) / rms**3
-
-
-def boundary_faces(tets: np.ndarray) -> np.ndarray:
-    """Faces of exactly one tet: tets (T, 4) positively oriented -> (F, 3) int64, oriented outward."""
-    return boundary_facets(tets)[0]
-
-
-def connected_parts(tets: np.ndarray) -> np.ndarray:
-    """Label of the solid each tet belongs to, tets connecting through shared faces: (T, 4) -> (T,) int64."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    tets = np.asarray(tets, dtype=np.int64)
-    _, face_id = np.unique(np.sort(tets[:, TET_FACES].reshape(-1, 3), axis=1), axis=0, return_inverse=True)
-    n = len(tets)
-    rows = np.repeat(np.arange(n), 4)
-    graph = coo_matrix((np.ones(4 * n), (rows, n + face_id.ravel())), shape=(n + face_id.max() + 1,) * 2)
-    _, labels = connected_components(graph, directed=False)
-    return np.unique(labels[:n], return_inverse=True)[1].ravel().astype(np.int64)
 
 
 def check_tet_mesh(vertices: np.ndarray, tets: np.ndarray, what: str, apart: str = APART_DILATED) -> None:

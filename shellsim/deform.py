@@ -28,7 +28,8 @@ import warp as wp
 
 from neural.device import run_in_chunks
 
-from .embed import check_points, check_tets, interpolate
+from .embed import interpolate
+from .geometry import check_points, check_tets
 
 #: Barycentric tolerance of the point-in-tet test: a point whose smallest barycentric coordinate is
 #: at least ``-BARY_TOL`` is inside (points on shared and boundary faces are found).

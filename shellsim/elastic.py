@@ -1,9 +1,9 @@
 """The stable Neo-Hookean tetrahedral element in Warp: energy density, stress, the analytic PSD Hessian
 (closed-form eigenvalues; shift or SVD eigen-projection) and :func:`tet_terms`, the kernel that accumulates
 each tet's energy, forces and 3x3 Hessian blocks (with Kelvin-Voigt damping) for :mod:`shellsim.fem`; plus
-NumPy/host helpers (:func:`tet_volumes`, :func:`snh_energy_reference`, :func:`elastic_energy`) used by tests
-and benchmarks. The model (with its volume barrier below det F = ``BARRIER_J``) and its definiteness fix
-are described in :mod:`shellsim.fem`.
+NumPy/host helpers (:func:`snh_energy_reference`, :func:`elastic_energy`) used by tests and benchmarks. The
+model (with its volume barrier below det F = ``BARRIER_J``) and its definiteness fix are described in
+:mod:`shellsim.fem`.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from .geometry import tet_volumes
 from .linsolve import block_topology
 from .materials import Material
 
@@ -298,12 +299,6 @@ def tet_terms(
                     block = contract(H, ga, gb)
                 block += damping_block(Fp, damp_mu, damp_lam, ga, gb)
                 add_block(values, block_index, t, a, b, vol * block)
-
-
-def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """(T,) signed volumes det[x1-x0, x2-x0, x3-x0] / 6 (positive for positively oriented tets)."""
-    x = np.asarray(vertices, np.float64)[np.asarray(tets)]
-    return np.linalg.det(np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)) / 6.0
 
 
 def snh_energy_reference(F: np.ndarray, mu: float, lam: float) -> np.ndarray:

@@ -18,35 +18,13 @@ import logging
 
 import numpy as np
 
+from .geometry import boundary_facets, check_points, check_tets
+
 logger = logging.getLogger(__name__)
 
 #: A point whose smallest barycentric coordinate in its tet is below ``-BARY_TOL`` lies outside it
 #: (by more than rounding).
 BARY_TOL = 1e-9
-
-#: Outward-oriented faces of a positively oriented tet ``(a, b, c, d)``: face ``k`` is opposite vertex ``k``.
-TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
-
-
-def check_points(name: str, x) -> np.ndarray:
-    """``x`` as (N, 3) float64; another shape is a ``ValueError`` naming ``name``."""
-    x = np.asarray(x, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (N, 3), got {x.shape}")
-    return x
-
-
-def check_tets(tets, n_vertices: int, allow_empty: bool = False) -> np.ndarray:
-    """``tets`` as (T, 4) int64 indices into ``n_vertices`` vertices; anything else (no tets at all unless
-    ``allow_empty``) is a ``ValueError`` naming ``tets``."""
-    tets = np.asarray(tets)
-    if tets.ndim != 2 or tets.shape[1] != 4 or not np.issubdtype(tets.dtype, np.integer):
-        raise ValueError(f"tets: expected (T, 4) integers, got {tets.shape} {tets.dtype}")
-    if len(tets) == 0 and not allow_empty:
-        raise ValueError("tets: the mesh has no tetrahedra")
-    if tets.size and (tets.min() < 0 or tets.max() >= n_vertices):
-        raise ValueError(f"tets: vertex indices outside 0..{n_vertices - 1}")
-    return tets.astype(np.int64)
 
 
 def check_embedding(
@@ -119,22 +97,6 @@ def interpolate(
     for k in range(4):  # one corner at a time keeps the (F, P, 4, 3) gather out of memory
         out += bary[:, k, None] * vertices[..., corners[:, k], :]
     return out
-
-
-def boundary_facets(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Faces of a tet mesh that belong to exactly one tet, with the tet each belongs to.
-
-    tets : (T, 4) int, positively oriented
-    returns : faces (F, 3) int64, oriented outward (counter-clockwise seen from outside),
-        and owner (F,) int64, the tet each face belongs to
-    """
-    tets = np.asarray(tets, dtype=np.int64)
-    if tets.ndim != 2 or tets.shape[1] != 4:
-        raise ValueError(f"tets: expected shape (T, 4), got {tets.shape}")
-    faces = tets[:, TET_FACES].reshape(-1, 3)  # (4T, 3)
-    _, inverse, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
-    once = counts[inverse.ravel()] == 1
-    return faces[once], np.nonzero(once)[0] // 4
 
 
 def _nearest_boundary(

@@ -37,7 +37,7 @@ symmetric Gauss-Seidel preconditioner (Warp runs CPU kernels on one thread, so l
 dominate and a serial preconditioner costs nothing in parallelism: 3x fewer iterations than block-Jacobi);
 on CUDA :func:`warp.optim.linear.cg` with block-Jacobi. A backtracking line search on ``E`` keeps the energy
 decreasing and the tets uninverted. A frame whose state squeezes a tet below ``min_volume_ratio``
-(:data:`shellsim.validity.MIN_VOLUME_RATIO`: inverted or near-degenerate), turns non-finite or exceeds
+(:data:`shellsim.geometry.MIN_VOLUME_RATIO`: inverted or near-degenerate), turns non-finite or exceeds
 ``max_speed`` is redone with more substeps, then raises :class:`SimulationError`.
 """
 
@@ -64,13 +64,11 @@ from .elastic import (
     f64,
     mat33,
     tet_terms,
-    tet_volumes,
     vec3,
 )
-from .embed import check_tets
+from .geometry import MIN_VOLUME_RATIO, check_tets, tet_volumes
 from .linsolve import block_topology, bsr_cg_solver, serial_pcg_solver
 from .materials import Material
-from .validity import MIN_VOLUME_RATIO
 
 log = logging.getLogger(__name__)
 wp.set_module_options({"enable_backward": False})  # no autodiff here; halves compile time

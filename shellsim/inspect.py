@@ -150,7 +150,7 @@ def build_scene(asset, cage, motion=None, color: str = "width", frame: int = 0, 
         check_motion(motion, cage)
     frame = _check_frame(motion, frame)
     pv = _pyvista()
-    from .cage import boundary_faces
+    from .geometry import boundary_faces
 
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     for name, mesh in (("outer", outer), ("inner", inner)):

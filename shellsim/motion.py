@@ -28,7 +28,7 @@ import numpy as np
 
 from neural.errors import InputError
 
-from .embed import check_tets
+from .geometry import check_tets
 from .npz import load_npz, save_npz
 
 KEYS = ("rest_vertices", "tets", "positions", "times", "meta")

@@ -27,12 +27,14 @@ _COMPARE = {"<": np.less, "<=": np.less_equal, ">": np.greater, ">=": np.greater
 @dataclass(frozen=True)
 class Selection:
     """``AXIS OP VALUE[%]``: the vertices whose coordinate ``axis`` (0, 1, 2) compares with ``value`` (world
-    units, or percent of the vertices' extent along the axis, measured from its minimum)."""
+    units, or percent of the vertices' extent along the axis, measured from its minimum); ``text`` is the
+    rule as given, for messages."""
 
     axis: int
     op: str
     value: float
     percent: bool
+    text: str
 
     @property
     def sign(self) -> float:
@@ -50,11 +52,34 @@ class Selection:
         """(V,) bool mask of the vertices (V, 3) the rule selects."""
         return _COMPARE[self.op](vertices[:, self.axis], self.threshold(vertices))
 
+    def refusal(self, name: str, vertices: np.ndarray, what: str = "no") -> InputError:
+        """The error for a rule (given as ``name``) that selects ``what`` ("no", "every") of the cage vertices
+        (V, 3), with where they lie along its axis."""
+        coord = vertices[:, self.axis]
+        return InputError(
+            f"{name} {self.text!r} selects {what} cage vertex ({'xyz'[self.axis]} spans "
+            f"{coord.min():.4g} .. {coord.max():.4g})"
+        )
 
-def parse_selection(text) -> Selection:
-    """Parse ``"z<0.1"``, ``"x >= -2"``, ``"y>95%"``; anything else is an :class:`InputError` quoting it."""
+
+def parse_selection(text, name: str | None = None) -> Selection:
+    """Parse ``"z<0.1"``, ``"x >= -2"``, ``"y>95%"``; anything else is an :class:`InputError` quoting it,
+    after ``name`` (what the rule is given as: ``"anchor"``, ``"--pin"``) when given."""
     match = _RULE.fullmatch(text) if isinstance(text, str) else None
     value = float(match.group(3)) if match else math.nan
     if not math.isfinite(value):
-        raise InputError(f"{text!r}: {GRAMMAR}")
-    return Selection("xyz".index(match.group(1).lower()), match.group(2), value, bool(match.group(4)))
+        raise InputError(f"{name + ' ' if name else ''}{text!r}: {GRAMMAR}")
+    axis = "xyz".index(match.group(1).lower())
+    return Selection(axis, match.group(2), value, bool(match.group(4)), text)
+
+
+def select_vertices(rules: list[Selection], vertices: np.ndarray, name: str) -> np.ndarray:
+    """(V,) bool: the vertices (V, 3) that any of ``rules`` selects; a rule that selects none is an
+    :class:`InputError` naming it as ``name``."""
+    chosen = np.zeros(len(vertices), bool)
+    for rule in rules:
+        mask = rule.select(vertices)
+        if not mask.any():
+            raise rule.refusal(name, vertices)
+        chosen |= mask
+    return chosen

@@ -28,7 +28,7 @@ SURFACE_COLOR = "lightsteelblue"
 
 def surface_faces(motion) -> np.ndarray:
     """(F, 3) int64 triangles of the motion's surface (or of its cage's boundary)."""
-    from .cage import boundary_faces
+    from .geometry import boundary_faces
 
     return motion.surface.faces if motion.surface is not None else boundary_faces(motion.tets)
 
@@ -157,7 +157,7 @@ def surface_plotter(motion, frame: int = 0, size=(1024, 768), off_screen: bool |
     """A ``pyvista.Plotter`` of the motion's surface (opaque) and its cage (wireframe) at ``frame``, with a
     title; ``slider`` adds a frame slider."""
     pv = _pyvista()
-    from .cage import boundary_faces
+    from .geometry import boundary_faces
 
     n = motion.n_frames
     if not -n <= frame < n:

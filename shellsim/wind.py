@@ -24,7 +24,7 @@ No simulation: the object is treated as a cantilever anchored at its base and lo
 
 - **Limit.** The second-order drop leaves a tet the volume ratio ``1 - slope^2 / 2``, and turbulence
   compresses the cage along the wind: where a frame would squeeze a tet below
-  :data:`shellsim.validity.MIN_VOLUME_RATIO`, :func:`animate_wind` scales that frame's tip deflection down
+  :data:`shellsim.geometry.MIN_VOLUME_RATIO`, :func:`animate_wind` scales that frame's tip deflection down
   until none does (:func:`limited_wind_displacement`): a gust too strong for the cage bends it as far as it
   can go. ``strength`` itself is at most 1 (:data:`RANGES`).
 
@@ -44,21 +44,13 @@ import numpy as np
 
 from neural.errors import InputError
 
-from .selection import Selection, parse_selection
-from .validity import MIN_VOLUME_RATIO, tet_volumes
+from .geometry import MIN_VOLUME_RATIO, tet_volumes
+from .selection import parse_selection
 
 log = logging.getLogger(__name__)
 
 _BINS = 64  # resolution of the beam profile along the bending axis
 _MODES = 3  # turbulence modes
-
-
-def parse_anchor(spec) -> Selection:
-    """``"z<0.05"``, ``"z<5%"`` -> a :class:`Selection`; anything else is an :class:`InputError`."""
-    try:
-        return parse_selection(spec)
-    except InputError as err:
-        raise InputError(f"anchor {err}") from None
 
 
 def _plain(v) -> str:
@@ -129,7 +121,7 @@ class WindSettings:
             if not (ok and low <= value <= high):  # NaN fails too
                 raise InputError(f"wind {name}: expected {low} <= {name} <= {high}, got {_plain(value)}")
         if self.anchor is not None:
-            parse_anchor(self.anchor)
+            parse_selection(self.anchor, "anchor")
         axis = self.bending_axis()
         if abs(float(np.dot(self.direction, axis))) > 1 - 1e-6:
             raise InputError(
@@ -141,7 +133,7 @@ class WindSettings:
         """(3,) unit vector from the anchored base towards the free end."""
         if self.anchor is None:
             return np.asarray(self.up)
-        anchor = parse_anchor(self.anchor)
+        anchor = parse_selection(self.anchor, "anchor")
         return anchor.sign * np.eye(3)[anchor.axis]
 
 
@@ -153,15 +145,10 @@ def heights(rest_vertices: np.ndarray, settings: WindSettings) -> np.ndarray:
         if not along.max() > along.min():
             raise InputError(f"the cage has no extent along the up axis {settings.up}: nothing to bend")
         return along - (along.min() + settings.base_fraction * (along.max() - along.min()))
-    anchor = parse_anchor(settings.anchor)
+    anchor = parse_selection(settings.anchor, "anchor")
     h = anchor.sign * (rest[:, anchor.axis] - anchor.threshold(rest))
     if h.max() <= 0 or h.min() > 0:
-        axis = "xyz"[anchor.axis]
-        what = "every" if h.max() <= 0 else "no"
-        raise InputError(
-            f"anchor {settings.anchor!r} selects {what} cage vertex ({axis} spans "
-            f"{rest[:, anchor.axis].min():.4g} .. {rest[:, anchor.axis].max():.4g})"
-        )
+        raise anchor.refusal("anchor", rest, "every" if h.max() <= 0 else "no")
     return h
 
 

@@ -13,7 +13,6 @@ from neural.errors import InputError
 from shellsim.cage import (
     Cage,
     CageConfig,
-    boundary_faces,
     build_cage,
     cache_dir,
     cached_cage_path,
@@ -23,11 +22,10 @@ from shellsim.cage import (
     load_or_build_cage,
     save_cage,
     shell_digest,
-    tet_quality,
-    tet_volumes,
 )
 from shellsim.cli import main
 from shellsim.embed import interpolate, outside_distance
+from shellsim.geometry import boundary_faces, tet_quality, tet_volumes
 from shellsim.motion import Motion
 
 #: Small, quick cages: a coarse dilation grid, one fTetWild run, any count within a factor 3 of 1000.

@@ -8,6 +8,7 @@ import itertools
 
 import numpy as np
 import pytest
+import torch
 from meshes import kuhn_grid
 
 from shellsim.deform import (
@@ -153,7 +154,6 @@ def test_degenerate_tets_are_skipped():
 
 
 def test_torch_in_torch_out(grid, rng):
-    torch = pytest.importorskip("torch")
     verts, tets, flip = grid
     deformed_cage = smooth_warp(verts)
     x = deform_points(deformed_cage, tets, *embed_in_grid(rng.random((100, 3)), N, flip))

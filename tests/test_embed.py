@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from meshes import kuhn_grid
 
-from shellsim.embed import barycentric, boundary_facets, embed_points, interpolate, outside_distance
+from shellsim.embed import barycentric, embed_points, interpolate, outside_distance
+from shellsim.geometry import boundary_facets
 
 LO, HI = np.array([-1.0, -0.5, 0.0]), np.array([1.0, 0.5, 0.75])
 

@@ -6,10 +6,10 @@ from meshes import kuhn_grid
 
 from shellsim.contact import Box, Sphere
 from shellsim.elastic import elastic_energy, snh_energy_reference
-from shellsim.fem import SimSettings, SimulationError, Simulator, simulate, tet_volumes
+from shellsim.fem import SimSettings, SimulationError, Simulator, simulate
+from shellsim.geometry import MIN_VOLUME_RATIO, tet_volumes
 from shellsim.materials import Material, get_material
 from shellsim.motion import MotionWriter, load_motion
-from shellsim.validity import MIN_VOLUME_RATIO
 
 G = 9.81
 

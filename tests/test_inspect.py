@@ -9,10 +9,7 @@ import pytest
 from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError, ShellsimError
-from shellsim.motion import Motion, save_motion
-
-pv = pytest.importorskip("pyvista")
-
+from neural.field import FieldConfig, HashGridConfig, ShellField
 from shellsim.cli import main  # noqa: E402
 from shellsim.embed import interpolate  # noqa: E402
 from shellsim.inspect import (  # noqa: E402
@@ -23,6 +20,7 @@ from shellsim.inspect import (  # noqa: E402
     screenshot,
     shell_width,
 )
+from shellsim.motion import Motion, save_motion
 
 
 def box_cage(n: int = 3, half: float = 1.25):
@@ -129,13 +127,12 @@ def test_kernel_colouring_without_a_field_is_a_clear_error(ball, monkeypatch):
 def test_kernel_colouring_reads_the_field(tmp_path):
     """An untrained field has ``log s = -log(init_inv_s)`` in unit space (its kernel output starts at zero),
     so ``s = 1 / (init_inv_s * scale)`` in world units at every point."""
-    field_module = pytest.importorskip("neural.field")
-    config = field_module.FieldConfig(
-        hashgrid=field_module.HashGridConfig(n_levels=2, log2_table_size=8, max_resolution=32),
+    config = FieldConfig(
+        hashgrid=HashGridConfig(n_levels=2, log2_table_size=8, max_resolution=32),
         init_inv_s=40.0,
         backend="torch",
     )
-    field = field_module.ShellField(config, center=(0.0, 0.0, 0.0), scale=0.5)
+    field = ShellField(config, center=(0.0, 0.0, 0.0), scale=0.5)
     asset, cage = write_asset(tmp_path / "fielded", field=field)
     s = build_scene(asset, cage, color="kernel")["outer"].point_data[SCALARS["kernel"]]
     np.testing.assert_allclose(s, 1.0 / (40.0 * 0.5), rtol=1e-5)

@@ -5,7 +5,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from neural.metrics import lpips_status, psnr, ssim
+from neural.metrics import psnr, ssim
 
 
 @pytest.mark.parametrize("error", [0.5, 0.1, 0.01, 1e-3])
@@ -60,7 +60,3 @@ def test_ssim_of_an_image_with_itself_is_one(rng):
 def test_ssim_rejects_images_smaller_than_the_window():
     with pytest.raises(ValueError, match="at least 11x11"):
         ssim(np.zeros((10, 20, 3)), np.zeros((10, 20, 3)))
-
-
-def test_lpips_status_explains_why_it_is_absent():
-    assert "LPIPS" in lpips_status() and "weights" in lpips_status()

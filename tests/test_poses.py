@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 import pytest
 from PIL import Image
 from scenes import look_at
@@ -23,8 +24,6 @@ from neural.data import load_dataset
 from neural.data.colmap import align_similarity
 from neural.errors import InputError
 from shellsim.cli import main
-
-pycolmap = pytest.importorskip("pycolmap")
 
 WIDTH, HEIGHT, FOCAL = 160, 120, 140.0
 BOX = 0.6  # the box is [-BOX, BOX]^3; the ground is the plane z = -BOX

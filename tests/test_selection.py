@@ -5,7 +5,7 @@ import pytest
 from meshes import kuhn_grid
 
 from neural.errors import InputError
-from shellsim.selection import parse_selection
+from shellsim.selection import parse_selection, select_vertices
 from shellsim.wind import WindSettings, heights, wind_displacement
 
 
@@ -21,7 +21,8 @@ from shellsim.wind import WindSettings, heights, wind_displacement
 )
 def test_rules_parse(text, axis, op, value, percent):
     rule = parse_selection(text)
-    assert (rule.axis, rule.op, rule.value, rule.percent) == (axis, op, value, percent)
+    assert (rule.axis, rule.op, rule.value, rule.percent, rule.text) == (axis, op, value, percent, text)
+    assert rule.sign == (1.0 if op in ("<", "<=") else -1.0)  # +1: the selection lies below the threshold
 
 
 @pytest.mark.parametrize(
@@ -38,6 +39,11 @@ def test_rules_parse(text, axis, op, value, percent):
         "1<z",
         "z<1e999",
         "z<<1",
+        "z",
+        "<1",
+        "z<1<2",
+        "z<0.1; import os",
+        "z < 1 + 1",
         None,
         3,
     ],
@@ -46,6 +52,18 @@ def test_junk_is_rejected_quoting_the_value_not_an_option(text):
     with pytest.raises(InputError, match="expected AXIS OP VALUE") as err:
         parse_selection(text)
     assert str(err.value).startswith(repr(text)) and "--" not in str(err.value)
+    with pytest.raises(InputError) as err:
+        parse_selection(text, "anchor")
+    assert str(err.value).startswith(f"anchor {text!r}: expected AXIS OP VALUE")
+
+
+def test_select_vertices_is_the_union_and_refuses_an_empty_rule():
+    v = np.array([[0.0, 0, 0], [0, 0, 1], [0, 0, 2], [5, 0, 10]])
+    rules = [parse_selection("z<0.5"), parse_selection("x>4")]
+    assert select_vertices(rules, v, "--pin").tolist() == [True, False, False, True]
+    with pytest.raises(InputError) as err:
+        select_vertices([*rules, parse_selection("y > 3")], v, "--pin")
+    assert str(err.value) == "--pin 'y > 3' selects no cage vertex (y spans 0 .. 0)"
 
 
 def test_selection_in_world_units_and_percent():

@@ -12,12 +12,9 @@ from meshes import kuhn_grid
 from PIL import Image
 
 from neural.data import Cameras, look_at
+from shellsim.cli import main  # noqa: E402
 from shellsim.embed import embed_points
 from shellsim.motion import Motion, Surface, save_motion
-
-pytest.importorskip("pyvista")
-
-from shellsim.cli import main  # noqa: E402
 from shellsim.surface import SurfaceRenderer, render_surface_motion  # noqa: E402
 
 SIZE = 64

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 from neural.errors import InputError
-from shellsim.selection import Selection, parse_selection
 
 
 def parse_size(flag: str, text: str) -> tuple[int, int]:
@@ -46,13 +45,14 @@ def check_range(flag: str, value, low: float, high: float, what: str = "a number
     return value
 
 
-def parse_rule(flag: str, text: str) -> Selection:
-    """A vertex selection ``AXIS OP VALUE[%]`` (:mod:`shellsim.selection`); junk is an InputError naming
-    ``flag``."""
+def device_option(name: str, warp: bool = False) -> str:
+    """:func:`neural.device.pick_device` for ``--device``: its errors name the option."""
+    from neural.device import pick_device
+
     try:
-        return parse_selection(text)
+        return pick_device(name, warp)
     except InputError as err:
-        raise InputError(f"{flag} {err}") from None
+        raise InputError(f"--device: {err}") from None
 
 
 def add_resume_options(parser) -> None:

@@ -37,11 +37,11 @@ def run(args: argparse.Namespace) -> None:
 
     from neural.asset import command_line, load_asset, load_field, refuse_shipped, write_meta
     from neural.data import load_dataset
-    from neural.device import pick_device
     from neural.metrics import lpips_status
     from neural.render.narrowband import ShellIntersector
     from neural.render.view import full_ray_sampler, narrow_band_sampler
     from neural.train import evaluate
+    from shellsim.commands.args import device_option
     from shellsim.outputs import check_writable_dir, check_writable_file
 
     if args.json:
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> None:
     if args.record:
         refuse_shipped(asset, "--record")
         check_writable_dir(asset.root, "--record")  # asset.json is rewritten there
-    device = pick_device(args.device)
+    device = device_option(args.device)
     downscale = args.downscale or asset.training_downscale
     background = asset.background
     data = load_dataset(args.data, downscale=downscale, background=background)

@@ -40,16 +40,16 @@ def run(args: argparse.Namespace) -> None:
     import time
 
     from neural.asset import command_line, load_asset, load_field, refuse_shipped, replace_shells
-    from neural.device import pick_device
     from neural.errors import InputError
     from neural.shell import ShellConfig
     from neural.shell.from_field import extract_field_shells
+    from shellsim.commands.args import device_option
     from shellsim.outputs import check_writable_dir
 
     asset = load_asset(args.asset)
     refuse_shipped(asset, "extract")
     check_writable_dir(asset.root, "--asset")  # new shells and asset.json are written there
-    device = pick_device(args.device)
+    device = device_option(args.device)
     known = {f.name for f in dataclasses.fields(ShellConfig)}
     stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}
     overrides = {

@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> None:
     import math
 
     from neural.errors import InputError
+    from shellsim.commands.args import device_option
     from shellsim.outputs import check_writable_dir, check_writable_file
 
     check_writable_dir(args.out, "--out")
@@ -82,8 +83,7 @@ def run(args: argparse.Namespace) -> None:
                 raise InputError(f"--{flag} needs --motion (without it every camera is rendered at rest)")
     if args.fps is not None and not (args.fps > 0 and math.isfinite(args.fps)):
         raise InputError(f"--fps: expected a positive number, got {args.fps}")
-    if args.device not in ("auto", "cpu", "cuda"):
-        raise InputError(f"--device: expected cpu, cuda or auto, got {args.device!r}")
+    device = device_option(args.device) if args.asset is not None else None  # only the field needs one
 
     if args.motion is not None:
         from shellsim.motion import load_motion, parse_frames
@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> None:
     elif args.motion is None:
         from shellsim.render import render_views
 
-        summary = render_views(args.asset, args.cameras, args.out, size, args.device, args.overwrite)
+        summary = render_views(args.asset, args.cameras, args.out, size, device, args.overwrite)
     else:
         from shellsim.render import render_motion
 
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> None:
             size=size,
             video=args.video,
             fps=args.fps,
-            device=args.device,
+            device=device,
             overwrite=args.overwrite,
         )
     _report(summary)

@@ -24,11 +24,12 @@ from shellsim.commands.args import (
     MAX_FRAMES,
     add_resume_options,
     check_range,
+    device_option,
     parse_floats,
-    parse_rule,
     parse_size,
 )
 from shellsim.outputs import check_writable_dir, check_writable_file
+from shellsim.selection import parse_selection, select_vertices
 
 log = logging.getLogger(__name__)
 
@@ -156,19 +157,6 @@ def run(args: argparse.Namespace) -> None:
             frames_dir,
             video,
         )
-
-
-def _device(name: str) -> str:
-    import warp as wp
-
-    has_cuda = wp.get_cuda_device_count() > 0
-    if name == "auto":
-        return "cuda:0" if has_cuda else "cpu"
-    if name not in ("cpu", "cuda"):
-        raise InputError(f"--device: expected auto, cpu or cuda, got {name!r}")
-    if name == "cuda" and not has_cuda:
-        raise InputError("--device cuda: no CUDA device is available on this machine")
-    return "cuda:0" if name == "cuda" else "cpu"
 
 
 def _parameters(args: argparse.Namespace, material, up) -> dict:
@@ -335,8 +323,8 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
     _check_scale_options(args)
     _check_numbers(args)
     material = get_material(args.material, args.youngs, args.poisson, args.density)
-    rules = [parse_rule("--pin", text) for text in args.pin]
-    device = _device(args.device)
+    rules = [parse_selection(text, "--pin") for text in args.pin]
+    device = device_option(args.device, warp=True)
     name = Path(args.mesh).stem if args.mesh else Path(args.asset).name
     out = check_writable_file(Path(args.out) if args.out else Path(f"{name}_sim.npz"), "--out")
 
@@ -366,15 +354,7 @@ def simulate_to_file(args: argparse.Namespace) -> Path:
         raise InputError("--up: the up axis must be a non-zero vector")
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
 
-    pinned = np.zeros(len(vertices), bool)
-    for text, rule in zip(args.pin, rules, strict=True):
-        chosen = rule.select(vertices)
-        if not chosen.any():
-            lo, hi = vertices[:, rule.axis].min(), vertices[:, rule.axis].max()
-            raise InputError(
-                f"--pin {text!r} selects no cage vertex ({'xyz'[rule.axis]} spans {lo:.4g}..{hi:.4g})"
-            )
-        pinned |= chosen
+    pinned = select_vertices(rules, vertices, "--pin")
     rest_sim = world.to_sim(vertices)
     settings = SimSettings(
         dt=1.0 / args.fps,

@@ -92,9 +92,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from neural.device import pick_device
     from neural.errors import InputError
     from neural.pipeline import PipelineConfig, parse_background, scaled_defaults, train_asset
+    from shellsim.commands.args import device_option
     from shellsim.outputs import check_writable_dir
 
     config = PipelineConfig(background=parse_background(args.background), bound=args.bound)
@@ -136,7 +136,7 @@ def run(args: argparse.Namespace) -> None:
         args.data,
         args.out,
         config,
-        pick_device(args.device),
+        device_option(args.device),
         name=args.name,
         keep_checkpoints=args.keep_checkpoints,
     )

@@ -76,9 +76,10 @@ def run(args: argparse.Namespace) -> None:
     from neural.asset import load_asset
     from neural.errors import InputError
     from shellsim.cage import CageConfig, load_or_build_cage
-    from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats, parse_rule
+    from shellsim.commands.args import MAX_FPS, MAX_FRAMES, check_range, parse_floats
     from shellsim.motion import MotionWriter
     from shellsim.outputs import check_writable_file
+    from shellsim.selection import parse_selection
     from shellsim.wind import RANGES, WindSettings, animate_wind, max_frequency, wind_meta
 
     check_range("--frames", args.frames, 1, MAX_FRAMES, "an integer")
@@ -102,7 +103,7 @@ def run(args: argparse.Namespace) -> None:
     if args.margin is not None:
         check_range("--margin", args.margin, 0, 1, "a fraction of the shell's diagonal", "(]")
     if args.anchor is not None:
-        parse_rule("--anchor", args.anchor)
+        parse_selection(args.anchor, "--anchor")
     asset = load_asset(args.asset)
     options = {
         "strength": args.strength,

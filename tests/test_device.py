@@ -1,0 +1,44 @@
+"""neural.device.pick_device: the one device choice (torch or Warp), its errors speaking of values, and the
+CLI's ``--device`` naming the option."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+import warp as wp
+
+from neural.device import pick_device
+from neural.errors import InputError
+from shellsim.cli import main
+
+
+@pytest.mark.parametrize("cuda", [False, True])
+@pytest.mark.parametrize("warp", [False, True])
+def test_auto_follows_the_library_that_will_run(monkeypatch, cuda, warp):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: cuda and not warp)
+    monkeypatch.setattr(wp, "get_cuda_device_count", lambda: int(cuda and warp))
+    gpu = "cuda:0" if warp else "cuda"
+    assert pick_device("auto", warp) == pick_device(None, warp) == (gpu if cuda else "cpu")
+    assert pick_device("cpu", warp) == "cpu"
+    if cuda:
+        assert pick_device("cuda", warp) == gpu
+    else:
+        with pytest.raises(InputError) as err:
+            pick_device("cuda", warp)
+        assert str(err.value) == "device 'cuda' requested but no CUDA device is available"
+
+
+@pytest.mark.parametrize("name", ["gpu", "CUDA", "cuda:1", ""])
+def test_unknown_names_are_refused_by_value(name):
+    with pytest.raises(InputError) as err:
+        pick_device(name)
+    assert str(err.value) == f"device {name!r}: expected one of 'auto', 'cpu', 'cuda'"
+
+
+@pytest.mark.parametrize("name", ["gpu", "cuda"])
+def test_the_cli_names_the_option(tmp_path, capsys, monkeypatch, name):
+    monkeypatch.setattr(wp, "get_cuda_device_count", lambda: 0)
+    assert main(["simulate", "--mesh", str(tmp_path / "none.ply"), "--device", name]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("shellsim: error: --device: device ")
+    assert repr(name) in err[0]

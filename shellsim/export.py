@@ -137,7 +137,7 @@ def write_vtu_series(
     Returns the files written, the ``.pvd`` last."""
     import pyvista as pv
 
-    from shellsim.validity import volume_ratios
+    from shellsim.geometry import volume_ratios
 
     path = Path(path)
     tets = np.asarray(tets, np.int64)

@@ -50,9 +50,10 @@ def _compact(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _meshes(settings: ExportSettings, motion):
     """The moving meshes of ``motion`` (list of AnimatedMesh): the asset's M+ (through its cage), the surface
     a 'simulate --mesh' motion carries, and the cage's boundary last."""
-    from shellsim.cage import boundary_faces, cage_for_motion
+    from shellsim.cage import cage_for_motion
     from shellsim.deform import deform_points
     from shellsim.export import AnimatedMesh
+    from shellsim.geometry import boundary_faces
 
     meshes = []
     if settings.asset is not None:

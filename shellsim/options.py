@@ -42,6 +42,7 @@ def option(
     shown_default: str | None = None,
     group: str | None = None,
     required: bool = False,
+    const: str | None = None,
 ) -> typing.Any:
     """A dataclass field that is also a command-line option.
 
@@ -49,7 +50,8 @@ def option(
     ``ValueError`` with what it expected. ``repeat``: the option may be given several times (a tuple).
     ``negate``: a ``True``-by-default bool set off by ``flag`` (e.g. ``--no-ground``). ``shown_default``
     replaces the default in the help (e.g. "the asset's"); ``group`` names a mutually exclusive group, which
-    is ``required`` when any of its fields says so.
+    is ``required`` when any of its fields says so. ``const``: the option may be given without a value,
+    which then is ``const`` (``--ray`` alone, or ``--ray ADDRESS``).
     """
     meta = dict(
         help=help,
@@ -62,6 +64,7 @@ def option(
         shown_default=shown_default,
         group=group,
         required=required,
+        const=const,
     )
     if repeat:
         return dataclasses.field(default=tuple(default or ()), metadata={"option": meta})
@@ -121,6 +124,8 @@ def add_options(parser: argparse.ArgumentParser, cls, skip: typing.Collection[st
             for key in ("metavar", "choices"):
                 if meta[key]:
                     kwargs[key] = meta[key]
+            if meta["const"] is not None:
+                kwargs.update(nargs="?", const=meta["const"])
             if meta["required"] and not meta["group"]:
                 kwargs["required"] = True
         target.add_argument(flag_of(field), **kwargs)
@@ -164,6 +169,25 @@ def floats(count: int) -> Callable[[str], tuple[float, ...]]:
         return values
 
     return parse
+
+
+def float_list(text: str) -> tuple[float, ...]:
+    """``"0.1,0.3"`` -> (0.1, 0.3): one or more comma-separated finite numbers."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if not values or not all(math.isfinite(v) for v in values):
+        raise ValueError("expected comma-separated numbers")
+    return values
+
+
+def name_list(text: str) -> tuple[str, ...]:
+    """``"rubber, jelly"`` -> ("rubber", "jelly"): one or more comma-separated names."""
+    names = tuple(v.strip() for v in text.split(","))
+    if not all(names):
+        raise ValueError("expected comma-separated names")
+    return names
 
 
 def check_range(name: str, value, low: float, high: float, what: str = "a number", open_ends: str = "[]"):

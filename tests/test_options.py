@@ -8,7 +8,16 @@ import dataclasses
 import pytest
 
 from neural.errors import InputError
-from shellsim.options import SettingError, add_options, check_range, floats, from_args, option
+from shellsim.options import (
+    SettingError,
+    add_options,
+    check_range,
+    float_list,
+    floats,
+    from_args,
+    name_list,
+    option,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,3 +84,26 @@ def test_errors_name_the_option_at_the_command_line_and_the_field_in_the_library
     _, args = _parse(["--name", "a", "--velocity", "1,2"])
     with pytest.raises(InputError, match=r"^--velocity: expected 3 comma-separated numbers, got '1,2'$"):
         from_args(Toy, args)
+
+
+def test_an_option_with_const_takes_an_optional_value_and_lists_parse():
+    @dataclasses.dataclass(frozen=True)
+    class Job:
+        ray: str | None = option(help="Ray address", const="local")
+        heights: tuple[float, ...] = option((0.1,), help="heights", parse=float_list)
+        names: tuple[str, ...] = option(("a",), help="names", parse=name_list)
+
+    parser = argparse.ArgumentParser()
+    add_options(parser, Job)
+    assert from_args(Job, parser.parse_args([])) == Job(None, (0.1,), ("a",))
+    assert from_args(Job, parser.parse_args(["--ray"])).ray == "local"
+    job = from_args(
+        Job, parser.parse_args(["--ray", "10.0.0.1:6379", "--heights", "0.1,0.3", "--names", "x, y"])
+    )
+    assert job == Job("10.0.0.1:6379", (0.1, 0.3), ("x", "y"))
+    for argv, message in (
+        (["--heights", "0.1,,"], "--heights: expected comma-separated numbers, got '0.1,,'"),
+        (["--names", "x,"], "--names: expected comma-separated names, got 'x,'"),
+    ):
+        with pytest.raises(InputError, match=f"^{message}$"):
+            from_args(Job, parser.parse_args(argv))

@@ -34,7 +34,8 @@ def serial(k: int, seed: int = 3) -> float:
 
 @pytest.fixture(scope="module")
 def ray_local():
-    ray = pytest.importorskip("ray")  # the [cluster] extra
+    import ray
+
     here = os.path.dirname(__file__)  # the workers import this module to unpickle the recipe
     path = os.pathsep.join(filter(None, [here, os.environ.get("PYTHONPATH")]))
     env = {"env_vars": {"PYTHONPATH": path, "OMP_NUM_THREADS": "1"}}

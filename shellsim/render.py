@@ -8,8 +8,8 @@ to rest space. :class:`DeformedRenderer`
    rest tet (:func:`shellsim.deform.deform_points`); the BVHs of their Warp meshes, built once from the rest
    shells, are refitted (:class:`neural.render.raycast.WarpCaster`), and the Warp BVH of the
    deformed tets is built (:class:`shellsim.deform.InverseMap`);
-2. **samples** the camera rays against the deformed shells and places samples in the deformed narrow band
-   (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
+2. **samples**: casts the camera rays against the deformed shells and places samples in the deformed narrow
+   band (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
 3. **maps** every sample back to rest space: ``x_rest = Phi^-1(x)``, the ray direction by finite
    differences ``d_rest = normalize(Phi^-1(x + eps d) - Phi^-1(x))`` and the local stretch
    ``|Phi^-1(x + eps d) - Phi^-1(x)| / eps``, which turns a deformed section of length ``delta`` into a

@@ -90,7 +90,7 @@ class DeformedRenderer:
         self.warp_device = warp_device(str(device))
         self.config = asset.narrowband_config() if config is None else config
         self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
-        self._rest = asset_sampler(asset, self.config)
+        self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
         self._deformed = None  # WarpCaster, built for the first deformed frame
 
     def deformed_vertices(self, positions) -> tuple[np.ndarray, np.ndarray]:

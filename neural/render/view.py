@@ -84,13 +84,16 @@ def narrow_band_sampler(caster, config):
     return sample
 
 
-def asset_sampler(asset, config=None):
-    """The narrow-band sampler of an :class:`~neural.asset.Asset`'s rest shells (Embree) with its settings
-    (``config``: a ``NarrowBandConfig`` instead of the asset's): what every rest image of an asset uses."""
+def asset_sampler(asset, config=None, shells=None):
+    """The narrow-band sampler of an :class:`~neural.asset.Asset`'s rest shells (Embree) with its settings:
+    what every rest image of an asset uses. ``config``: a ``NarrowBandConfig`` instead of the asset's;
+    ``shells``: its (M+, M-) meshes when already loaded."""
     from .raycast import EmbreeCaster
 
-    caster = EmbreeCaster(asset.outer_mesh(), asset.inner_mesh())
-    return narrow_band_sampler(caster, asset.narrowband_config() if config is None else config)
+    outer, inner = (asset.outer_mesh(), asset.inner_mesh()) if shells is None else shells
+    return narrow_band_sampler(
+        EmbreeCaster(outer, inner), asset.narrowband_config() if config is None else config
+    )
 
 
 def sdf_kernel_fn(field):

@@ -3,8 +3,9 @@
 One interface, :class:`ShellCaster` (:meth:`~ShellCaster.first_hit`, :meth:`~ShellCaster.all_hits` by depth
 peeling), over interchangeable backends that only cast one batch of rays against one mesh:
 
-- :class:`EmbreeCaster`: Embree scenes (embreex), built once; the fastest build-and-cast for shells that
-  stay put (rest rendering, training);
+- :class:`EmbreeCaster`: Embree scenes (embreex), built once; the faster cast on a CPU, for shells that stay
+  put (rest rendering, training): Procedure 3 for one 200x200 view of lego took 32 ms against 76 ms with
+  Warp on two cores (Embree's build 0.45 s, Warp's 0.25 s);
 - :class:`WarpCaster`: Warp meshes whose BVHs are refitted to moved vertices (:meth:`WarpCaster.refit`),
   for shells that move (deformed rendering, paper Sec. 5); casts on the CPU or a GPU.
 

@@ -114,7 +114,7 @@ def run(args) -> dict:
     from neural.asset import load_asset, load_field
     from neural.data import load_dataset
     from neural.metrics import psnr
-    from neural.render.narrowband import ShellIntersector
+    from neural.render.raycast import EmbreeCaster
     from neural.render.view import full_ray_sampler, narrow_band_sampler, render_camera
 
     torch.set_num_threads(args.threads)
@@ -143,7 +143,7 @@ def run(args) -> dict:
     )
     views = np.asarray(data.test_idx)[: args.views]
     bg = torch.as_tensor(asset.background, dtype=torch.float32)
-    intersector = ShellIntersector(outer, inner)
+    intersector = EmbreeCaster(outer, inner)
     samplers = {"narrow_band": narrow_band_sampler(intersector, asset.narrowband_config())}
     if not args.no_full_ray:
         samplers["full_ray"] = full_ray_sampler(field)

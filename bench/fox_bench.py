@@ -31,8 +31,7 @@ import torch
 from neural.asset import load_asset, load_field
 from neural.data import load_dataset
 from neural.device import pick_device
-from neural.render.narrowband import ShellIntersector
-from neural.render.view import full_ray_sampler, narrow_band_sampler
+from neural.render.view import asset_sampler, full_ray_sampler
 from neural.train import evaluate
 from shellsim.cli import main as shellsim
 
@@ -62,10 +61,7 @@ def main() -> None:
     data = load_dataset(args.data, downscale=args.downscale, background=asset.background)
     views = np.asarray(data.test_idx)
     background = torch.as_tensor(data.background, dtype=torch.float32, device=device)
-    intersector = ShellIntersector(asset.outer_mesh(), asset.inner_mesh())
-    band = evaluate(
-        field, data, views, narrow_band_sampler(intersector, asset.narrowband_config()), background
-    )
+    band = evaluate(field, data, views, asset_sampler(asset), background)
     full = evaluate(field, data, views, full_ray_sampler(field), background)
     shell = asset.meta["shell"]
     figures = {

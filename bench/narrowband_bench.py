@@ -19,12 +19,12 @@ from skimage.measure import marching_cubes
 
 from neural.render.narrowband import (
     NarrowBandConfig,
-    ShellIntersector,
     intervals_from_hits,
     narrow_band_samples,
     samples_from_intervals,
     samples_per_interval,
 )
+from neural.render.raycast import EmbreeCaster
 
 
 def bumpy_shells(grid: int) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
@@ -82,7 +82,7 @@ def main():
     outer, inner = bumpy_shells(args.grid)
     t_mesh = time.perf_counter() - start
     start = time.thread_time()
-    intersector = ShellIntersector(outer, inner)
+    intersector = EmbreeCaster(outer, inner)
     t_init = time.thread_time() - start
     start = time.process_time()
     for which in ("outer", "inner"):  # Embree builds its BVH (possibly multi-threaded) on the first cast
@@ -107,7 +107,7 @@ def main():
     counts = stats.counts
     print(f"shells: M+ {len(outer.faces):,} / M- {len(inner.faces):,} triangles (grid {args.grid}^3)")
     print(
-        f"marching cubes {t_mesh:.2f} s wall; CPU: ShellIntersector() {t_init * 1e3:.0f} ms, "
+        f"marching cubes {t_mesh:.2f} s wall; CPU: EmbreeCaster() {t_init * 1e3:.0f} ms, "
         f"Embree BVH builds {t_commit * 1e3:.0f} ms (all threads)"
     )
     print(f"rays: {n_rays:,} ({args.resolution}x{args.resolution}), {config}")

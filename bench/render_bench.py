@@ -23,8 +23,7 @@ import torch
 from neural.asset import load_asset, load_field
 from neural.data import load_dataset
 from neural.device import pick_device
-from neural.render.narrowband import ShellIntersector
-from neural.render.view import fitted_occupancy_grid, full_ray_sampler, narrow_band_sampler, occupancy_sampler
+from neural.render.view import asset_sampler, fitted_occupancy_grid, full_ray_sampler, occupancy_sampler
 from neural.train import evaluate
 
 
@@ -45,9 +44,8 @@ def main() -> None:
     data = load_dataset(args.data, downscale=asset.training_downscale, background=background)
     views = np.asarray(data.test_idx)[: args.views]
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
-    intersector = ShellIntersector(asset.outer_mesh(), asset.inner_mesh())
     samplers = {
-        "narrow_band": narrow_band_sampler(intersector, asset.narrowband_config()),
+        "narrow_band": asset_sampler(asset),  # what 'shellsim eval' and 'shellsim render' use
         "occupancy_grid": occupancy_sampler(fitted_occupancy_grid(field), field),
         "full_ray": full_ray_sampler(field),
     }

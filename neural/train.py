@@ -347,7 +347,7 @@ def train_stage2(
 ) -> dict:
     """Stage 2 (Procedure 4 lines 8-13): fine-tune inside the shells M+ (``outer``) / M- (``inner``) with the
     color loss (Eq. 9) only. Resumes from ``out_dir/checkpoints/stage2.safetensors``."""
-    from .render.narrowband import ShellIntersector
+    from .render.raycast import EmbreeCaster
 
     torch.manual_seed(config.seed)
     ckpt = Path(out_dir) / "checkpoints" / "stage2.safetensors"
@@ -357,7 +357,7 @@ def train_stage2(
         meta, _ = load_checkpoint(ckpt, field, optimizer)
         start, final = int(meta["step"]), meta.get("final")
         log.info("resuming stage 2 from %s at step %d", ckpt, start)
-    sampler = narrow_band_sampler(ShellIntersector(outer, inner), narrowband)
+    sampler = narrow_band_sampler(EmbreeCaster(outer, inner), narrowband)
     pixels = PixelSampler(data, device, config.seed + start, config.random_background)
     bar = _progress(config.steps, start, "stage 2")
     history = []

@@ -1,13 +1,15 @@
 """Rendering an asset at rest and deformed by a motion of its cage (paper Sec. 5, DESIGN.md step 7).
 
-For one frame with cage vertices ``p`` (V, 3), :class:`DeformedRenderer`
+Images are made by the one pipeline of :mod:`neural.render.view` (sample, optional map to rest space,
+shade); this module supplies, for one frame with cage vertices ``p`` (V, 3), the deformed sampler and the map
+to rest space. :class:`DeformedRenderer`
 
 1. **deforms the shells**: every ``M+`` / ``M-`` vertex is the barycentric interpolation of ``p`` in its
    rest tet (:func:`shellsim.deform.deform_points`); the BVHs of their Warp meshes, built once from the rest
-   shells, are refitted (:class:`neural.render.narrowband.RefitShellIntersector`), and the Warp BVH of the
+   shells, are refitted (:class:`neural.render.raycast.WarpCaster`), and the Warp BVH of the
    deformed tets is built (:class:`shellsim.deform.InverseMap`);
-2. **casts** the camera rays against the deformed shells and places samples in the deformed narrow band
-   (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
+2. **samples**: casts the camera rays against the deformed shells and places samples in the deformed narrow
+   band (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
 3. **maps** every sample back to rest space: ``x_rest = Phi^-1(x)``, the ray direction by finite
    differences ``d_rest = normalize(Phi^-1(x + eps d) - Phi^-1(x))`` and the local stretch
    ``|Phi^-1(x + eps d) - Phi^-1(x)| / eps``, which turns a deformed section of length ``delta`` into a
@@ -16,7 +18,8 @@ For one frame with cage vertices ``p`` (V, 3), :class:`DeformedRenderer`
 4. **shades** the rest-space samples with the field and composites them along the deformed rays (Eq. 2-3),
    over the asset's background.
 
-With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4).
+With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
+pipeline without a map, with the asset's rest sampler, exactly what ``shellsim eval`` measures.
 
 :func:`render_motion` renders a motion file frame by frame to ``DIR/00000.png ...`` (frame ``k`` of the
 motion is ``k:05d.png``) and optionally assembles an MP4; :func:`render_views` renders every camera of a
@@ -33,7 +36,6 @@ import logging
 import math
 import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -45,27 +47,20 @@ from .motion import parse_frames
 
 log = logging.getLogger(__name__)
 
-#: Rays rendered at once (bounds the memory of one pass).
-RAY_CHUNK = 16384
 #: Horizontal field of view of the orbit camera, degrees, and its elevation above the horizon.
 ORBIT_FOV_DEG = 40.0
 ORBIT_ELEVATION_DEG = 25.0
-#: Stages of a frame, in :meth:`DeformedRenderer.render`'s ``stats`` as ``<stage>_ms``.
-STAGES = ("build", "cast", "map", "field")
+#: Stages of a frame, in :meth:`DeformedRenderer.render`'s ``stats`` as ``<stage>_ms``: building the
+#: deformed frame, then the stages of :data:`neural.render.view.STAGES`.
+STAGES = ("build", "sample", "map", "shade")
 #: PNG text chunk of a rendered frame holding its :func:`frame_record` as JSON.
 RECORD_CHUNK = "shellsim-frame"
 
 
-@dataclass
-class _Frame:
-    """What one frame's rays are cast against and mapped through."""
-
-    intersector: object  # ShellIntersector of the rest shells or RefitShellIntersector of deformed ones
-    inverse: object | None  # InverseMap of the deformed cage; None at rest
-
-
 class DeformedRenderer:
-    """Renders an asset's field through its shells, at rest or with its cage deformed.
+    """Renders an asset's field through its shells, at rest or with its cage deformed: the pipeline of
+    :mod:`neural.render.view` (sample, map to rest space, shade) with, for a deformed frame, a sampler on the
+    deformed shells and the cage's inverse map as its map to rest space.
 
     asset : :class:`neural.asset.Asset` (shells, background, narrow-band settings)
     field : its ``ShellField`` on ``device``
@@ -73,13 +68,13 @@ class DeformedRenderer:
     device : torch device of the field ("cpu", "cuda"); the inverse map runs on the matching Warp device
     config : narrow-band settings; None takes the asset's ``meta["narrowband"]`` (or the defaults)
 
-    State: the rest shells and their Embree scenes (built once), the field, the cage, and Warp meshes of the
-    shells refitted to each deformed frame (built on the first one).
+    State: the rest sampler (:func:`neural.render.view.asset_sampler`, Embree scenes built once), the field,
+    the cage, and Warp meshes of the shells refitted to each deformed frame (built on the first one).
     """
 
     def __init__(self, asset, field, cage, device: str = "cpu", config=None):
         from neural.device import warp_device
-        from neural.render.narrowband import ShellIntersector
+        from neural.render.view import asset_sampler
 
         self.outer, self.inner = asset.outer_mesh(), asset.inner_mesh()
         for name, mesh in (("outer", self.outer), ("inner", self.inner)):
@@ -95,8 +90,8 @@ class DeformedRenderer:
         self.warp_device = warp_device(str(device))
         self.config = asset.narrowband_config() if config is None else config
         self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
-        self._rest = _Frame(ShellIntersector(self.outer, self.inner), None)
-        self._deformed = None  # RefitShellIntersector, built for the first deformed frame
+        self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
+        self._deformed = None  # WarpCaster, built for the first deformed frame
 
     def deformed_vertices(self, positions) -> tuple[np.ndarray, np.ndarray]:
         """Deformed ``M+``, ``M-`` vertices (V+, 3), (V-, 3) float64 of cage vertices ``positions`` (V, 3)."""
@@ -108,11 +103,15 @@ class DeformedRenderer:
             deform_points(positions, c.tets, c.inner_tet, c.inner_bary),
         )
 
-    def _frame(self, positions) -> _Frame:
-        from neural.render.narrowband import RefitShellIntersector
+    def _frame(self, positions):
+        """The sampler and the map to rest space (None at rest) of cage vertices ``positions`` (V, 3)."""
+        from neural.render.raycast import WarpCaster
+        from neural.render.view import narrow_band_sampler
 
         from .deform import InverseMap
 
+        if positions is None:
+            return self._rest, None
         if self.cage is None:
             raise ValueError("positions: this renderer has no cage; it renders at rest only")
         positions = np.asarray(positions, dtype=np.float64)
@@ -121,97 +120,25 @@ class DeformedRenderer:
                 f"positions: expected {self.cage.vertices.shape} like the cage, got {positions.shape}"
             )
         if self._deformed is None:
-            self._deformed = RefitShellIntersector(self.outer, self.inner, device=self.warp_device)
+            self._deformed = WarpCaster(self.outer, self.inner, device=self.warp_device)
         self._deformed.refit(*self.deformed_vertices(positions))
         inverse = InverseMap(positions, self.cage.tets, self.cage.vertices, device=self.warp_device)
-        return _Frame(self._deformed, inverse)
-
-    @torch.no_grad()
-    def render_rays(
-        self, origins: torch.Tensor, dirs: torch.Tensor, positions=None
-    ) -> tuple[torch.Tensor, dict]:
-        """Colours (R, 3) of rays ``origins``, ``dirs`` (R, 3) (world, on the renderer's device) with the cage
-        at ``positions`` (V, 3), or at rest when None; and the stats of :meth:`render`."""
-        times = dict.fromkeys(STAGES, 0.0)
-        start = time.perf_counter()
-        frame = self._rest if positions is None else self._frame(positions)
-        times["build"] = time.perf_counter() - start
-        colors, counts, dropped = [], [], 0
-        for i in range(0, len(origins), RAY_CHUNK):
-            color, n, d = self._render_chunk(
-                frame, origins[i : i + RAY_CHUNK], dirs[i : i + RAY_CHUNK], times
-            )
-            colors.append(color)
-            counts.append(n)
-            dropped += d
-        colors = torch.cat(colors) if colors else origins.new_zeros(0, 3)
-        counts = np.concatenate(counts) if counts else np.zeros(0, np.int64)
-        stats = {f"{k}_ms": 1000.0 * v for k, v in times.items()}
-        stats.update(
-            ms=1000.0 * (time.perf_counter() - start),
-            samples_per_pixel=float(counts.mean()) if counts.size else 0.0,
-            dropped_samples=int(dropped),
-            counts=counts,
-        )
-        return colors, stats
-
-    def _render_chunk(self, frame: _Frame, o: torch.Tensor, d: torch.Tensor, times: dict):
-        """One chunk of rays: colours (R, 3), samples per ray (R,) and the number of samples dropped."""
-        from neural.render.fullray import ray_background, render_rays, render_samples
-        from neural.render.narrowband import narrow_band_samples
-        from neural.render.samples import RaySamples
-
-        tick = time.perf_counter()
-        samples, nb_stats = narrow_band_samples(frame.intersector, o, d, self.config, device=self.device)
-        now = time.perf_counter()
-        times["cast"] += now - tick
-        tick = now
-        if frame.inverse is None:
-            color = render_rays(self.field, o, d, samples, self.background)["color"]
-            times["field"] += time.perf_counter() - tick
-            return color, nb_stats.counts, 0
-        rays = samples.ray_indices
-        norm = d.norm(dim=1)[rays]
-        unit = d[rays] / norm[:, None].clamp_min(1e-12)
-        x_rest, d_rest, stretch, inside = frame.inverse.map_rays(samples.points(o, d), unit)
-        kept = RaySamples(
-            rays[inside],
-            samples.t_starts[inside],
-            samples.t_ends[inside],
-            samples.n_rays,
-            samples.t_mid[inside],
-        )
-        scale = (norm * stretch)[inside]  # rest-space length per unit of t
-        now = time.perf_counter()
-        times["map"] += now - tick
-        tick = now
-        out = render_samples(
-            self.field,
-            x_rest[inside],
-            d_rest[inside],
-            kept.deltas * scale,
-            (kept.t_mid - kept.t_starts) * scale,
-            kept,
-            ray_background(self.field, d, self.background),
-        )
-        times["field"] += time.perf_counter() - tick
-        return out["color"], nb_stats.counts, int((~inside).sum())
+        return narrow_band_sampler(self._deformed, self.config), inverse
 
     def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
         """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
-        (V, 3) (None: at rest), and stats: ``ms`` and per stage ``build_ms`` (shell deformation, refitting
-        their BVHs (built on the first deformed frame) and building the inverse map's BVH),
-        ``cast_ms`` (Procedure 3), ``map_ms`` (inverse map), ``field_ms`` (field and compositing);
-        ``samples_per_pixel``, ``dropped_samples`` (outside the cage) and ``counts`` (H, W)."""
-        from neural.data import camera_rays
+        (V, 3) (None: at rest, exactly :func:`neural.render.view.render_camera` with the asset's sampler),
+        and the stats of ``render_camera`` plus ``build_ms`` (shell deformation, refitting their BVHs
+        (built on the first deformed frame) and building the inverse map's BVH) and ``ms`` with it."""
+        from neural.render.view import render_camera
 
         start = time.perf_counter()
-        origins, dirs = camera_rays(cameras, index, device=self.device)
-        colors, stats = self.render_rays(origins, dirs, positions)
-        h, w = int(cameras.height[index]), int(cameras.width[index])
-        stats["counts"] = stats["counts"].reshape(h, w)
+        sampler, to_rest = self._frame(positions)
+        build = time.perf_counter() - start
+        image, stats = render_camera(self.field, cameras, index, sampler, self.background, to_rest)
+        stats["build_ms"] = 1000.0 * build
         stats["ms"] = 1000.0 * (time.perf_counter() - start)
-        return colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy(), stats
+        return image, stats
 
 
 # --------------------------------------------------------------------------- cameras and frames

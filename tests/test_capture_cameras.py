@@ -18,10 +18,10 @@ from PIL import Image
 from scenes import look_at
 from test_render_deformed import make_asset
 
+import neural.render.view
 from neural.data import load_camera_file, load_dataset
 from neural.train import PixelSampler
 from shellsim.cli import main
-from shellsim.render import DeformedRenderer
 
 W, H = 16, 12
 SHARED = {
@@ -86,12 +86,12 @@ def rendered_rays(monkeypatch, tmp_path, cameras, *size) -> list[tuple[np.ndarra
     """Per camera, in file order, the (origins, dirs) (H*W, 3) that ``shellsim render --cameras`` renders."""
     seen = []
 
-    def spy(self, origins, dirs, positions=None):
+    def spy(field, origins, dirs, *args, **kwargs):
         seen.append((origins.double().numpy(), dirs.double().numpy()))
         n = len(origins)
         return torch.zeros(n, 3), {"counts": np.zeros(n, np.int64), "samples_per_pixel": 0.0}
 
-    monkeypatch.setattr(DeformedRenderer, "render_rays", spy)
+    monkeypatch.setattr(neural.render.view, "render_pixels", spy)
     asset = make_asset(tmp_path / "asset")
     args = ["render", "--asset", str(asset), "--cameras", str(cameras), "--out", str(tmp_path / "out")]
     assert main([*args, *size, "--device", "cpu"]) == 0

@@ -7,14 +7,13 @@ import trimesh
 
 from neural.render.narrowband import (
     NarrowBandConfig,
-    RefitShellIntersector,
-    ShellIntersector,
     intervals_from_hits,
     narrow_band_samples,
     narrow_band_samples_reference,
     samples_from_intervals,
     samples_per_interval,
 )
+from neural.render.raycast import EmbreeCaster, WarpCaster
 
 
 def sphere(radius, center=(0.0, 0.0, 0.0), subdivisions=3):
@@ -69,7 +68,7 @@ def assert_matches_reference(outer, inner, origins, dirs, config, near=0.0, inte
     """The fast sampler on ``intersector`` (default: Embree on ``outer``, ``inner``) against the per-ray
     float64 twin on ``outer``, ``inner``."""
     n = len(origins)
-    intersector = ShellIntersector(outer, inner) if intersector is None else intersector
+    intersector = EmbreeCaster(outer, inner) if intersector is None else intersector
     fast, fast_stats = narrow_band_samples(intersector, origins, dirs, config, near=near)
     ref, ref_stats = narrow_band_samples_reference(outer, inner, origins, dirs, config, near=near)
     skip = ambiguous_rays(fast_stats, dirs, config, n) | ambiguous_rays(ref_stats, dirs, config, n)
@@ -130,7 +129,7 @@ def test_refitted_warp_intersector_matches_reference_before_and_after_moving(rng
     """Warp meshes built on the rest shells, then refitted to bent shells: the samples equal the brute-force
     twin's on the bent meshes themselves (a fresh Embree build is not needed)."""
     outer, inner = shells()
-    intersector = RefitShellIntersector(outer, inner, device="cpu", cpu_threads=2)
+    intersector = WarpCaster(outer, inner, device="cpu", cpu_threads=2)
     config = NarrowBandConfig(0.04, 0.03, 16, 8)
     origins, dirs = rays_at_scene(rng, 400, 4.0, (2.0, 1.5, 0.6))
     assert_matches_reference(outer, inner, origins, dirs, config, intersector=intersector)
@@ -170,7 +169,7 @@ def test_near_plane_matches_reference(rng):
 
 def test_closed_form_concentric_spheres(rng):
     r_out, r_in, d = 1.0, 0.7, 3.0
-    intersector = ShellIntersector(*concentric(r_out, r_in, subdivisions=5))
+    intersector = EmbreeCaster(*concentric(r_out, r_in, subdivisions=5))
     dirs = random_unit(rng, 50)
     origins = -d * dirs  # every ray passes through the centre
     tol = 1e-3  # icosphere facets lie within 3e-4 of the sphere
@@ -215,18 +214,18 @@ def test_rays_through_vertices_and_edges_cross_each_shell_once():
     targets = np.concatenate([outer.vertices, outer.vertices[outer.edges_unique].mean(axis=1)])
     dirs = targets / np.linalg.norm(targets, axis=1, keepdims=True)
     for d in (3.0, 0.0):  # from outside, and from the common centre (inside M-)
-        _, stats = narrow_band_samples(ShellIntersector(outer, inner), -d * dirs, dirs, NarrowBandConfig())
+        _, stats = narrow_band_samples(EmbreeCaster(outer, inner), -d * dirs, dirs, NarrowBandConfig())
         np.testing.assert_array_equal(stats.interval_rays, np.arange(len(dirs)))
         if d > 0:
             np.testing.assert_allclose(stats.interval_enter, d - 1.0, atol=5e-2)
             np.testing.assert_allclose(stats.interval_exit, stats.t_inner)
-    ray_idx, t, entering = ShellIntersector(outer, inner).all_hits("outer", -3 * dirs, dirs, max_hits=8)
+    ray_idx, t, entering = EmbreeCaster(outer, inner).all_hits("outer", -3 * dirs, dirs, max_hits=8)
     np.testing.assert_array_equal(ray_idx, np.repeat(np.arange(len(dirs)), 2))
     np.testing.assert_array_equal(entering, np.tile([True, False], len(dirs)))
 
 
 def test_rays_that_miss_get_no_samples(rng):
-    intersector = ShellIntersector(*concentric())
+    intersector = EmbreeCaster(*concentric())
     origins = np.tile([0.0, 0.0, -3.0], (20, 1))
     dirs = random_unit(rng, 20)
     dirs[:, 2] = -np.abs(dirs[:, 2])  # pointing away from the spheres
@@ -239,7 +238,7 @@ def test_rays_that_miss_get_no_samples(rng):
 
 def test_peeling_cap_through_row_of_shells():
     """A ray along x between inner (0.5) and outer (1) radius crosses three bands and no M-."""
-    intersector = ShellIntersector(*row_of_three())
+    intersector = EmbreeCaster(*row_of_three())
     origins, dirs = np.array([[-5.0, 0.7, 0.0]]), np.array([[1.0, 0.0, 0.0]])
     expected_intervals = {8: 3, 6: 3, 5: 2, 4: 2, 3: 1, 2: 1, 1: 0}
     for max_peel, n_intervals in expected_intervals.items():
@@ -307,7 +306,7 @@ def test_config_validation_and_scaling():
 
 
 def test_input_validation():
-    intersector = ShellIntersector(*concentric(subdivisions=1))
+    intersector = EmbreeCaster(*concentric(subdivisions=1))
     with pytest.raises(ValueError, match="origins"):
         narrow_band_samples(intersector, np.zeros((4, 2)), np.ones((4, 3)))
     with pytest.raises(ValueError, match="same shape"):
@@ -323,8 +322,8 @@ def test_input_validation():
     with pytest.raises(ValueError, match="near"):
         narrow_band_samples(intersector, np.zeros((1, 3)), np.ones((1, 3)), near=-1.0)
     with pytest.raises(TypeError, match="outer"):
-        ShellIntersector("sphere.ply", sphere(0.5))
+        EmbreeCaster("sphere.ply", sphere(0.5))
     inverted = sphere(0.5, subdivisions=1)
     inverted.invert()
     with pytest.raises(ValueError, match="inner .*wound inward"):
-        ShellIntersector(sphere(1.0, subdivisions=1), inverted)
+        EmbreeCaster(sphere(1.0, subdivisions=1), inverted)

@@ -126,7 +126,7 @@ def test_identity_motion_renders_like_the_rest_renderer(renderer):
     assert stats["dropped_samples"] == 0  # the cage contains the shells
     np.testing.assert_array_equal(stats["counts"], rest_stats["counts"])
     assert psnr(moved, rest) >= 60  # measured ~150 dB: equal up to float32 rounding
-    assert all(stats[f"{k}_ms"] > 0 for k in ("build", "cast", "map", "field"))
+    assert all(stats[f"{k}_ms"] > 0 for k in ("build", "sample", "map", "shade"))
 
 
 @pytest.mark.parametrize(

@@ -38,6 +38,12 @@ class RaySamples:
         """(n_rays,) int64 number of samples per ray."""
         return torch.bincount(self.ray_indices, minlength=self.n_rays)
 
+    def select(self, keep: torch.Tensor) -> RaySamples:
+        """The samples where ``keep`` (S,) bool is true, over the same rays."""
+        return RaySamples(
+            self.ray_indices[keep], self.t_starts[keep], self.t_ends[keep], self.n_rays, self.t_mid[keep]
+        )
+
     def points(self, origins: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
         """(S, 3) sample positions, given ray ``origins`` and ``dirs`` (n_rays, 3)."""
         return origins[self.ray_indices] + self.t_mid[:, None] * dirs[self.ray_indices]

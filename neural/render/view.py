@@ -1,8 +1,19 @@
-"""Whole images: render a camera of a ``Cameras`` set with any sampler, and the samplers themselves.
+"""Whole images: the one rendering pipeline, and the samplers it takes.
 
-A *sampler* is a callable ``sampler(origins (R, 3), dirs (R, 3)) -> RaySamples``:
+Every image (``shellsim eval``, ``shellsim render`` at rest and deformed, the benches, training's
+held-out views) is made by :func:`render_camera` / :func:`render_pixels`, chunk by chunk of rays:
 
-- :func:`narrow_band_sampler`: Procedure 3 against the shells (the fast renderer),
+1. **sample**: ``sampler(origins (R, 3), dirs (R, 3)) -> RaySamples`` places samples along the rays;
+2. **map** (optional): ``to_rest.map_rays(points (S, 3), unit_dirs (S, 3)) -> (x_rest (S, 3), d_rest (S, 3),
+   stretch (S,), inside (S,) bool)`` takes each sample to the space where the field lives (deformed
+   rendering, paper Sec. 5: ``shellsim.deform.InverseMap``); samples outside are dropped and every section
+   length is multiplied by ``stretch``; without it the samples are already there;
+3. **shade**: the field at the samples, composited along the rays (Eq. 2-3).
+
+Samplers:
+
+- :func:`narrow_band_sampler`: Procedure 3 against the shells (the fast renderer; :func:`asset_sampler` for
+  an asset's rest shells and settings),
 - :func:`occupancy_sampler`: Instant-NGP-style marching of an occupancy grid,
 - :func:`full_ray_sampler`: fixed steps through the field's whole box (the reference full-ray renderer).
 """
@@ -10,13 +21,19 @@ A *sampler* is a callable ``sampler(origins (R, 3), dirs (R, 3)) -> RaySamples``
 from __future__ import annotations
 
 import time
+from typing import Protocol
 
 import numpy as np
 import torch
 
 from ..data import Cameras, camera_rays
-from .fullray import ray_aabb, render_rays, stepped_samples
+from .fullray import ray_aabb, ray_background, render_samples, stepped_samples
 from .occupancy import OccupancyConfig, OccupancyGrid
+
+#: Rays rendered at once (bounds the memory of one pass).
+RAY_CHUNK = 16384
+#: Stages of the pipeline, timed in the stats of :func:`render_pixels` as ``<stage>_ms``.
+STAGES = ("sample", "map", "shade")
 
 DEFAULT_STEP = 2.0 * np.sqrt(3.0) / 512  # marching step in the field's unit space (Instant-NGP's)
 
@@ -55,15 +72,28 @@ def occupancy_sampler(
     return sample
 
 
-def narrow_band_sampler(intersector, config):
-    """Procedure 3: samples only inside the shells (``intersector`` is a built ``ShellIntersector``)."""
+def narrow_band_sampler(caster, config):
+    """Procedure 3: samples only inside the shells (``caster`` a :class:`~neural.render.raycast.ShellCaster`
+    of them, ``config`` a ``NarrowBandConfig``)."""
     from .narrowband import narrow_band_samples
 
     def sample(origins, dirs):
-        samples, _ = narrow_band_samples(intersector, origins, dirs, config, device=origins.device)
+        samples, _ = narrow_band_samples(caster, origins, dirs, config, device=origins.device)
         return samples
 
     return sample
+
+
+def asset_sampler(asset, config=None, shells=None):
+    """The narrow-band sampler of an :class:`~neural.asset.Asset`'s rest shells (Embree) with its settings:
+    what every rest image of an asset uses. ``config``: a ``NarrowBandConfig`` instead of the asset's;
+    ``shells``: its (M+, M-) meshes when already loaded."""
+    from .raycast import EmbreeCaster
+
+    outer, inner = (asset.outer_mesh(), asset.inner_mesh()) if shells is None else shells
+    return narrow_band_sampler(
+        EmbreeCaster(outer, inner), asset.narrowband_config() if config is None else config
+    )
 
 
 def sdf_kernel_fn(field):
@@ -92,23 +122,91 @@ def fitted_occupancy_grid(field, resolution: int = 128) -> OccupancyGrid:
     return grid
 
 
+class RestMap(Protocol):
+    """Where deformed-space samples are in the field's (rest) space (pipeline step 2)."""
+
+    def map_rays(self, points: torch.Tensor, unit_dirs: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``x_rest`` (S, 3), ``d_rest`` (S, 3) unit, ``stretch`` (S,) rest length per deformed length along
+        the ray, ``inside`` (S,) bool (False: no rest point, the sample is dropped)."""
+
+
 @torch.no_grad()
-def render_camera(
-    field, cameras: Cameras, index: int, sampler, background: torch.Tensor, chunk: int = 16384
-) -> tuple[np.ndarray, dict]:
-    """Render camera ``index``: image (H, W, 3) float32 in [0, 1] and stats (``samples_per_pixel``,
-    ``ms``, ``counts`` (H, W) samples per pixel)."""
-    device = background.device
+def render_pixels(
+    field,
+    origins: torch.Tensor,
+    dirs: torch.Tensor,
+    sampler,
+    background: torch.Tensor,
+    to_rest: RestMap | None = None,
+    chunk: int = RAY_CHUNK,
+) -> tuple[torch.Tensor, dict]:
+    """Colours (R, 3) (unclamped) of rays ``origins``, ``dirs`` (R, 3) on the field's device: sample, map to
+    rest space with ``to_rest`` (None: no map), shade over ``background`` (3,). Stats: ``ms``, per stage
+    ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside ``to_rest``) and
+    ``counts`` (R,) int64 samples per ray (dropped ones included)."""
+    times = dict.fromkeys(STAGES, 0.0)
     start = time.perf_counter()
-    origins, dirs = camera_rays(cameras, index, device=device)
-    colors, counts = [], []
+    colors, counts, dropped = [], [], 0
     for i in range(0, len(origins), chunk):
         o, d = origins[i : i + chunk], dirs[i : i + chunk]
+        tick = time.perf_counter()
         samples = sampler(o, d)
         counts.append(samples.counts())
-        colors.append(render_rays(field, o, d, samples, background)["color"])
+        rays = samples.ray_indices
+        norm = d.norm(dim=1)[rays]
+        unit = d[rays] / norm[:, None].clamp_min(1e-12)
+        points, scale = samples.points(o, d), norm  # scale: field-space length per unit of t
+        now = time.perf_counter()
+        times["sample"] += now - tick
+        tick = now
+        if to_rest is not None:
+            points, unit, stretch, inside = to_rest.map_rays(points, unit)
+            samples, points, unit = samples.select(inside), points[inside], unit[inside]
+            scale = (norm * stretch)[inside]
+            dropped += int((~inside).sum())
+            now = time.perf_counter()
+            times["map"] += now - tick
+            tick = now
+        out = render_samples(
+            field,
+            points,
+            unit,
+            samples.deltas * scale,
+            (samples.t_mid - samples.t_starts) * scale,
+            samples,
+            ray_background(field, d, background),
+        )
+        colors.append(out["color"])
+        times["shade"] += time.perf_counter() - tick
+    colors = torch.cat(colors) if colors else origins.new_zeros(0, 3)
+    counts = torch.cat(counts).cpu().numpy() if counts else np.zeros(0, np.int64)
+    stats = {f"{k}_ms": 1000.0 * v for k, v in times.items()}
+    stats.update(
+        ms=1000.0 * (time.perf_counter() - start),
+        samples_per_pixel=float(counts.mean()) if counts.size else 0.0,
+        dropped_samples=dropped,
+        counts=counts,
+    )
+    return colors, stats
+
+
+@torch.no_grad()
+def render_camera(
+    field,
+    cameras: Cameras,
+    index: int,
+    sampler,
+    background: torch.Tensor,
+    to_rest: RestMap | None = None,
+    chunk: int = RAY_CHUNK,
+) -> tuple[np.ndarray, dict]:
+    """Render camera ``index`` through :func:`render_pixels`: image (H, W, 3) float32 in [0, 1] and its
+    stats, with ``counts`` (H, W) and ``ms`` including the camera rays."""
+    start = time.perf_counter()
+    origins, dirs = camera_rays(cameras, index, device=background.device)
+    colors, stats = render_pixels(field, origins, dirs, sampler, background, to_rest, chunk)
     h, w = int(cameras.height[index]), int(cameras.width[index])
-    image = torch.cat(colors).clamp(0, 1).reshape(h, w, 3).cpu().numpy()
-    counts_np = torch.cat(counts).reshape(h, w).cpu().numpy()
-    ms = 1000.0 * (time.perf_counter() - start)
-    return image, {"samples_per_pixel": float(counts_np.mean()), "ms": ms, "counts": counts_np}
+    stats["counts"] = stats["counts"].reshape(h, w)
+    image = colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy()
+    stats["ms"] = 1000.0 * (time.perf_counter() - start)
+    return image, stats

@@ -38,8 +38,7 @@ def run(args: argparse.Namespace) -> None:
     from neural.asset import command_line, load_asset, load_field, refuse_shipped, write_meta
     from neural.data import load_dataset
     from neural.metrics import lpips_status
-    from neural.render.narrowband import ShellIntersector
-    from neural.render.view import full_ray_sampler, narrow_band_sampler
+    from neural.render.view import asset_sampler, full_ray_sampler
     from neural.train import evaluate
     from shellsim.commands.args import device_option
     from shellsim.outputs import check_writable_dir, check_writable_file
@@ -57,12 +56,7 @@ def run(args: argparse.Namespace) -> None:
     views = np.asarray(data.test_idx)[: args.views]
     field = load_field(asset, device)
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
-    nb_config = asset.narrowband_config()
-    samplers = {
-        "narrow_band": narrow_band_sampler(
-            ShellIntersector(asset.outer_mesh(), asset.inner_mesh()), nb_config
-        )
-    }
+    samplers = {"narrow_band": asset_sampler(asset)}  # the sampler of 'shellsim render' at rest
     if not args.no_full_ray:
         samplers["full_ray"] = full_ray_sampler(field)
     report = {

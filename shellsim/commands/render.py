@@ -127,10 +127,11 @@ def run(args: argparse.Namespace) -> None:
 def _report(summary: dict) -> None:
     line = f"{summary['rendered']} frames rendered to {summary['out']} ({summary['skipped']} already there"
     line += f", {summary['replaced']} replaced)" if summary["replaced"] else ")"
-    if summary["rendered"] and "field_ms" in summary:
+    if summary["rendered"] and "shade_ms" in summary:
         line += (
-            f": {summary['ms']:.0f} ms/frame (deform + build {summary['build_ms']:.0f}, cast "
-            f"{summary['cast_ms']:.0f}, inverse map {summary['map_ms']:.0f}, field {summary['field_ms']:.0f})"
+            f": {summary['ms']:.0f} ms/frame (deform + build {summary['build_ms']:.0f}, sample "
+            f"{summary['sample_ms']:.0f}, inverse map {summary['map_ms']:.0f}, "
+            f"field {summary['shade_ms']:.0f})"
         )
     elif summary["rendered"]:
         line += f": {summary['ms']:.0f} ms/frame"

@@ -30,6 +30,7 @@ matches, so an interrupted render resumes and frames of another motion, camera o
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -280,26 +281,45 @@ def stale_reason(path: Path, record: dict) -> str | None:
     return ", ".join(parts)
 
 
-def render_frames(jobs, out_dir: Path, overwrite: bool, progress: bool, render_one) -> dict:
-    """Render ``jobs`` [(path, record, payload)] with ``render_one(payload) -> (image, stats)`` into PNGs,
-    reusing a PNG only when its record matches (unless ``overwrite``); logs what was replaced and why.
-    Returns the summary of :func:`_summary`."""
+def render_frames(
+    jobs, out_dir: Path, overwrite: bool, progress: bool, recipe, ray: str | None = None
+) -> dict:
+    """Render ``jobs`` [(path, record, payload)] into PNGs with ``recipe() -> render_one``,
+    ``render_one(payload) -> (image, stats)``, reusing a PNG only when its record matches (unless
+    ``overwrite``); logs what was replaced and why. With ``ray`` ("local" or a cluster address) the frames
+    are Ray tasks (:func:`shellsim.distributed.run_on_ray`: ``recipe`` runs once per worker) and this
+    process writes each PNG as it arrives. Returns the summary of :func:`_summary`."""
     from tqdm import tqdm
 
-    written, skipped, stats, replaced = [], 0, [], {}
-    bar = tqdm(jobs, desc="render", unit="frame", disable=not progress)
-    for path, record, payload in bar:
+    todo, skipped, replaced = [], 0, {}
+    for path, record, payload in jobs:
         why = "" if overwrite else stale_reason(path, record)
         if why is None:
             skipped += 1
             continue
         if why:
             replaced.setdefault(why, []).append(path.name)
-        image, frame_stats = render_one(payload)
-        save_png(path, image, record)
-        written.append(path)
+        todo.append((path, record, payload))
+    written, stats = [], []
+    bar = tqdm(total=len(todo), desc="render", unit="frame", disable=not progress or not todo)
+
+    def save(i: int, result) -> None:
+        image, frame_stats = result
+        save_png(todo[i][0], image, todo[i][1])
+        written.append(todo[i][0])
         stats.append(frame_stats)
+        bar.update()
         bar.set_postfix(ms=f"{frame_stats['ms']:.0f}", spp=f"{frame_stats.get('samples_per_pixel', 0):.1f}")
+
+    with bar:
+        if todo and ray is not None:
+            from .distributed import run_on_ray
+
+            run_on_ray([job[2] for job in todo], recipe, save, None if ray == "local" else ray)
+        elif todo:
+            render_one = recipe()
+            for i, (_, _, payload) in enumerate(todo):
+                save(i, render_one(payload))
     for why, names in replaced.items():
         log.info(
             "%s: rendered %d frames again (%s..%s): they were made with %s",
@@ -393,12 +413,14 @@ def render_views(
     device: str = "auto",
     overwrite: bool = False,
     progress: bool = True,
+    ray: str | None = None,
 ) -> dict:
     """Render every camera of a ``transforms*.json``-style camera file (images may be absent) at rest to
     ``out_dir/<frame name>.png`` (the listed image's name, else ``frame_<index>``); ``size`` = (W, H)
     overrides the file's. A PNG already there is kept only when its record (:func:`frame_record`) says it
-    shows this asset from this camera at this size, unless ``overwrite``; others are rendered again.
-    Returns a summary with the mean ms per frame and per stage."""
+    shows this asset from this camera at this size, unless ``overwrite``; others are rendered again. With
+    ``ray`` ("local" or a cluster address) each frame is a Ray task. Returns a summary with the mean ms per
+    frame and per stage."""
     from neural.asset import load_asset
     from neural.data import load_camera_file
 
@@ -408,15 +430,45 @@ def render_views(
         names = [f"{i:05d}" for i in range(len(cameras))]
     asset = load_asset(asset_spec)
     identity, settings = asset_identity(asset), renderer_identity(asset)
-    device, field = _field(asset, device)
-    renderer = DeformedRenderer(asset, field, None, device)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    jobs = [
-        (out_dir / f"{names[i]}.png", frame_record("rest", cameras.subset([i]), identity, settings), i)
-        for i in range(len(cameras))
-    ]
-    return render_frames(jobs, out_dir, overwrite, progress, lambda i: renderer.render(cameras, i))
+    jobs = []
+    for i in range(len(cameras)):
+        view = cameras.subset([i])
+        jobs.append((out_dir / f"{names[i]}.png", frame_record("rest", view, identity, settings), view))
+    if ray is None:
+        recipe = functools.partial(_view_frames, asset, None, device)
+    else:
+        recipe = functools.partial(view_recipe, str(asset.root.resolve()), device)
+    return render_frames(jobs, out_dir, overwrite, progress, recipe, ray)
+
+
+def _view_frames(asset, cage, device: str, positions=None):
+    """``render_one(view)`` of :func:`render_frames`: ``view`` (a one-camera ``Cameras``) -> (image, stats),
+    at rest, or with ``cage`` and ``positions`` (F, V, 3) for payloads ``(view, frame)``."""
+    device, field = _field(asset, device)
+    renderer = DeformedRenderer(asset, field, cage, device)
+    if positions is None:
+        return lambda view: renderer.render(view, 0)
+    return lambda job: renderer.render(job[0], 0, positions[job[1]])
+
+
+def view_recipe(asset_path: str, device: str):
+    """In a Ray worker: the rest ``render_one`` of the asset at ``asset_path``."""
+    from neural.asset import load_asset
+
+    return _view_frames(load_asset(asset_path), None, device)
+
+
+def motion_recipe(asset_path: str, motion_path: str, device: str):
+    """In a Ray worker: the ``render_one((view, frame))`` of a motion of the asset at ``asset_path``."""
+    from neural.asset import load_asset
+
+    from .cage import cage_for_motion
+    from .motion import load_motion
+
+    asset, motion = load_asset(asset_path), load_motion(motion_path)
+    return _view_frames(asset, cage_for_motion(asset, motion, motion_path), device, motion.positions)
 
 
 def motion_frame_ids(motion) -> list[str]:
@@ -438,6 +490,7 @@ def render_motion(
     device: str = "auto",
     overwrite: bool = False,
     progress: bool = True,
+    ray: str | None = None,
 ) -> dict:
     """Render frames of a motion to ``out_dir/<k:05d>.png`` (``k`` the motion frame), optionally an MP4.
 
@@ -452,6 +505,7 @@ def render_motion(
     overwrite : render every frame again; without it a PNG on disk is kept only when its record
         (:func:`frame_record`: motion frame, camera, size, asset, renderer settings) matches, so an
         interrupted render resumes and frames of another motion, camera or size are rendered again
+    ray : "local" or a Ray cluster address: each frame a Ray task (:func:`render_frames`)
     The motion, ``frames`` and the camera file are checked before the asset and its field load.
     Returns a summary: counts, mean ms per frame and per stage, ``video``.
     """
@@ -475,8 +529,6 @@ def render_motion(
     asset = load_asset(asset_spec)
     cage = cage_for_motion(asset, motion, str(motion_path))
     identity, settings = asset_identity(asset, cage), renderer_identity(asset)
-    device, field = _field(asset, device)
-    renderer = DeformedRenderer(asset, field, cage, device)
     frame_ids = motion_frame_ids(motion)
     out_dir = Path(out_dir)
     jobs = []
@@ -487,9 +539,12 @@ def render_motion(
             (out_dir / f"{k:05d}.png", frame_record(frame_ids[k], view, identity, settings), (view, k))
         )
     out_dir.mkdir(parents=True, exist_ok=True)
-    summary = render_frames(
-        jobs, out_dir, overwrite, progress, lambda job: renderer.render(job[0], 0, motion.positions[job[1]])
-    )
+    if ray is None:
+        recipe = functools.partial(_view_frames, asset, cage, device, motion.positions)
+    else:
+        paths = str(asset.root.resolve()), str(Path(motion_path).resolve())
+        recipe = functools.partial(motion_recipe, *paths, device)
+    summary = render_frames(jobs, out_dir, overwrite, progress, recipe, ray)
     if video is not None:
         fps = motion_fps(motion) if fps is None else fps
         summary["video"] = str(write_video([path for path, _, _ in jobs], video, fps))

@@ -142,7 +142,7 @@ def render_surface_motion(
     renderer = SurfaceRenderer(motion, width, height)
     try:
         summary = render_frames(
-            jobs, out_dir, overwrite, progress, lambda job: renderer.render(job[0], 0, job[1])
+            jobs, out_dir, overwrite, progress, lambda: lambda job: renderer.render(job[0], 0, job[1])
         )
     finally:
         renderer.close()

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from .errors import InputError
 
+DEVICES = ("auto", "cpu", "cuda")
+
 
 def pick_device(name: str | None = None) -> str:
     """Return ``"cuda"`` or ``"cpu"``.
@@ -15,10 +17,10 @@ def pick_device(name: str | None = None) -> str:
 
     if name in (None, "auto"):
         return "cuda" if torch.cuda.is_available() else "cpu"
-    if name not in ("cpu", "cuda"):
-        raise InputError(f"--device: expected cpu, cuda or auto, got {name!r}")
+    if name not in DEVICES:
+        raise InputError(f"device: expected cpu, cuda or auto, got {name!r}")
     if name == "cuda" and not torch.cuda.is_available():
-        raise InputError("--device cuda: no CUDA device is available on this machine")
+        raise InputError("device cuda: no CUDA device is available on this machine")
     return name
 
 

@@ -185,6 +185,19 @@ def floats(count: int) -> Callable[[str], tuple[float, ...]]:
     return parse
 
 
+def pixels(text: str) -> tuple[int, int]:
+    """A parser of an image size ``"800x600"`` -> (800, 600), each side in 1..16384."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() and 0 < int(p) <= 16384 for p in parts):
+        raise ValueError("expected WIDTHxHEIGHT in pixels (e.g. 800x600)")
+    return int(parts[0]), int(parts[1])
+
+
+def show_pixels(size: tuple[int, int]) -> str:
+    """``(800, 600)`` -> ``"800x600"``, as :func:`pixels` reads it."""
+    return "x".join(map(str, size))
+
+
 def check_range(name: str, value, low: float, high: float, what: str = "a number", open_ends: str = "[]"):
     """:class:`SettingError` for ``name`` unless ``low <= value <= high`` (NaN never is); ``open_ends`` "()",
     "(]" or "[)" excludes an end. Returns ``value``."""

@@ -18,9 +18,12 @@ class CageSettings:
     settings; one set: the other takes :class:`~shellsim.cage.CageConfig`'s default."""
 
     asset: str = option(help="asset directory, or the name of a shipped asset", required=True)
-    tets: int | None = option(help="target number of tets", shown_default=str(CageConfig.target_tets))
+    tets: int | None = option(
+        help="target number of tets", shown_default=f"the asset's cage's, else {CageConfig.target_tets}"
+    )
     margin: float | None = option(
-        help="dilation of M+, relative to its bounding-box diagonal", shown_default=f"{CageConfig.margin:g}"
+        help="dilation of M+, relative to its bounding-box diagonal",
+        shown_default=f"the asset's cage's, else {CageConfig.margin:g}",
     )
     rebuild: bool = option(False, help="rebuild even if a matching cage.npz exists")
 

@@ -33,7 +33,7 @@ from neural.data import load_dataset
 from neural.device import pick_device
 from neural.render.view import asset_sampler, full_ray_sampler
 from neural.train import evaluate
-from shellsim.cli import main as shellsim
+from shellsim.jobs.train import TrainSettings, train
 
 
 def main() -> None:
@@ -51,9 +51,8 @@ def main() -> None:
     shutil.rmtree(args.out, ignore_errors=True)
 
     start = time.perf_counter()
-    command = ["train", "--data", args.data, "--out", args.out, "--downscale", str(args.downscale)]
-    if shellsim([*command, "--steps", str(args.steps), "--device", device]) != 0:
-        raise SystemExit("fox_bench: training failed")
+    settings = TrainSettings(args.data, args.out, downscale=args.downscale, steps=args.steps, device=device)
+    train(settings)
     minutes = (time.perf_counter() - start) / 60.0
 
     asset = load_asset(args.out)

@@ -22,7 +22,8 @@ import numpy as np
 
 from neural.data.colmap import align_similarity
 from neural.data.datasets import _focus_point
-from shellsim.cli import main
+from shellsim.jobs.poses import PosesSettings, poses
+from shellsim.options import add_options, from_args
 
 FOX = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "fox"
 
@@ -33,12 +34,7 @@ def run(args: argparse.Namespace) -> None:
     photos = sorted(p.name for p in Path(args.images).iterdir() if p.name in truth)
     load_before = os.getloadavg()
     start = time.perf_counter()
-    argv = ["poses", "--images", args.images, "--out", args.out, "--overwrite", "--matching", args.matching]
-    argv += ["--max-features", str(args.max_features)]
-    if args.threads:
-        argv += ["--threads", str(args.threads)]
-    if main(argv) != 0:
-        raise SystemExit("shellsim poses failed")
+    poses(from_args(PosesSettings, args, overwrite=True))
     minutes = (time.perf_counter() - start) / 60
     load_after = os.getloadavg()
 
@@ -87,7 +83,5 @@ if __name__ == "__main__":
         "--reference", default=str(FOX / "transforms.json"), help="the capture's own transforms.json"
     )
     parser.add_argument("--out", default="/tmp/poses_bench_fox", help="output of shellsim poses")
-    parser.add_argument("--matching", default="exhaustive", choices=("exhaustive", "sequential"))
-    parser.add_argument("--max-features", type=int, default=4096)
-    parser.add_argument("--threads", type=int, default=None, help="default: every core")
+    add_options(parser, PosesSettings, skip=("images", "out", "overwrite"))
     run(parser.parse_args())

@@ -9,56 +9,20 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from .asset import command_line, save_asset
+from .config import FieldConfig, PipelineConfig
 from .data import SceneData, load_dataset
 from .errors import InputError
-from .field import FieldConfig, ShellField
-from .render.narrowband import NarrowBandConfig
-from .shell import ShellConfig
+from .field import ShellField
 from .shell.from_field import FieldShells, extract_field_shells
-from .train import Stage1Config, Stage2Config, train_stage1, train_stage2
+from .train import train_stage1, train_stage2
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class PipelineConfig:
-    """Everything ``shellsim train`` sets. Lengths of the stage settings are in the field's unit space."""
-
-    field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
-    stage1: Stage1Config = dataclasses.field(default_factory=Stage1Config)
-    shell: ShellConfig = dataclasses.field(default_factory=ShellConfig)
-    narrowband: NarrowBandConfig = dataclasses.field(default_factory=NarrowBandConfig)
-    stage2: Stage2Config = dataclasses.field(default_factory=Stage2Config)
-    downscale: int = 1
-    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    bound: float | None = None
-
-
-QUICK_STEPS = 2000  # stage-1 runs shorter than this are a quick try: smaller batches and grids
-
-
-def scaled_defaults(stage1_steps: int) -> dict:
-    """Settings that go with ``stage1_steps`` (``shellsim train`` applies them unless set explicitly).
-
-    Stage 2 takes 1/6 of stage 1 (1000 for the default 6000). A quick try (fewer than ``QUICK_STEPS``)
-    also trains on 16384 instead of 65536 samples per batch with a 64^3 instead of 128^3 occupancy grid,
-    and extracts its shells on a 128^3 instead of 256^3 grid: each about 4-8x cheaper, so that 200 steps
-    at a small downscale take minutes."""
-    quick = stage1_steps < QUICK_STEPS
-    return {
-        "stage2_steps": max(1, math.ceil(stage1_steps / 6)),
-        "shell_resolution": 128 if quick else ShellConfig.resolution,
-        "target_samples": 16384 if quick else Stage1Config.target_samples,
-        "occupancy_resolution": 64 if quick else Stage1Config.occupancy_resolution,
-    }
 
 
 def build_field(data: SceneData, config: FieldConfig, device: str) -> ShellField:
@@ -81,7 +45,9 @@ def train_asset(
     """Run Procedure 4 on the dataset in ``data_dir`` and write the asset to ``out_dir``."""
     out_dir = Path(out_dir)
     if (out_dir / "asset.json").is_file() and not (out_dir / "checkpoints").is_dir():
-        raise InputError(f"{out_dir}: holds a finished asset already; choose another --out or delete it")
+        raise InputError(
+            f"{out_dir}: holds a finished asset already; choose another output directory or delete it"
+        )
     ckpt_dir = out_dir / "checkpoints"
     runs = _read_runs(ckpt_dir)
     started = time.time()
@@ -201,18 +167,3 @@ def _load_shells(ckpt_dir: Path, config: PipelineConfig) -> FieldShells | None:
 def _rmdir(path: Path) -> None:
     if path.is_dir() and not any(path.iterdir()):
         path.rmdir()
-
-
-def parse_background(text: str) -> tuple[float, float, float]:
-    """``white``, ``black`` or ``r,g,b`` in [0, 1]."""
-    named = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
-    if text in named:
-        return named[text]
-    parts = text.split(",")
-    try:
-        values = tuple(float(p) for p in parts)
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
-        raise InputError(f"--background: expected white, black or r,g,b in [0, 1], got {text!r}")
-    return values  # type: ignore[return-value]

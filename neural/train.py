@@ -12,7 +12,6 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ import torch
 from tqdm import tqdm
 
 from .checkpoint import load_checkpoint, save_checkpoint
+from .config import Stage1Config, Stage2Config
 from .data import SceneData, pixel_to_ray
 from .field import ShellField
 from .losses import (
@@ -42,56 +42,6 @@ from .render.view import (
 )
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class Stage1Config:
-    """Stage-1 settings. Loss weights are the paper's (Sec. 3.5); lengths are in the field's unit space."""
-
-    steps: int = 6000
-    target_samples: int = 65536  # samples per batch; the ray count adapts to it (Instant-NGP)
-    initial_rays: int = 2048
-    max_rays: int = 16384
-    lr_encoding: float = 3e-2  # ~3x Instant-NGP's 1e-2 / 3e-3: lego +1.3 dB after 5000 steps (white bg)
-    lr_network: float = 1e-2
-    warmup_steps: int = 100
-    final_lr_factor: float = 0.1
-    lambda_e: float = 0.1  # Eq. 10
-    lambda_n: float = 0.1  # Eq. 12
-    lambda_s: float = 0.01  # Eq. 11
-    lambda_k: float = 0.001  # kernel sharpness prior (ours, see regularisers); 0 gives the paper's Eq. 8
-    sharp_floor: float = 1.0 / 8.0  # the prior stops at s = sharp_floor * step_size
-    reg_fraction: float = 0.125  # fraction of samples that the regularisers are evaluated on
-    fd_eps: float = 2.0 / 1024  # finite-difference step for grad f (unit space)
-    smooth_eps: float = 0.01  # std of the perturbation in Eq. 11 (unit space)
-    cos_anneal_steps: int = 500  # NeuS cosine annealing
-    step_size: float = 2.0 * math.sqrt(3.0) / 512  # ray-marching step (unit space)
-    max_samples_per_ray: int = 1024
-    occupancy_resolution: int = 128
-    occupancy_every: int = 16
-    random_background: bool = False  # see PixelSampler; only for images with alpha
-    eval_every: int = 1000
-    eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
-    checkpoint_every: int = 250
-    checkpoint_seconds: float = 120.0  # also checkpoint when this much time passed since the last one
-    seed: int = 0
-
-
-@dataclass
-class Stage2Config:
-    """Stage-2 narrow-band fine-tuning (Procedure 4 lines 8-13): color loss only."""
-
-    steps: int = 1000
-    rays: int = 16384
-    lr_encoding: float = 4e-3
-    lr_network: float = 5e-4
-    final_lr_factor: float = 0.3
-    random_background: bool = False  # see PixelSampler; only for images with alpha
-    eval_every: int = 500
-    eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
-    checkpoint_every: int = 250
-    checkpoint_seconds: float = 120.0  # also checkpoint when this much time passed since the last one
-    seed: int = 1
 
 
 def make_optimizer(field: ShellField, lr_encoding: float, lr_network: float) -> torch.optim.Adam:

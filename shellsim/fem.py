@@ -625,7 +625,7 @@ class WorldMap:
         lo, hi = vertices.min(0), vertices.max(0)
         extent = float((hi - lo).max())
         if not (size > 0 and math.isfinite(size)):
-            raise InputError(f"--size must be a positive length in metres, got {size}")
+            raise InputError(f"size: expected a positive length in metres, got {size}")
         if extent <= 0:
             raise InputError("the cage has zero extent; cannot scale it to a physical size")
         return cls(tuple(float(c) for c in (lo + hi) / 2), size / extent)

@@ -280,7 +280,7 @@ def _has_display() -> bool:
 def check_display() -> None:
     """A :class:`ShellsimError` unless a window can be opened (a display, or pyvista set off-screen)."""
     if not _pyvista().OFF_SCREEN and not _has_display():
-        raise ShellsimError("no display to open a window on (DISPLAY is not set); use --screenshot OUT.png")
+        raise ShellsimError("no display to open a window on (DISPLAY is not set)")
 
 
 def show_plotter(plotter) -> None:

@@ -12,8 +12,10 @@ command line of flags.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
+import re
 import typing
 from collections.abc import Callable
 
@@ -21,12 +23,21 @@ from neural.errors import InputError
 
 
 class SettingError(InputError):
-    """A setting's value is out of its domain: ``name`` is the field, ``message`` says what was expected."""
+    """A setting's value is out of its domain: ``name`` is the field, ``message`` says what was expected.
 
-    def __init__(self, name: str, message: str):
-        super().__init__(f"{name}: {message}")
-        self.name = name
-        self.message = message
+    ``value`` (e.g. a path) is shown after the name: ``"out /tmp/x: cannot write here"``. The message may
+    name other settings as ``{field}``: the library shows the field's name, the command line its option
+    (``"give {overwrite} to replace it"``)."""
+
+    def __init__(self, name: str, message: str, value=None):
+        self.name, self.message, self.value = name, message, value
+        super().__init__(self.render({}))
+
+    def render(self, flags: typing.Mapping[str, str]) -> str:
+        """The message with each setting named by ``flags`` (field -> option) where it has one."""
+        where = flags.get(self.name, self.name) + ("" if self.value is None else f" {self.value}")
+        message = re.sub(r"[{]([a-z_]+)[}]", lambda m: flags.get(m[1], m[1]), self.message)
+        return f"{where}: {message}"
 
 
 def option(
@@ -106,9 +117,8 @@ def add_options(parser: argparse.ArgumentParser, cls, skip: typing.Collection[st
                 )
             target = groups[meta["group"]]
         help_text = meta["help"]
-        shown = meta["shown_default"] or (
-            None if field.default in (None, False, True, ()) else _show(field.default)
-        )
+        hidden = field.default is None or isinstance(field.default, bool) or field.default == ()
+        shown = meta["shown_default"] or (None if hidden else _show(field.default))
         if shown:
             help_text += f" (default {shown})"
         kwargs: dict = {"dest": field.name, "help": help_text.replace("%", "%%")}
@@ -148,12 +158,21 @@ def from_args(cls, args: argparse.Namespace, **values):
         except ValueError as err:
             raise InputError(f"{flags[field.name]}: {err}, got {value!r}") from None
         values[field.name] = tuple(value) if meta["repeat"] else value
-    try:
+    with options_named(cls):
         return cls(**values)
+
+
+@contextlib.contextmanager
+def options_named(cls):
+    """Within: a :class:`SettingError` of the settings ``cls`` (raised by the settings or by the job that
+    runs them) becomes one :class:`InputError` naming the options instead of the fields."""
+    try:
+        yield
     except SettingError as err:
-        if err.name in flags:
-            raise InputError(f"{flags[err.name]}: {err.message}") from None
-        raise
+        flags = {f.name: flag_of(f) for f in options(cls)}
+        if err.name not in flags:
+            raise
+        raise InputError(err.render(flags)) from None
 
 
 def floats(count: int) -> Callable[[str], tuple[float, ...]]:
@@ -190,6 +209,19 @@ def name_list(text: str) -> tuple[str, ...]:
     return names
 
 
+def pixels(text: str) -> tuple[int, int]:
+    """A parser of an image size ``"800x600"`` -> (800, 600), each side in 1..16384."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() and 0 < int(p) <= 16384 for p in parts):
+        raise ValueError("expected WIDTHxHEIGHT in pixels (e.g. 800x600)")
+    return int(parts[0]), int(parts[1])
+
+
+def show_pixels(size: tuple[int, int]) -> str:
+    """``(800, 600)`` -> ``"800x600"``, as :func:`pixels` reads it."""
+    return "x".join(map(str, size))
+
+
 def check_range(name: str, value, low: float, high: float, what: str = "a number", open_ends: str = "[]"):
     """:class:`SettingError` for ``name`` unless ``low <= value <= high`` (NaN never is); ``open_ends`` "()",
     "(]" or "[)" excludes an end. Returns ``value``."""
@@ -202,4 +234,11 @@ def check_range(name: str, value, low: float, high: float, what: str = "a number
 
         span = f"{open_ends[0]}{plain(low)}, {plain(high)}{open_ends[1]}"
         raise SettingError(name, f"expected {what} in {span}, got {plain(value)}")
+    return value
+
+
+def check_choice(name: str, value, choices: typing.Sequence):
+    """:class:`SettingError` for ``name`` unless ``value`` is one of ``choices``. Returns ``value``."""
+    if value not in choices:
+        raise SettingError(name, f"expected one of {', '.join(map(str, choices))}, got {value!r}")
     return value

@@ -13,6 +13,7 @@ import tempfile
 from pathlib import Path
 
 from neural.errors import InputError
+from shellsim.options import SettingError
 
 
 def _existing_ancestor(directory: Path) -> Path:
@@ -40,11 +41,18 @@ def _check(target: Path, directory: Path, flag: str | None) -> None:
             os.close(fd)
             os.unlink(probe)
     if reason:
-        raise InputError(f"{flag + ' ' if flag else ''}{target}: cannot write here ({reason})")
+        _refuse(target, flag, f"cannot write here ({reason})")
+
+
+def _refuse(target: Path, setting: str | None, message: str) -> None:
+    """An InputError about ``target``, a :class:`SettingError` of ``setting`` (field or option) if given."""
+    if setting:
+        raise SettingError(setting, message, value=target)
+    raise InputError(f"{target}: {message}")
 
 
 def check_writable_dir(path, flag: str | None = None) -> Path:
-    """Raise an InputError (naming ``flag``) unless directory ``path`` exists and takes new files, or can be
+    """Raise an InputError (of setting ``flag``) unless directory ``path`` exists, takes new files or can be
     created: its nearest existing parent is a writable directory. Nothing is left behind; returns the Path."""
     path = Path(path)
     _check(path, path, flag)
@@ -52,10 +60,10 @@ def check_writable_dir(path, flag: str | None = None) -> Path:
 
 
 def check_writable_file(path, flag: str | None = None) -> Path:
-    """Raise an InputError (naming ``flag``) unless file ``path`` can be written (replaced atomically): no
+    """Raise an InputError (of setting ``flag``) unless file ``path`` can be written (replaced atomically): no
     directory has its name and its directory takes new files or can be created. Returns the Path."""
     path = Path(path)
     if path.is_dir():
-        raise InputError(f"{flag + ' ' if flag else ''}{path}: cannot write here (a directory has this name)")
+        _refuse(path, flag, "cannot write here (a directory has this name)")
     _check(path, path.parent, flag)
     return path

@@ -31,6 +31,8 @@ class Toy:
     pin: tuple[str, ...] = option(help="a rule", repeat=True, metavar="RULE")
     ground: bool = option(True, help="no ground plane", flag="--no-ground", negate=True)
     mode: str = option("fast", help="how", choices=("fast", "slow"))
+    copies: int = option(1, help="copies")
+    offset: float = option(0.0, help="offset")
     internal: int = 7
 
     def __post_init__(self):
@@ -68,6 +70,7 @@ def test_help_shows_each_default_once_and_the_group_is_exclusive_and_required():
     assert "number of frames (default 90)" in text
     assert "frames per second (default 30)" in text
     assert "(default the asset's)" in text and "(default 0,0,0)" in text
+    assert "copies (default 1)" in text and "offset (default 0)" in text  # 1 == True, 0 == False
     assert "internal" not in text
     with pytest.raises(SystemExit):
         parser.parse_args(["--name", "a", "--mesh", "b"])

@@ -194,7 +194,7 @@ def test_options_that_need_a_motion(tmp_path, asset_dir, capsys):
     cams = write_cameras(tmp_path / "cams.json", 1)
     code = render(asset_dir, tmp_path / "o", "--video", tmp_path / "v.mp4", cameras=cams)
     assert code == 2
-    assert "--video needs --motion" in error_line(capsys)
+    assert "--video: needs --motion" in error_line(capsys)
 
 
 def test_frames_of_another_motion_or_size_are_rendered_again(tmp_path, asset_dir, capsys):

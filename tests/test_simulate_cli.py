@@ -11,20 +11,6 @@ from shellsim.cli import main
 from shellsim.motion import load_motion
 
 
-def test_cli_defaults_are_the_simulator_defaults():
-    from shellsim.cli import build_parser
-    from shellsim.fem import SimSettings
-
-    args = build_parser().parse_args(["simulate", "--mesh", "x.ply"])
-    defaults = SimSettings()
-    assert (args.substeps, args.friction, args.damping) == (
-        defaults.substeps,
-        defaults.friction,
-        defaults.damping,
-    )
-    assert args.fps == pytest.approx(1 / defaults.dt)
-
-
 def _fail(argv, capsys):
     capsys.readouterr()
     code = main(argv)

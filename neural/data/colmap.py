@@ -120,8 +120,8 @@ def list_images(image_dir: Path) -> tuple[list[str], dict[str, str]]:
 def run_sfm(
     image_dir: str | os.PathLike,
     work_dir: str | os.PathLike,
-    matching: str = "exhaustive",
-    max_features: int = 4096,
+    matching: str,
+    max_features: int,
     threads: int | None = None,
     progress: bool = True,
 ) -> SfmResult:

@@ -14,65 +14,14 @@ interpolation of the cell's 8 corners. The levels' features are concatenated lev
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import torch
 from torch import nn
 
+from ..config import BACKENDS, HashGridConfig
+
 PRIMES = (1, 2654435761, 805459861)
-BACKENDS = ("warp", "torch")
-
-
-@dataclass(frozen=True)
-class HashGridConfig:
-    """Hash-grid settings. Paper (Sec. 4.1): 14 levels of 2-D features, 2^22 entries, 16^3 -> 4096^3.
-
-    The defaults keep the paper's levels and features and shrink table (2^17: a 15 MB field, quick Adam
-    steps, enough for 200x200 NeRF-synthetic views) and finest resolution so that training on a CPU stays
-    practical.
-    """
-
-    n_levels: int = 14
-    n_features_per_level: int = 2
-    log2_table_size: int = 17
-    base_resolution: int = 16
-    max_resolution: int = 2048
-
-    def __post_init__(self):
-        for name in ("n_levels", "n_features_per_level", "log2_table_size", "base_resolution"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"HashGridConfig.{name}: expected a positive int, got {value!r}")
-        if self.log2_table_size > 30:
-            raise ValueError(f"HashGridConfig.log2_table_size: at most 30, got {self.log2_table_size}")
-        if not isinstance(self.max_resolution, int) or self.max_resolution < self.base_resolution:
-            raise ValueError(
-                f"HashGridConfig.max_resolution: expected an int >= base_resolution "
-                f"({self.base_resolution}), got {self.max_resolution!r}"
-            )
-
-    @property
-    def table_size(self) -> int:
-        """T, the number of entries per level."""
-        return 1 << self.log2_table_size
-
-    @property
-    def out_dim(self) -> int:
-        """L * F, the width of the encoding."""
-        return self.n_levels * self.n_features_per_level
-
-    def resolutions(self) -> list[int]:
-        """``N_l = floor(base * b^l)`` for every level (the last one is ``max_resolution``)."""
-        if self.n_levels == 1:
-            return [self.base_resolution]
-        growth = (math.log(self.max_resolution) - math.log(self.base_resolution)) / (self.n_levels - 1)
-        # the small offset keeps floor() from losing the last level to round-off (e.g. 2047.9999...)
-        return [
-            int(math.floor(self.base_resolution * math.exp(level * growth) + 1e-6))
-            for level in range(self.n_levels)
-        ]
 
 
 def is_dense(resolution: int, table_size: int) -> bool:

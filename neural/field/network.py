@@ -33,92 +33,18 @@ predicted normal starts as ``u / |u|``, the sphere's.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
 from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..errors import InputError
-from .hashgrid import BACKENDS, HashGridConfig, HashGridEncoding
+from ..config import FieldConfig
+from .hashgrid import HashGridEncoding
 from .sh import N_COEFFS, spherical_harmonics
 
-VIEW_ENCODINGS = ("reflected", "direction")
-# Fields written before these settings existed had neither: absent from a file, they mean the paper's.
-LEGACY_DEFAULTS = {"view_encoding": "direction", "kernel_grid": 0}
 SOFTPLUS_BETA = 100.0  # NeuS's geometry activation: a smooth ReLU, so finite-difference normals are smooth
 SOFTPLUS_CUTOFF = 15.0  # |beta z| beyond which softplus is taken as relu: value error < 3e-7 / beta
-
-
-@dataclass(frozen=True)
-class FieldConfig:
-    """Field settings; network sizes are the paper's (Sec. 4.1), lengths are in unit space."""
-
-    hashgrid: HashGridConfig = field(default_factory=HashGridConfig)
-    geo_hidden: int = 64
-    rad_hidden: int = 64
-    geo_feature_dim: int = 26
-    init_radius: float = 0.5
-    init_inv_s: float = 20.0
-    inv_s_min: float = 1.0
-    inv_s_max: float = 1e5
-    backend: str = "warp"
-    cpu_threads: int = 2
-    env_map: bool = False  # learn the colour of rays that leave the box, by direction (real captures)
-    view_encoding: str = "reflected"  # SH of d mirrored about n; "direction": SH(d), the paper's
-    kernel_grid: int = 64  # nodes per axis of the kernel-size grid (see ShellField); 0: none, the paper's
-
-    def __post_init__(self):
-        if not isinstance(self.hashgrid, HashGridConfig):
-            raise ValueError(f"FieldConfig.hashgrid: expected a HashGridConfig, got {type(self.hashgrid)}")
-        for name in ("geo_hidden", "rad_hidden", "geo_feature_dim", "cpu_threads"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"FieldConfig.{name}: expected a positive int, got {value!r}")
-        if not 0.0 < self.init_radius < 1.0:
-            raise ValueError(f"FieldConfig.init_radius: expected a value in (0, 1), got {self.init_radius!r}")
-        if not 0.0 < self.inv_s_min <= self.init_inv_s <= self.inv_s_max < math.inf:
-            raise ValueError(
-                "FieldConfig: expected 0 < inv_s_min <= init_inv_s <= inv_s_max < inf, got "
-                f"{self.inv_s_min!r}, {self.init_inv_s!r}, {self.inv_s_max!r}"
-            )
-        if self.backend not in BACKENDS:
-            raise ValueError(f"FieldConfig.backend: expected one of {BACKENDS}, got {self.backend!r}")
-        if not isinstance(self.kernel_grid, int) or not (self.kernel_grid == 0 or self.kernel_grid >= 2):
-            raise ValueError(f"FieldConfig.kernel_grid: expected 0 or an int >= 2, got {self.kernel_grid!r}")
-        if self.view_encoding not in VIEW_ENCODINGS:
-            raise ValueError(
-                f"FieldConfig.view_encoding: expected one of {VIEW_ENCODINGS}, got {self.view_encoding!r}"
-            )
-        if not isinstance(self.env_map, bool):
-            raise ValueError(f"FieldConfig.env_map: expected true or false, got {self.env_map!r}")
-
-    def to_dict(self) -> dict:
-        """Plain JSON-ready dict (the hash grid as a nested dict)."""
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict) -> FieldConfig:
-        """Inverse of :meth:`to_dict`; unknown or malformed entries raise :class:`InputError`."""
-        if not isinstance(data, dict):
-            raise InputError(f"field config: expected a JSON object, got {type(data).__name__}")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise InputError(f"field config: unknown keys {unknown} (known: {sorted(known)})")
-        values = {**LEGACY_DEFAULTS, **data}
-        if "hashgrid" in values:
-            grid = values["hashgrid"]
-            grid_known = {f.name for f in fields(HashGridConfig)}
-            if not isinstance(grid, dict) or set(grid) - grid_known:
-                raise InputError(f"field config: hashgrid must be an object with keys {sorted(grid_known)}")
-        try:
-            if "hashgrid" in values:
-                values["hashgrid"] = HashGridConfig(**values["hashgrid"])
-            return cls(**values)
-        except (TypeError, ValueError) as err:
-            raise InputError(f"field config: {err}") from None
 
 
 class Geometry(NamedTuple):

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..config import ShellConfig
 from .levelset import evolve_level_set
 
 if TYPE_CHECKING:
@@ -35,71 +36,6 @@ log = logging.getLogger(__name__)
 _SLAB_NODES = 1 << 22  # nodes per slab when mapping a function over a whole grid
 # Grid values within this fraction of a voxel of zero count as outside (no vertex exactly on a node).
 _SNAP_REL = 1e-3
-
-
-@dataclass
-class ShellConfig:
-    """Settings of Procedure 2. Paper values where the paper gives them (T, dt, zeta, lambda_curv).
-
-    Bounds from the falloff: a node with ``|f0| >= zeta`` never moves (Eq. 5), so M+ stays inside
-    ``f0 < zeta_dilate`` and M- outside ``f0 > -zeta_erode`` whatever the velocities; the front slows down
-    as it nears these bounds.
-
-    The paper leaves ``beta_d``, ``sigma_min``, ``beta_e`` and ``v_max`` open. On a unit-gradient SDF with
-    kernel size ``s`` (``s_v = s / voxel``) the defaults give, within those bounds:
-
-    - dilation (Eq. 6) out to where the voxel opacity falls to ``sigma_min``: ``voxel/2 + s ln(1/sigma_min)``
-      for a sharp surface (``s_v << 1``: ~1 voxel) and ``s ln(1/(sigma_min s_v) - 1)`` for fuzzy content
-      (opacity left outside the shell along the normal: ``sigma_min s_v``, 1% at ``s_v = 2``). ``beta_d``
-      is large so that the front reaches that contour within ``T dt``; the speed is then capped at
-      ``v_max`` (Eq. 6 has no cap; without one, ``beta_d alpha`` would break the explicit scheme);
-    - erosion (Eq. 7) to the depth ``T dt min(v_max, beta_e / alpha_in)`` voxels, with
-      ``alpha_in = 1 - exp(-1/s_v)`` the voxel opacity inside: 2 voxels for a sharp surface,
-      ``2 s + 1 voxel`` for fuzzy content (transmittance left along the normal ``Phi(-2 - 1/s_v) < 12%``),
-      plus up to ~half a voxel from the first-order upwinding across the jump of the speed at the surface;
-    - ``v_max = 5`` voxels per unit time: half a voxel per Euler step of ``dt = 0.1``, the stability limit
-      of the explicit upwind scheme, so Procedure 1 runs without sub-steps.
-
-    ``lambda_curv_dilate = 0.01`` voxels^2 per unit time (paper) is a mild regulariser: over ``T dt = 5``
-    it smooths features of about half a voxel.
-
-    ``min_part_fraction`` (ours, not the paper's): M+ parts enclosing fewer grid nodes than this fraction of
-    the largest part are dropped with the M- inside them. These are floaters that the training views only
-    ever saw against the background (the lego field trained on white grows 47 of them, the largest 2% of
-    the model's volume): they cost samples and would split the simulation cage. 0 keeps every part.
-    """
-
-    resolution: int = 256  # grid samples per axis over the unit cube
-    steps: int = 50  # T
-    dt: float = 0.1
-    zeta_dilate: float = 0.1  # soft-falloff width of the dilation (Eq. 5), unit-space length
-    lambda_curv_dilate: float = 0.01  # voxels^2 per unit time
-    zeta_erode: float = 0.05
-    lambda_curv_erode: float = 0.0
-    beta_d: float = 100.0  # Eq. 6 coefficient, voxels per unit time per unit opacity
-    sigma_min: float = 0.005  # Eq. 6 threshold on the voxel opacity alpha
-    beta_e: float = 0.4  # Eq. 7 coefficient, voxels per unit time times opacity
-    v_max: float = 5.0  # cap on both speeds, voxels per unit time
-    min_part_fraction: float = 0.05  # drop M+ parts smaller than this fraction of the largest (nodes inside)
-    chunk: int = 1 << 19  # band nodes per chunk of the level-set update
-
-    def __post_init__(self):
-        if self.resolution < 8 or self.steps < 0 or self.chunk < 1:
-            raise ValueError(
-                "ShellConfig: need resolution >= 8, steps >= 0, chunk >= 1; got "
-                f"resolution={self.resolution}, steps={self.steps}, chunk={self.chunk}"
-            )
-        positive = ("dt", "zeta_dilate", "zeta_erode", "beta_d", "sigma_min", "beta_e", "v_max")
-        bad = {k: getattr(self, k) for k in positive if not getattr(self, k) > 0}
-        curv = ("lambda_curv_dilate", "lambda_curv_erode")
-        bad |= {k: getattr(self, k) for k in curv if getattr(self, k) < 0}
-        if not 0 <= self.min_part_fraction <= 1:
-            bad["min_part_fraction"] = self.min_part_fraction
-        if bad:
-            raise ValueError(
-                f"ShellConfig: {bad} out of range (lambda_curv_* must be >= 0, min_part_fraction in [0, 1], "
-                "the rest > 0)"
-            )
 
 
 @dataclass

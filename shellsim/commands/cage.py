@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from shellsim.jobs.cage import CageSettings, cage
+from shellsim.options import add_options, from_args, options_named
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -17,47 +20,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "settings: a shipped asset is never written to, and a cage that motions were made with is never "
         "replaced.",
     )
-    p.add_argument("--asset", required=True, help="asset directory, or the name of a shipped asset")
-    p.add_argument("--tets", type=int, default=None, help="target number of tets (default 5000)")
-    p.add_argument(
-        "--margin",
-        type=float,
-        default=None,
-        help="dilation of M+, relative to its bounding-box diagonal (default 0.02)",
-    )
-    p.add_argument("--rebuild", action="store_true", help="rebuild even if a matching cage.npz exists")
+    add_options(p, CageSettings)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
-    import time
-
-    from neural.asset import load_asset
-    from neural.errors import InputError
-    from shellsim.cage import CageConfig, cage_summary, load_or_build_cage
-
-    settings = {}
-    for flag, key, value in (("--tets", "target_tets", args.tets), ("--margin", "margin", args.margin)):
-        if value is not None:
-            try:
-                CageConfig(**{key: value})
-            except ValueError as err:
-                raise InputError(f"{flag}: {err}") from None
-            settings[key] = value
-    config = CageConfig(**settings) if settings else None
-    asset = load_asset(args.asset)
-    start = time.perf_counter()
-    cage = load_or_build_cage(asset, config, rebuild=args.rebuild)
-    seconds = time.perf_counter() - start
-    s = cage_summary(cage)
-    print(f"cage of {asset.name}: {cage.path}")
+    with options_named(CageSettings):
+        s = cage(from_args(CageSettings, args))
+    print(f"cage of {s['name']}: {s['path']}")
     print(f"  {s['vertices']} vertices, {s['tets']} tets, volume {s['volume']:.6g}")
     print(f"  tet quality: min {s['min_quality']:.3f}, median {s['median_quality']:.3f} (1 = regular)")
     print(
         f"  embedded: {s['outer_vertices']} outer-shell + {s['inner_vertices']} inner-shell vertices; "
         f"{s['outside']} outside the cage (max distance {s['max_outside_distance']:.3g})"
     )
+    config = s["config"]
     print(
-        f"  margin {cage.config.margin:g} of the diagonal, target {cage.config.target_tets} tets; "
-        f"{seconds:.1f} s"
+        f"  margin {config.margin:g} of the diagonal, target {config.target_tets} tets; {s['seconds']:.1f} s"
     )

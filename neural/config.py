@@ -1,0 +1,297 @@
+"""The settings of the library's stages, in one light module (stdlib only) so that the command line can show
+their defaults without importing torch: the field (:class:`FieldConfig`, :class:`HashGridConfig`), the two
+training stages, the shell extraction (:class:`ShellConfig`) and Procedure 4 end to end
+(:class:`PipelineConfig`). :mod:`neural.field`, :mod:`neural.train`, :mod:`neural.shell` and
+:mod:`neural.pipeline` import them from here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import TYPE_CHECKING
+
+from .errors import InputError
+
+if TYPE_CHECKING:
+    from .render.narrowband import NarrowBandConfig
+
+BACKENDS = ("warp", "torch")  # implementations of the hash encoding
+VIEW_ENCODINGS = ("reflected", "direction")
+# Fields written before these settings existed had neither: absent from a file, they mean the paper's.
+LEGACY_DEFAULTS = {"view_encoding": "direction", "kernel_grid": 0}
+
+
+@dataclass(frozen=True)
+class HashGridConfig:
+    """Hash-grid settings. Paper (Sec. 4.1): 14 levels of 2-D features, 2^22 entries, 16^3 -> 4096^3.
+
+    The defaults keep the paper's levels and features and shrink table (2^17: a 15 MB field, quick Adam
+    steps, enough for 200x200 NeRF-synthetic views) and finest resolution so that training on a CPU stays
+    practical.
+    """
+
+    n_levels: int = 14
+    n_features_per_level: int = 2
+    log2_table_size: int = 17
+    base_resolution: int = 16
+    max_resolution: int = 2048
+
+    def __post_init__(self):
+        for name in ("n_levels", "n_features_per_level", "log2_table_size", "base_resolution"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"HashGridConfig.{name}: expected a positive int, got {value!r}")
+        if self.log2_table_size > 30:
+            raise ValueError(f"HashGridConfig.log2_table_size: at most 30, got {self.log2_table_size}")
+        if not isinstance(self.max_resolution, int) or self.max_resolution < self.base_resolution:
+            raise ValueError(
+                f"HashGridConfig.max_resolution: expected an int >= base_resolution "
+                f"({self.base_resolution}), got {self.max_resolution!r}"
+            )
+
+    @property
+    def table_size(self) -> int:
+        """T, the number of entries per level."""
+        return 1 << self.log2_table_size
+
+    @property
+    def out_dim(self) -> int:
+        """L * F, the width of the encoding."""
+        return self.n_levels * self.n_features_per_level
+
+    def resolutions(self) -> list[int]:
+        """``N_l = floor(base * b^l)`` for every level (the last one is ``max_resolution``)."""
+        if self.n_levels == 1:
+            return [self.base_resolution]
+        growth = (math.log(self.max_resolution) - math.log(self.base_resolution)) / (self.n_levels - 1)
+        # the small offset keeps floor() from losing the last level to round-off (e.g. 2047.9999...)
+        return [
+            int(math.floor(self.base_resolution * math.exp(level * growth) + 1e-6))
+            for level in range(self.n_levels)
+        ]
+
+
+@dataclass(frozen=True)
+class FieldConfig:
+    """Field settings; network sizes are the paper's (Sec. 4.1), lengths are in unit space."""
+
+    hashgrid: HashGridConfig = field(default_factory=HashGridConfig)
+    geo_hidden: int = 64
+    rad_hidden: int = 64
+    geo_feature_dim: int = 26
+    init_radius: float = 0.5
+    init_inv_s: float = 20.0
+    inv_s_min: float = 1.0
+    inv_s_max: float = 1e5
+    backend: str = "warp"
+    cpu_threads: int = 2
+    env_map: bool = False  # learn the colour of rays that leave the box, by direction (real captures)
+    view_encoding: str = "reflected"  # SH of d mirrored about n; "direction": SH(d), the paper's
+    kernel_grid: int = 64  # nodes per axis of the kernel-size grid (see ShellField); 0: none, the paper's
+
+    def __post_init__(self):
+        if not isinstance(self.hashgrid, HashGridConfig):
+            raise ValueError(f"FieldConfig.hashgrid: expected a HashGridConfig, got {type(self.hashgrid)}")
+        for name in ("geo_hidden", "rad_hidden", "geo_feature_dim", "cpu_threads"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"FieldConfig.{name}: expected a positive int, got {value!r}")
+        if not 0.0 < self.init_radius < 1.0:
+            raise ValueError(f"FieldConfig.init_radius: expected a value in (0, 1), got {self.init_radius!r}")
+        if not 0.0 < self.inv_s_min <= self.init_inv_s <= self.inv_s_max < math.inf:
+            raise ValueError(
+                "FieldConfig: expected 0 < inv_s_min <= init_inv_s <= inv_s_max < inf, got "
+                f"{self.inv_s_min!r}, {self.init_inv_s!r}, {self.inv_s_max!r}"
+            )
+        if self.backend not in BACKENDS:
+            raise ValueError(f"FieldConfig.backend: expected one of {BACKENDS}, got {self.backend!r}")
+        if not isinstance(self.kernel_grid, int) or not (self.kernel_grid == 0 or self.kernel_grid >= 2):
+            raise ValueError(f"FieldConfig.kernel_grid: expected 0 or an int >= 2, got {self.kernel_grid!r}")
+        if self.view_encoding not in VIEW_ENCODINGS:
+            raise ValueError(
+                f"FieldConfig.view_encoding: expected one of {VIEW_ENCODINGS}, got {self.view_encoding!r}"
+            )
+        if not isinstance(self.env_map, bool):
+            raise ValueError(f"FieldConfig.env_map: expected true or false, got {self.env_map!r}")
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready dict (the hash grid as a nested dict)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> FieldConfig:
+        """Inverse of :meth:`to_dict`; unknown or malformed entries raise :class:`InputError`."""
+        if not isinstance(data, dict):
+            raise InputError(f"field config: expected a JSON object, got {type(data).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise InputError(f"field config: unknown keys {unknown} (known: {sorted(known)})")
+        values = {**LEGACY_DEFAULTS, **data}
+        if "hashgrid" in values:
+            grid = values["hashgrid"]
+            grid_known = {f.name for f in fields(HashGridConfig)}
+            if not isinstance(grid, dict) or set(grid) - grid_known:
+                raise InputError(f"field config: hashgrid must be an object with keys {sorted(grid_known)}")
+        try:
+            if "hashgrid" in values:
+                values["hashgrid"] = HashGridConfig(**values["hashgrid"])
+            return cls(**values)
+        except (TypeError, ValueError) as err:
+            raise InputError(f"field config: {err}") from None
+
+
+@dataclass
+class Stage1Config:
+    """Stage-1 settings. Loss weights are the paper's (Sec. 3.5); lengths are in the field's unit space."""
+
+    steps: int = 6000
+    target_samples: int = 65536  # samples per batch; the ray count adapts to it (Instant-NGP)
+    initial_rays: int = 2048
+    max_rays: int = 16384
+    lr_encoding: float = 3e-2  # ~3x Instant-NGP's 1e-2 / 3e-3: lego +1.3 dB after 5000 steps (white bg)
+    lr_network: float = 1e-2
+    warmup_steps: int = 100
+    final_lr_factor: float = 0.1
+    lambda_e: float = 0.1  # Eq. 10
+    lambda_n: float = 0.1  # Eq. 12
+    lambda_s: float = 0.01  # Eq. 11
+    lambda_k: float = 0.001  # kernel sharpness prior (ours, see regularisers); 0 gives the paper's Eq. 8
+    sharp_floor: float = 1.0 / 8.0  # the prior stops at s = sharp_floor * step_size
+    reg_fraction: float = 0.125  # fraction of samples that the regularisers are evaluated on
+    fd_eps: float = 2.0 / 1024  # finite-difference step for grad f (unit space)
+    smooth_eps: float = 0.01  # std of the perturbation in Eq. 11 (unit space)
+    cos_anneal_steps: int = 500  # NeuS cosine annealing
+    step_size: float = 2.0 * math.sqrt(3.0) / 512  # ray-marching step (unit space)
+    max_samples_per_ray: int = 1024
+    occupancy_resolution: int = 128
+    occupancy_every: int = 16
+    random_background: bool = False  # see PixelSampler; only for images with alpha
+    eval_every: int = 1000
+    eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
+    checkpoint_every: int = 250
+    checkpoint_seconds: float = 120.0  # also checkpoint when this much time passed since the last one
+    seed: int = 0
+
+
+@dataclass
+class Stage2Config:
+    """Stage-2 narrow-band fine-tuning (Procedure 4 lines 8-13): color loss only."""
+
+    steps: int = 1000
+    rays: int = 16384
+    lr_encoding: float = 4e-3
+    lr_network: float = 5e-4
+    final_lr_factor: float = 0.3
+    random_background: bool = False  # see PixelSampler; only for images with alpha
+    eval_every: int = 500
+    eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
+    checkpoint_every: int = 250
+    checkpoint_seconds: float = 120.0  # also checkpoint when this much time passed since the last one
+    seed: int = 1
+
+
+@dataclass
+class ShellConfig:
+    """Settings of Procedure 2. Paper values where the paper gives them (T, dt, zeta, lambda_curv).
+
+    Bounds from the falloff: a node with ``|f0| >= zeta`` never moves (Eq. 5), so M+ stays inside
+    ``f0 < zeta_dilate`` and M- outside ``f0 > -zeta_erode`` whatever the velocities; the front slows down
+    as it nears these bounds.
+
+    The paper leaves ``beta_d``, ``sigma_min``, ``beta_e`` and ``v_max`` open. On a unit-gradient SDF with
+    kernel size ``s`` (``s_v = s / voxel``) the defaults give, within those bounds:
+
+    - dilation (Eq. 6) out to where the voxel opacity falls to ``sigma_min``: ``voxel/2 + s ln(1/sigma_min)``
+      for a sharp surface (``s_v << 1``: ~1 voxel) and ``s ln(1/(sigma_min s_v) - 1)`` for fuzzy content
+      (opacity left outside the shell along the normal: ``sigma_min s_v``, 1% at ``s_v = 2``). ``beta_d``
+      is large so that the front reaches that contour within ``T dt``; the speed is then capped at
+      ``v_max`` (Eq. 6 has no cap; without one, ``beta_d alpha`` would break the explicit scheme);
+    - erosion (Eq. 7) to the depth ``T dt min(v_max, beta_e / alpha_in)`` voxels, with
+      ``alpha_in = 1 - exp(-1/s_v)`` the voxel opacity inside: 2 voxels for a sharp surface,
+      ``2 s + 1 voxel`` for fuzzy content (transmittance left along the normal ``Phi(-2 - 1/s_v) < 12%``),
+      plus up to ~half a voxel from the first-order upwinding across the jump of the speed at the surface;
+    - ``v_max = 5`` voxels per unit time: half a voxel per Euler step of ``dt = 0.1``, the stability limit
+      of the explicit upwind scheme, so Procedure 1 runs without sub-steps.
+
+    ``lambda_curv_dilate = 0.01`` voxels^2 per unit time (paper) is a mild regulariser: over ``T dt = 5``
+    it smooths features of about half a voxel.
+
+    ``min_part_fraction`` (ours, not the paper's): M+ parts enclosing fewer grid nodes than this fraction of
+    the largest part are dropped with the M- inside them. These are floaters that the training views only
+    ever saw against the background (the lego field trained on white grows 47 of them, the largest 2% of
+    the model's volume): they cost samples and would split the simulation cage. 0 keeps every part.
+    """
+
+    resolution: int = 256  # grid samples per axis over the unit cube
+    steps: int = 50  # T
+    dt: float = 0.1
+    zeta_dilate: float = 0.1  # soft-falloff width of the dilation (Eq. 5), unit-space length
+    lambda_curv_dilate: float = 0.01  # voxels^2 per unit time
+    zeta_erode: float = 0.05
+    lambda_curv_erode: float = 0.0
+    beta_d: float = 100.0  # Eq. 6 coefficient, voxels per unit time per unit opacity
+    sigma_min: float = 0.005  # Eq. 6 threshold on the voxel opacity alpha
+    beta_e: float = 0.4  # Eq. 7 coefficient, voxels per unit time times opacity
+    v_max: float = 5.0  # cap on both speeds, voxels per unit time
+    min_part_fraction: float = 0.05  # drop M+ parts smaller than this fraction of the largest (nodes inside)
+    chunk: int = 1 << 19  # band nodes per chunk of the level-set update
+
+    def __post_init__(self):
+        if self.resolution < 8 or self.steps < 0 or self.chunk < 1:
+            raise ValueError(
+                "ShellConfig: need resolution >= 8, steps >= 0, chunk >= 1; got "
+                f"resolution={self.resolution}, steps={self.steps}, chunk={self.chunk}"
+            )
+        positive = ("dt", "zeta_dilate", "zeta_erode", "beta_d", "sigma_min", "beta_e", "v_max")
+        bad = {k: getattr(self, k) for k in positive if not getattr(self, k) > 0}
+        curv = ("lambda_curv_dilate", "lambda_curv_erode")
+        bad |= {k: getattr(self, k) for k in curv if getattr(self, k) < 0}
+        if not 0 <= self.min_part_fraction <= 1:
+            bad["min_part_fraction"] = self.min_part_fraction
+        if bad:
+            raise ValueError(
+                f"ShellConfig: {bad} out of range (lambda_curv_* must be >= 0, min_part_fraction in [0, 1], "
+                "the rest > 0)"
+            )
+
+
+def _narrowband() -> NarrowBandConfig:
+    from .render.narrowband import NarrowBandConfig
+
+    return NarrowBandConfig()
+
+
+@dataclass
+class PipelineConfig:
+    """Everything ``shellsim train`` sets. Lengths of the stage settings are in the field's unit space."""
+
+    field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
+    stage1: Stage1Config = dataclasses.field(default_factory=Stage1Config)
+    shell: ShellConfig = dataclasses.field(default_factory=ShellConfig)
+    narrowband: NarrowBandConfig = dataclasses.field(default_factory=_narrowband)
+    stage2: Stage2Config = dataclasses.field(default_factory=Stage2Config)
+    downscale: int = 1
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    bound: float | None = None
+
+
+QUICK_STEPS = 2000  # stage-1 runs shorter than this are a quick try: smaller batches and grids
+
+
+def scaled_defaults(stage1_steps: int) -> dict:
+    """Settings that go with ``stage1_steps`` (``shellsim train`` applies them unless set explicitly).
+
+    Stage 2 takes 1/6 of stage 1 (1000 for the default 6000). A quick try (fewer than ``QUICK_STEPS``)
+    also trains on 16384 instead of 65536 samples per batch with a 64^3 instead of 128^3 occupancy grid,
+    and extracts its shells on a 128^3 instead of 256^3 grid: each about 4-8x cheaper, so that 200 steps
+    at a small downscale take minutes."""
+    quick = stage1_steps < QUICK_STEPS
+    return {
+        "stage2_steps": max(1, math.ceil(stage1_steps / 6)),
+        "shell_resolution": 128 if quick else ShellConfig.resolution,
+        "target_samples": 16384 if quick else Stage1Config.target_samples,
+        "occupancy_resolution": 64 if quick else Stage1Config.occupancy_resolution,
+    }

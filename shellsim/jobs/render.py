@@ -1,0 +1,133 @@
+"""Render an asset to PNG frames (and an MP4): every camera of a camera file at rest, or the frames of a
+motion deformed by its cage (paper Sec. 5), or a motion's own surface without an asset.
+
+The renderers are :func:`shellsim.render.render_views`, :func:`shellsim.render.render_motion` and
+:func:`shellsim.surface.render_surface_motion`; this module checks the settings and outputs first.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from neural.device import DEVICES
+from shellsim.options import SettingError, check_choice, option
+from shellsim.outputs import check_writable_dir, check_writable_file
+
+ORBIT_SIZE = 400  # pixels a side of the orbit's frames when no size is given
+MOTION_ONLY = ("orbit", "frames", "video", "fps")
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """What ``shellsim render`` takes; ``quiet`` keeps VTK's warnings off stderr."""
+
+    asset: str | None = option(
+        help="asset directory or shipped asset name; without it, --motion --orbit draws the surface the "
+        "motion carries (e.g. from 'simulate --mesh') with pyvista"
+    )
+    motion: str | None = option(help="motion file (.npz) from 'shellsim simulate' or 'shellsim wind'")
+    cameras: str | None = option(
+        help="camera file or dataset directory, any format 'train --data' reads (NeRF-synthetic "
+        "transforms_*.json, instant-ngp / nerfstudio transforms.json with fl_x fl_y cx cy k1 k2 p1 p2 w h); "
+        "every listed frame is a camera, its image may be absent",
+        group="view",
+        required=True,
+    )
+    orbit: bool = option(
+        False, help="with --motion: one camera revolution around the asset per clip", group="view"
+    )
+    out: str = option(help="directory of the PNG frames", required=True)
+    frames: str | None = option(help="with --motion: frames START:END (END exclusive)", shown_default="all")
+    width: int | None = option(help="image width", shown_default=f"the camera file's; orbit {ORBIT_SIZE}")
+    height: int | None = option(
+        help="image height; the file's pixel intrinsics are scaled to the size",
+        shown_default="the camera file's, or the file's aspect ratio with --width alone; orbit: as --width",
+    )
+    video: str | None = option(help="with --motion: also write the frames as this MP4")
+    fps: float | None = option(help="video frame rate", shown_default="the motion's")
+    overwrite: bool = option(False, help="render frames already in OUT again")
+    device: str = option("auto", help="cpu, cuda or auto")
+    ray: str | None = option(
+        help="render the frames as Ray tasks: alone, on a local Ray instance using every core; with an "
+        "ADDRESS, on that cluster ('auto': the one this machine belongs to; the asset and motion paths must "
+        "exist on every node)",
+        const="local",
+        metavar="ADDRESS",
+    )
+    quiet: bool = True
+
+    def __post_init__(self):
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise SettingError(name, f"expected a positive size, got {value}")
+        if self.motion is None:
+            for name in MOTION_ONLY:
+                if getattr(self, name) not in (None, False):
+                    raise SettingError(name, "needs {motion} (without it every camera is rendered at rest)")
+        if self.fps is not None and not (self.fps > 0 and math.isfinite(self.fps)):
+            raise SettingError("fps", f"expected a positive number, got {self.fps}")
+        check_choice("device", self.device, DEVICES)
+        if self.asset is None and not (self.motion is not None and self.orbit):
+            raise SettingError("asset", "needed, unless {motion} and {orbit} draw a motion's own surface")
+        if self.asset is None and self.ray is not None:
+            raise SettingError("ray", "renders an asset's frames; a motion's own surface is drawn here")
+
+    def size(self) -> tuple[int | None, int | None] | None:
+        """(W, H) of the frames: None, the camera file's; a missing side keeps the file's aspect ratio;
+        the orbit's are square."""
+        if self.orbit:
+            side = self.width or self.height or ORBIT_SIZE
+            return (self.width or side, self.height or side)
+        if self.width is None and self.height is None:
+            return None
+        return (self.width, self.height)
+
+
+def render(settings: RenderSettings) -> dict:
+    """Render what ``settings`` ask for; returns the renderer's summary (``rendered``, ``skipped``,
+    ``replaced``, ``out``, mean ``ms`` per frame and per stage, ``video``). Outputs and the frame range are
+    checked before torch or pyvista is imported."""
+    check_writable_dir(settings.out, "out")
+    if settings.ray is not None:
+        from shellsim.distributed import require_ray
+
+        require_ray()
+    if settings.video:
+        check_writable_file(settings.video, "video")
+    if settings.motion is not None:
+        from shellsim.motion import load_motion, parse_frames
+
+        parse_frames(settings.frames, load_motion(settings.motion).n_frames, str(settings.motion))
+    common = dict(size=settings.size(), overwrite=settings.overwrite)
+    if settings.asset is None:
+        from shellsim.inspect import quiet_vtk
+        from shellsim.surface import render_surface_motion
+
+        if settings.quiet:
+            quiet_vtk()
+        return render_surface_motion(
+            settings.motion, settings.out, settings.frames, video=settings.video, fps=settings.fps, **common
+        )
+    if settings.motion is None:
+        from shellsim.render import render_views
+
+        return render_views(
+            settings.asset, settings.cameras, settings.out, device=settings.device, ray=settings.ray, **common
+        )
+    from shellsim.render import render_motion
+
+    return render_motion(
+        settings.asset,
+        settings.motion,
+        settings.out,
+        cameras=settings.cameras,
+        orbit=settings.orbit,
+        frames=settings.frames,
+        video=settings.video,
+        fps=settings.fps,
+        device=settings.device,
+        ray=settings.ray,
+        **common,
+    )

@@ -300,40 +300,33 @@ def _turbulence(rest: np.ndarray, t: float, wind: np.ndarray, length: float, set
     return (np.sin(phase) / k).sum(-1) / (1.0 / k).sum()
 
 
-def wind_meta(settings: WindSettings, fps: float) -> dict:
-    """The motion file's ``meta`` for a wind animation: what made it and with which parameters."""
-    return {
-        "made_by": "shellsim.wind",
-        "model": "analytic cantilever wind",
-        "fps": float(fps),
-        "settings": json.loads(json.dumps(asdict(settings))),
-    }
+def wind_settings(settings: WindSettings, fps: float) -> dict:
+    """The motion's ``settings`` for a wind animation: the model, ``fps`` and the fields of ``settings``."""
+    return {"model": "analytic cantilever wind", "fps": float(fps), **json.loads(json.dumps(asdict(settings)))}
 
 
 def motion_changes(motion, wanted: dict, rest_vertices: np.ndarray, tets: np.ndarray) -> list[str]:
     """What keeps the wind motion ``motion`` (a :class:`shellsim.motion.Motion`) from being continued with
-    the ``wanted`` meta (keys of :func:`wind_meta`, and ``asset`` where given) on the cage ``rest_vertices``
-    (V, 3), ``tets`` (T, 4): ``"name: old -> new"`` lines (:func:`shellsim.motion.describe_changes`),
-    empty when nothing differs."""
-    from .motion import describe_changes
+    the ``wanted`` settings (:func:`wind_settings`) on the cage ``rest_vertices`` (V, 3), ``tets`` (T, 4):
+    ``"name: old -> new"`` lines (:func:`shellsim.motion.describe_changes`), empty when nothing differs."""
+    from .motion import cage_digest, describe_changes
 
-    changes = describe_changes({k: motion.meta.get(k) for k in wanted}, wanted, _SETTING_NAMES)
-    rest = motion.rest_vertices
-    same_cage = rest.shape == rest_vertices.shape and np.array_equal(motion.tets, tets)
-    if not (same_cage and np.allclose(rest, rest_vertices)):
+    changes = describe_changes(motion.settings, wanted, _SETTING_NAMES)
+    if motion.cage_digest != cage_digest(rest_vertices, tets):
         changes.append(f"the cage: the file's has {len(motion.tets)} tets, this one {len(tets)}")
     return changes
 
 
-#: Names of the wind meta keys whose option is not ``--key-with-dashes``.
-_SETTING_NAMES = {"settings.up": "the asset's up axis", "settings.base_fraction": "base fraction"}
+#: Names of the wind settings whose option is not ``--key-with-dashes``.
+_SETTING_NAMES = {"up": "the asset's up axis", "base_fraction": "base fraction"}
 
 
 def animate_wind(
     rest_vertices, tets, settings: WindSettings, frames: int, fps: float, writer, progress: bool = True
 ) -> None:
     """Append wind frames ``writer.n_frames .. frames - 1`` (times ``i / fps``) to a
-    :class:`shellsim.motion.MotionWriter` made with :func:`wind_meta` (fresh or resumed).
+    :class:`shellsim.motion.MotionWriter`, fresh (its ``settings`` become :func:`wind_settings`) or resumed
+    from a motion made with the same settings and cage.
 
     rest_vertices : (V, 3) float; tets : (T, 4) int, positively oriented. Every frame is
     :func:`limited_wind_displacement`: no tet's volume ratio goes below ``MIN_VOLUME_RATIO``. Records in
@@ -354,14 +347,16 @@ def animate_wind(
             f"{max_frequency(fps):g} Hz (the fastest turbulence mode, {_MODES} x the frequency, must stay "
             "below half the frame rate)"
         )
+    wanted = wind_settings(settings, fps)
+    if writer.n_frames:
+        changes = motion_changes(writer.motion, wanted, rest, tets)
+        if changes:
+            raise InputError(
+                f"{writer.path}: was made with other wind settings or another cage ({'; '.join(changes)})"
+            )
+    writer.motion.settings = wanted
     meta = writer.motion.meta
-    wanted = wind_meta(settings, fps)
-    changes = motion_changes(writer.motion, wanted if writer.n_frames else {}, rest, tets)
-    if changes:
-        raise InputError(
-            f"{writer.path}: was made with other wind settings or another cage ({'; '.join(changes)})"
-        )
-    meta.update(wanted)
+    meta["fps"] = float(fps)
     stats = meta.setdefault("stats", {})
     start, wall = time.perf_counter(), float(stats.get("wall_seconds", 0.0))
     limited = 0

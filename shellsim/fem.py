@@ -659,7 +659,8 @@ def simulate(sim: Simulator, frames: int, writer, world: WorldMap = WorldMap(), 
 
     An empty ``writer`` first gets the current state as frame 0. Each frame is appended with the state
     ``velocities`` (V, 3) float64 in world units per second (so :func:`restore_state` continues exactly),
-    after ``writer.motion.meta["stats"]`` is updated. A frame that :meth:`Simulator.step` finds invalid (e.g. a tet
+    after ``writer.motion.meta["stats"]`` is updated.
+    A frame that :meth:`Simulator.step` finds invalid (e.g. a tet
     squeezed below ``min_volume_ratio``) is not written: the :class:`SimulationError` gets its index as
     ``frame``. The writer is flushed on every exit, so an error or an interrupt keeps every frame made
     before. Returns the list of :class:`StepStats`.

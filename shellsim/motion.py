@@ -58,6 +58,8 @@ _LENGTH = struct.Struct("<Q")
 KEYS = ("rest_vertices", "tets", "positions", "times", "meta")
 SURFACE_KEYS = ("surface_tet", "surface_bary", "surface_faces")
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
+MAX_FRAMES = 10_000  # frames of one motion (about 1 GB of positions for a 10,000-vertex cage)
+MAX_FPS = 1000.0
 
 
 def cage_digest(vertices: np.ndarray, tets: np.ndarray) -> str:
@@ -124,8 +126,8 @@ class Motion:
         theirs = cage_digest(cage.vertices, cage.tets)
         if theirs != self.cage_digest:
             raise InputError(
-                f"{source}: the motion's rest cage differs from the asset's cage (cage {self.cage_digest[:12]}, "
-                f"the asset's {theirs[:12]}; rebuilt since?); make the motion again"
+                f"{source}: the motion's rest cage differs from the asset's cage (its digest "
+                f"{self.cage_digest[:12]}, the cage's {theirs[:12]}; rebuilt since?); make the motion again"
             )
 
     def surface_points(self, k: int) -> np.ndarray:

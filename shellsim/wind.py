@@ -302,7 +302,8 @@ def _turbulence(rest: np.ndarray, t: float, wind: np.ndarray, length: float, set
 
 def wind_settings(settings: WindSettings, fps: float) -> dict:
     """The motion's ``settings`` for a wind animation: the model, ``fps`` and the fields of ``settings``."""
-    return {"model": "analytic cantilever wind", "fps": float(fps), **json.loads(json.dumps(asdict(settings)))}
+    fields = json.loads(json.dumps(asdict(settings)))
+    return {"model": "analytic cantilever wind", "fps": float(fps), **fields}
 
 
 def motion_changes(motion, wanted: dict, rest_vertices: np.ndarray, tets: np.ndarray) -> list[str]:

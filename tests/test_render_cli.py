@@ -275,5 +275,5 @@ def test_wind_example_run_again_at_another_size_renders_again(tmp_path, asset_di
     stronger.animate()  # another wind: the motion is recomputed, and the orbit that frames it moves
     from shellsim.motion import load_motion
 
-    assert load_motion(out / "wind.npz").meta["settings"]["strength"] == 0.2
+    assert load_motion(out / "wind.npz").settings["strength"] == 0.2
     assert stronger.render(20, "cpu")["rendered"] == 3

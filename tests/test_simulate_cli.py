@@ -176,7 +176,7 @@ def test_an_existing_motion_is_continued_or_refused_never_replaced_silently(tmp_
 
     assert main([*base, "--frames", "2", "--fps", "24", "--overwrite"]) == 0
     fresh = load_motion(out)
-    assert fresh.n_frames == 2 and fresh.meta["params"]["fps"] == 24
+    assert fresh.n_frames == 2 and fresh.settings["fps"] == 24
 
 
 def test_wind_run_again_continues_or_refuses(tmp_path, capsys):

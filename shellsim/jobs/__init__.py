@@ -1,0 +1,1 @@
+"""Whole jobs (simulate, wind, render, ...): typed settings, each run by one function."""

@@ -13,7 +13,7 @@ import pytest
 
 from neural.errors import InputError
 from shellsim.cli import main
-from shellsim.motion import MAGIC, Motion, MotionWriter, Surface, cage_digest, load_motion, save_motion
+from shellsim.motion import MAGIC, MotionWriter, Surface, cage_digest, load_motion, save_motion
 
 
 def _cage(n=5):
@@ -132,9 +132,8 @@ def test_format_1_is_read_but_never_continued(tmp_path, capsys):
     argv = ["wind", "--asset", str(_write_asset(tmp_path / "rod")), "--out", str(old), "--frames", "2"]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
-    assert (
-        err
-        == f"shellsim: error: {old}: motion format 1 (written by an older shellsim) cannot be continued; make it again"
+    assert err == f"shellsim: error: {old}: motion format 1 (written by an older shellsim) cannot be " + (
+        "continued; make it again"
     )
     assert old.read_bytes() == before
 
@@ -164,13 +163,12 @@ def test_chunks_are_appended_never_rewritten(tmp_path):
     path = tmp_path / "m.npz"
     rest, tets = _cage()
     writer = MotionWriter(path, rest, tets, flush_seconds=1e9)
-    sizes, inodes = [], set()
+    sizes, inodes, previous = [], set(), b""
     for k, frame in enumerate(_frames(rest, 20)):
         writer.append(frame, k)
         writer.flush()
         data = path.read_bytes()
-        if sizes:
-            assert data.startswith(previous)
+        assert data.startswith(previous)
         previous = data
         sizes.append(len(data))
         inodes.add(path.stat().st_ino)

@@ -39,6 +39,7 @@ import math
 import numbers
 import time
 from dataclasses import asdict, dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -306,16 +307,13 @@ def wind_settings(settings: WindSettings, fps: float) -> dict:
     return {"model": "analytic cantilever wind", "fps": float(fps), **fields}
 
 
-def motion_changes(motion, wanted: dict, rest_vertices: np.ndarray, tets: np.ndarray) -> list[str]:
+def motion_changes(motion, wanted: dict) -> list[str]:
     """What keeps the wind motion ``motion`` (a :class:`shellsim.motion.Motion`) from being continued with
-    the ``wanted`` settings (:func:`wind_settings`) on the cage ``rest_vertices`` (V, 3), ``tets`` (T, 4):
-    ``"name: old -> new"`` lines (:func:`shellsim.motion.describe_changes`), empty when nothing differs."""
-    from .motion import cage_digest, describe_changes
+    the ``wanted`` settings (:func:`wind_settings`): ``"name: old -> new"`` lines
+    (:func:`shellsim.motion.describe_changes`), empty when nothing differs."""
+    from .motion import describe_changes
 
-    changes = describe_changes(motion.settings, wanted, _SETTING_NAMES)
-    if motion.cage_digest != cage_digest(rest_vertices, tets):
-        changes.append(f"the cage: the file's has {len(motion.tets)} tets, this one {len(tets)}")
-    return changes
+    return describe_changes(motion.settings, wanted, _SETTING_NAMES)
 
 
 #: Names of the wind settings whose option is not ``--key-with-dashes``.
@@ -333,8 +331,8 @@ def animate_wind(
     :func:`limited_wind_displacement`: no tet's volume ratio goes below ``MIN_VOLUME_RATIO``. Records in
     ``meta["stats"]`` the smallest volume ratio, the frames whose bending was scaled down
     (``limited_frames``) and the smallest scale (``min_bend_scale``), and the wall time. A ``frequency``
-    above :func:`max_frequency` of ``fps``, or resuming a file made with other settings or another cage, is
-    an :class:`InputError`.
+    above :func:`max_frequency` of ``fps``, or resuming a file made with other settings or for another cage
+    (:meth:`shellsim.motion.Motion.check_against`), is an :class:`InputError`.
     """
     from tqdm import tqdm
 
@@ -350,11 +348,10 @@ def animate_wind(
         )
     wanted = wind_settings(settings, fps)
     if writer.n_frames:
-        changes = motion_changes(writer.motion, wanted, rest, tets)
+        writer.motion.check_against(SimpleNamespace(vertices=rest, tets=tets), str(writer.path))
+        changes = motion_changes(writer.motion, wanted)
         if changes:
-            raise InputError(
-                f"{writer.path}: was made with other wind settings or another cage ({'; '.join(changes)})"
-            )
+            raise InputError(f"{writer.path}: was made with other wind settings ({'; '.join(changes)})")
     writer.motion.settings = wanted
     meta = writer.motion.meta
     meta["fps"] = float(fps)

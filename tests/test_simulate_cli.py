@@ -229,3 +229,32 @@ def test_mesh_simulation_video_shows_the_mesh_moving(tmp_path, closed_mesh):
     assert all(f.shape == (24, 32, 3) and (f.min(axis=2) < 200).sum() > 20 for f in frames)
     assert (np.abs(frames[2].astype(int) - frames[0]).max(axis=2) > 50).sum() > 20
     assert video.is_file()
+
+
+def test_a_motion_is_continued_only_with_the_cage_and_mesh_it_was_made_from(tmp_path, closed_mesh, capsys):
+    """The motion records its cage and mesh by content digest: a rebuilt cage (wind) or an edited mesh
+    (simulate --mesh) refuses to continue it, in one line."""
+    from meshes import save_embedded_cage
+    from test_wind import _write_asset, column
+
+    from neural.asset import load_asset
+
+    asset = load_asset(_write_asset(tmp_path / "rod"))
+    verts, tets = column(n_xy=2, n_z=6, width=0.4, height=1.1)
+    save_embedded_cage(asset, verts - [0.2, 0.2, 0.05], tets)
+    out = tmp_path / "wind.npz"
+    args = ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
+    assert main([*args, "--frames", "3"]) == 0
+    save_embedded_cage(asset, verts - [0.2, 0.2, 0.06], tets)  # the cage rebuilt: 1 cm lower
+    err = _fail([*args, "--frames", "5"], capsys)
+    assert err.startswith(f"shellsim: error: {out}: the motion's rest cage differs from the asset's cage")
+    assert load_motion(out).n_frames == 3
+
+    mesh, _ = closed_mesh
+    out = tmp_path / "m.npz"
+    base = ["simulate", "--mesh", str(mesh), "--substeps", "1", "--out", str(out), "--device", "cpu"]
+    assert main([*base, "--frames", "2"]) == 0
+    trimesh.creation.box((1, 1, 1.5)).export(mesh)
+    err = _fail([*base, "--frames", "3"], capsys)
+    assert f"{out}: made from another content of {mesh} (changed since)" in err
+    assert load_motion(out).n_frames == 2

@@ -275,6 +275,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         changes = describe_changes(writer.motion.settings, record, _OPTIONS)
         if changes:
             raise InputError(f"{out}: made with other settings ({'; '.join(changes)}); {replace}")
+        _check_source(s, writer.motion)
         vertices, tets, up = writer.motion.rest_vertices, writer.motion.tets, np.asarray(meta["up"])
         world = WorldMap(tuple(meta["world"]["origin"]), float(meta["world"]["scale"]))
         log.info("resuming %s after frame %d", out, writer.n_frames - 1)
@@ -353,6 +354,22 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     return result
 
 
+def _check_source(s: SimulateSettings, motion) -> None:
+    """An :class:`InputError` unless the motion being continued moves the asset's cage
+    (:meth:`shellsim.motion.Motion.check_against`) or was made from this content of the mesh file."""
+    if s.asset:
+        motion.check_against(_asset_cage(s)[1])
+    elif motion.asset.get("digest") != _file_digest(Path(s.mesh)):
+        raise InputError(
+            f"{motion.path}: made from another content of {s.mesh} (changed since); give --overwrite to "
+            "start it anew, or another --out"
+        )
+
+
+def _file_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
 def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, device: str) -> dict:
     """Render the motion ``out`` to ``frames_dir`` and ``video``: the asset, or a mesh's surface (pyvista);
     each frame already there is kept only if it records this motion frame and camera."""
@@ -384,25 +401,30 @@ def _sim_settings(s: SimulateSettings, world, rest_sim: np.ndarray, up: np.ndarr
     )
 
 
+def _asset_cage(s: SimulateSettings):
+    """(asset, cage): the asset's stored cage when it fits ``tets``/``margin``, else one built and cached."""
+    from neural.asset import load_asset
+    from shellsim import cage as cages
+
+    config = {k: v for k, v in (("target_tets", s.tets), ("margin", s.margin)) if v is not None}
+    asset = load_asset(s.asset)
+    return asset, cages.load_or_build_cage(asset, cages.CageConfig(**config) if config else None)
+
+
 def _load_cage(s: SimulateSettings):
-    """(vertices, tets, up, surface, asset) of the rest cage, world frame: an asset's stored cage when it
-    fits ``tets``/``margin`` (surface None), or a mesh tetrahedralised undilated and its surface embedded;
-    ``asset`` is the motion's record of what it moves (name and content digest)."""
-    from neural.asset import load_asset, load_mesh
+    """(vertices, tets, up, surface, asset) of the rest cage, world frame: an asset's cage
+    (:func:`_asset_cage`, surface None), or a mesh tetrahedralised undilated and its surface embedded;
+    ``asset`` is the motion's record of what it moves (name or path, and content digest)."""
+    from neural.asset import load_mesh
     from shellsim import cage as cages
 
     if s.asset:
-        config = {k: v for k, v in (("target_tets", s.tets), ("margin", s.margin)) if v is not None}
-        asset = load_asset(s.asset)
-        cage = cages.load_or_build_cage(asset, cages.CageConfig(**config) if config else None)
+        asset, cage = _asset_cage(s)
         return cage.vertices, cage.tets, asset.up, None, {"name": asset.name, "digest": asset.digest()}
     mesh = load_mesh(Path(s.mesh))
     config = cages.CageConfig(margin=0.0, **({"target_tets": s.tets} if s.tets else {}))
     cage = cages.build_cage(mesh, mesh, config, what=str(s.mesh))
-    record = {
-        "mesh": str(Path(s.mesh).resolve()),
-        "digest": hashlib.sha256(Path(s.mesh).read_bytes()).hexdigest(),
-    }
+    record = {"mesh": str(Path(s.mesh).resolve()), "digest": _file_digest(Path(s.mesh))}
     return cage.vertices, cage.tets, np.array([0.0, 0.0, 1.0]), _mesh_surface(mesh, cage), record
 
 

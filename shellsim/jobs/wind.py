@@ -136,7 +136,8 @@ def wind(settings: WindJobSettings, progress: bool = True) -> WindResult:
         writer = MotionWriter.resume(out)  # not a motion file: refused as it is, never replaced
         if writer.motion.producer != "shellsim wind":
             raise InputError(f"{out}: not a 'shellsim wind' motion file; {replace}")
-        changes = motion_changes(writer.motion, wind_settings(wind_, s.fps), cage.vertices, cage.tets)
+        writer.motion.check_against(cage)
+        changes = motion_changes(writer.motion, wind_settings(wind_, s.fps))
         if changes:
             raise InputError(f"{out}: made with other settings ({'; '.join(changes)}); {replace}")
         log.info("continuing %s after frame %d", out, writer.n_frames - 1)

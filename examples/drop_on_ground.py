@@ -21,7 +21,8 @@ from neural.errors import ShellsimError
 from shellsim.jobs.simulate import SimulateSettings, simulate
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> dict:
+    """Run the example; returns the render's summary."""
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

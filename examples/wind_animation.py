@@ -22,7 +22,8 @@ from shellsim.jobs.wind import WindJobSettings, wind
 from shellsim.render import render_motion
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> dict:
+    """Run the example; returns the render's summary."""
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -64,6 +65,7 @@ def main(argv: list[str] | None = None) -> None:
     except ShellsimError as err:
         raise SystemExit(f"wind_animation: error: {err}") from None
     print(f"{result.frames} frames in {out}: {summary['rendered']} rendered, video {summary['video']}")
+    return summary
 
 
 if __name__ == "__main__":

@@ -544,7 +544,15 @@ def asset_cages(asset, digest: str) -> list[Path]:
 def cage_for_motion(asset, motion, source: str | None = None) -> Cage:
     """The asset's cage (its own or a cached one) that ``motion`` (:class:`shellsim.motion.Motion`) moves,
     found by :func:`shellsim.motion.cage_digest`; an :class:`InputError` (``source: ...``, default the
-    motion's file) saying how they differ when there is none."""
+    motion's file) saying how they differ when there is none. A motion recording another digest of the
+    asset (:meth:`neural.asset.Asset.digest`: a retrained field) is logged, and rendered all the same."""
+    made_for = motion.asset.get("digest")
+    if made_for and "name" in motion.asset and made_for != asset.digest():
+        logger.warning(
+            "%s was made for another version of the asset %r (its field or shells changed since)",
+            source or motion.path or "the motion",
+            motion.asset["name"],
+        )
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     digest = shell_digest(outer, inner)
     first = None  # the first readable cage, the one a mismatch is reported against

@@ -203,3 +203,48 @@ def test_a_killed_writer_leaves_its_frames_readable(tmp_path):
     k = np.arange(motion.n_frames)
     np.testing.assert_array_equal(motion.times, k / 30.0)
     np.testing.assert_allclose(motion.positions[:, 0, 0] - motion.rest_vertices[0, 0], k, atol=1e-3)
+
+
+def _records(data: bytes) -> list[bytes]:
+    """The records of a format-2 file, split by hand: tag, uint64 little-endian length, npz."""
+    assert data.startswith(MAGIC)
+    out, pos = [], len(MAGIC)
+    while pos < len(data):
+        assert data[pos : pos + 4] == b"SSMR"
+        n = int.from_bytes(data[pos + 4 : pos + 12], "little")
+        out.append(data[pos + 12 : pos + 12 + n])
+        pos += 12 + n
+    return out
+
+
+def _frame(npz: bytes) -> bytes:
+    return b"SSMR" + len(npz).to_bytes(8, "little") + npz
+
+
+def test_a_damaged_middle_chunk_or_a_pickled_array_is_one_line(tmp_path):
+    import io
+
+    from test_npz_files import Unpickled
+
+    path = tmp_path / "m.npz"
+    _write(path, 3)
+    header, *chunks = _records(path.read_bytes())
+    assert len(chunks) == 3
+    bad = bytearray(chunks[1])
+    bad[100] ^= 0xFF  # inside the positions: its CRC no longer matches
+    path.write_bytes(MAGIC + _frame(header) + _frame(chunks[0]) + _frame(bytes(bad)) + _frame(chunks[2]))
+    with pytest.raises(InputError, match=r"m.npz: not a shellsim motion file \(damaged archive: Bad CRC-32"):
+        load_motion(path)
+
+    marker = tmp_path / "unpickled"
+    obj = Unpickled()
+    obj.marker = marker
+    buffer = io.BytesIO()
+    rest, _ = _cage()
+    np.savez(buffer, positions=rest[None], times=np.zeros(1), meta=np.array([obj], dtype=object))
+    path.write_bytes(
+        MAGIC + _frame(header) + _frame(chunks[0]) + _frame(buffer.getvalue()) + _frame(chunks[2])
+    )
+    with pytest.raises(InputError, match=r"not a shellsim motion file \('meta' holds Python objects"):
+        load_motion(path)
+    assert not marker.exists()

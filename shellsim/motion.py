@@ -15,9 +15,10 @@ records, each ``b"SSMR"``, its length (8 bytes, little-endian) and an ``.npz`` a
   state after the chunk's last frame as arrays ``state/NAME`` (the simulator's velocities).
 
 :class:`MotionWriter` appends a chunk at most every ``flush_seconds`` (the first one creates the file
-atomically: temporary file + rename), so writing N frames costs O(N) and a killed run keeps the frames of
-every complete chunk: an incomplete last record (a write cut short) is dropped on reading, and a writer
-continuing the file (:meth:`MotionWriter.resume`) cuts it off first.
+atomically: temporary file + rename) and merges them into one when it is closed, so writing N frames costs
+O(N) and a killed run keeps the frames of every complete chunk: an incomplete last record (a write cut
+short) is dropped on reading, and a writer continuing the file (:meth:`MotionWriter.resume`) cuts it off
+first.
 
 **Format 1** (a single ``.npz`` of ``rest_vertices``, ``tets``, ``positions``, ``times``, ``meta`` and the
 optional surface arrays) is still read, for rendering and viewing; it cannot be continued.
@@ -202,10 +203,10 @@ class MotionWriter:
     ``append`` adds one frame (V, 3) and the producer's state after it; the frames gathered are appended as
     one chunk when ``flush_seconds`` have passed since the last write, and always by ``flush`` and ``close``
     (also on an exception inside a ``with`` block). The first chunk creates the file (atomically, replacing
-    any file there); each later one costs its own size. ``producer``, ``settings`` and ``asset`` go to the
-    header (module docstring); ``meta`` (``writer.motion.meta``, kept up to date by the producer) goes with
-    every chunk. ``MotionWriter.resume(path)`` continues a format-2 file after its last complete chunk.
-    ``surface``: the optional :class:`Surface` the cage carries.
+    any file there); each later one costs its own size; ``close`` rewrites the chunks as one. ``producer``,
+    ``settings`` and ``asset`` go to the header (module docstring); ``meta`` (``writer.motion.meta``, kept
+    up to date by the producer) goes with every chunk. ``MotionWriter.resume(path)`` continues a format-2
+    file after its last complete chunk. ``surface``: the optional :class:`Surface` the cage carries.
 
     ``writer.motion`` holds the header, meta and state; its ``positions`` are not kept (see
     :attr:`last_positions`).
@@ -242,6 +243,7 @@ class MotionWriter:
         self._times: list[float] = []
         self._written = 0  # frames on disk
         self._size = 0  # bytes of complete records on disk; 0: the file is not created yet
+        self._chunks = 0  # chunks on disk
         self._last: tuple[np.ndarray, float] | None = None
         self.flush_seconds = flush_seconds
         self._last_flush = time.monotonic()
@@ -268,7 +270,7 @@ class MotionWriter:
             asset=motion.asset,
         )
         writer.motion.state = motion.state
-        writer._written, writer._size = motion.n_frames, size
+        writer._written, writer._size, writer._chunks = motion.n_frames, size, 1
         writer._last = (motion.positions[-1], float(motion.times[-1]))
         return writer
 
@@ -312,13 +314,21 @@ class MotionWriter:
                 f.write(chunk)
             data = chunk
         self._size += len(data)
+        self._chunks += 1
         self._written += len(self._frames)
         self._last = (self._frames[-1], self._times[-1])
         self._frames, self._times = [], []
         self._last_flush = time.monotonic()
 
     def close(self) -> None:
+        """Flush, then rewrite a file of several chunks as one (atomically), so that reading it is fast."""
         self.flush()
+        if self._chunks > 1:
+            motion, _ = _load(self.path)
+            data = MAGIC + _header_record(motion)
+            data += _chunk_record(motion.positions, motion.times, motion.meta, motion.state)
+            _replace(self.path, data)
+            self._size, self._chunks = len(data), 1
 
     def __enter__(self) -> MotionWriter:
         return self

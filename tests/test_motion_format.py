@@ -26,26 +26,29 @@ def _frames(rest, n, seed=0):
     return (rest + rng.normal(scale=0.1, size=(n, *rest.shape))).astype(np.float32)
 
 
-def _write(path, n, **kwargs):
-    """A motion of ``n`` frames written one chunk per frame, with a state after each."""
+def _write(path, n, close=True, **kwargs):
+    """A motion of ``n`` frames written one chunk per frame, with a state after each; closed (its chunks
+    merged into one) or left as a killed writer leaves it."""
     rest, tets = _cage()
     frames = _frames(rest, n)
     writer = MotionWriter(path, rest, tets, {"fps": 10.0}, flush_seconds=0.0, **kwargs)
-    with writer:
-        for k, frame in enumerate(frames):
-            writer.motion.meta["stats"] = {"frames": k + 1}
-            writer.append(frame, k / 10.0, {"velocities": np.full(rest.shape, float(k)), "step": np.int64(k)})
+    for k, frame in enumerate(frames):
+        writer.motion.meta["stats"] = {"frames": k + 1}
+        writer.append(frame, k / 10.0, {"velocities": np.full(rest.shape, float(k)), "step": np.int64(k)})
+    if close:
+        writer.close()
     return rest, tets, frames
 
 
-def test_round_trip_of_frames_header_meta_and_state(tmp_path):
+@pytest.mark.parametrize("close", [True, False])
+def test_round_trip_of_frames_header_meta_and_state(tmp_path, close):
     path = tmp_path / "m.npz"
     surface = Surface(np.array([0, 1]), np.full((2, 4), 0.25), np.array([[0, 1, 0]]))
     asset = {"name": "rod", "digest": "ab" * 32}
     rest, tets, frames = _write(
-        path, 7, surface=surface, producer="test", settings={"fps": 10.0, "pin": ["z<1"]}, asset=asset
+        path, 7, close, surface=surface, producer="test", settings={"fps": 10.0, "pin": ["z<1"]}, asset=asset
     )
-    assert path.read_bytes().startswith(MAGIC)
+    assert len(_records(path.read_bytes())) == (2 if close else 8)  # the header and the chunks
     m = load_motion(path)
     np.testing.assert_array_equal(m.positions, frames)  # exactly: float32 in, float32 out
     np.testing.assert_array_equal(m.times, np.arange(7) / 10.0)
@@ -140,7 +143,7 @@ def test_format_1_is_read_but_never_continued(tmp_path, capsys):
 
 def test_a_cut_short_last_record_is_dropped_and_resume_writes_after_the_good_ones(tmp_path, caplog):
     path = tmp_path / "m.npz"
-    rest, tets, frames = _write(path, 5)
+    rest, tets, frames = _write(path, 5, close=False)
     whole = path.read_bytes()
     path.write_bytes(whole[:-40])  # the last chunk's write was cut short
     with caplog.at_level("WARNING"):
@@ -149,12 +152,15 @@ def test_a_cut_short_last_record_is_dropped_and_resume_writes_after_the_good_one
     assert motion.n_frames == 4
     np.testing.assert_array_equal(motion.positions, frames[:4])
     np.testing.assert_array_equal(motion.state["velocities"], np.full(rest.shape, 3.0))  # of frame 3
-    with MotionWriter.resume(path, flush_seconds=0.0) as writer:
-        assert writer.n_frames == 4 and writer.last_time == pytest.approx(0.3)
-        writer.append(frames[4], 0.4)
+    writer = MotionWriter.resume(path, flush_seconds=0.0)
+    assert writer.n_frames == 4 and writer.last_time == pytest.approx(0.3)
+    writer.append(frames[4], 0.4, {"velocities": np.full(rest.shape, 4.0), "step": np.int64(4)})
+    data = path.read_bytes()  # the torn bytes were cut off, not kept before the new chunk:
+    assert len(data) == len(whole) and len(_records(data)) == 6  # the header and 5 whole chunks
+    writer.close()
     again = load_motion(path)
     np.testing.assert_array_equal(again.positions, frames)
-    assert len(path.read_bytes()) == len(whole)  # the torn bytes were cut off, not kept before the new chunk
+    assert len(_records(path.read_bytes())) == 2  # merged on closing
 
 
 def test_chunks_are_appended_never_rewritten(tmp_path):
@@ -227,7 +233,7 @@ def test_a_damaged_middle_chunk_or_a_pickled_array_is_one_line(tmp_path):
     from test_npz_files import Unpickled
 
     path = tmp_path / "m.npz"
-    _write(path, 3)
+    _write(path, 3, close=False)
     header, *chunks = _records(path.read_bytes())
     assert len(chunks) == 3
     bad = bytearray(chunks[1])

@@ -58,3 +58,13 @@ def parse_selection(text) -> Selection:
     if not math.isfinite(value):
         raise InputError(f"{text!r}: {GRAMMAR}")
     return Selection("xyz".index(match.group(1).lower()), match.group(2), value, bool(match.group(4)))
+
+
+def selection_text(text: str) -> str:
+    """``text`` if it is a selection :func:`parse_selection` accepts, else a ``ValueError`` saying what is
+    expected (the ``parse`` of a settings option, :mod:`shellsim.options`)."""
+    try:
+        parse_selection(text)
+    except InputError:
+        raise ValueError(GRAMMAR) from None
+    return text

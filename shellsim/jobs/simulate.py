@@ -24,7 +24,7 @@ import numpy as np
 from neural.errors import InputError
 from shellsim.motion import MAX_FPS, MAX_FRAMES
 from shellsim.options import SettingError, check_range, floats, option
-from shellsim.selection import GRAMMAR, parse_selection
+from shellsim.selection import parse_selection, selection_text
 
 log = logging.getLogger(__name__)
 
@@ -35,15 +35,6 @@ ASSET_SIZE = 0.3
 MAX_SUBSTEPS = 1000  # per frame; a retried frame runs up to 4 times as many
 #: The settings that do not change the motion (not compared when a file is continued).
 NOT_MOTION = ("frames", "out", "resume", "overwrite", "video", "video_size", "device")
-
-
-def selection_text(text: str) -> str:
-    """A vertex selection ``AXIS OP VALUE[%]`` (:mod:`shellsim.selection`), checked, as typed."""
-    try:
-        parse_selection(text)
-    except InputError:
-        raise ValueError(GRAMMAR) from None
-    return text
 
 
 def image_size(text: str) -> tuple[int, int]:
@@ -328,9 +319,8 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     else:
         restore_state(sim, writer, world)
 
-    remaining = max(
-        s.frames - max(writer.n_frames, 1), 0
-    )  # a new file starts with frame 0, the initial state
+    # a new file starts with frame 0, the initial state
+    remaining = max(s.frames - max(writer.n_frames, 1), 0)
     log.info(
         "%s: %d cage vertices, %d tets, %s (E=%.3g Pa, nu=%.3g, rho=%.4g kg/m^3), %d frames to go on %s",
         s.name,

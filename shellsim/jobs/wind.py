@@ -15,19 +15,10 @@ from pathlib import Path
 from neural.errors import InputError
 from shellsim.motion import MAX_FPS, MAX_FRAMES
 from shellsim.options import SettingError, check_range, floats, option
-from shellsim.selection import GRAMMAR, parse_selection
+from shellsim.selection import selection_text
 from shellsim.wind import RANGES, WindSettings, max_frequency
 
 log = logging.getLogger(__name__)
-
-
-def _selection(text: str) -> str:
-    """A vertex selection ``AXIS OP VALUE[%]`` (:mod:`shellsim.selection`), checked, as typed."""
-    try:
-        parse_selection(text)
-    except InputError:
-        raise ValueError(GRAMMAR) from None
-    return text
 
 
 _W = WindSettings
@@ -57,7 +48,7 @@ class WindJobSettings:
     anchor: str | None = option(
         help="fixed vertices as AXIS OP VALUE in world units or in % of the cage's extent, as for "
         "'simulate --pin': 'z<0.05', 'z<5%', 'y>0.9'",
-        parse=_selection,
+        parse=selection_text,
         shown_default=f"the lowest {100 * _W.base_fraction:g}% of the cage along the asset's up axis",
     )
     seed: int | None = option(help="turbulence seed", shown_default=str(_W.seed))

@@ -231,9 +231,11 @@ def test_mesh_simulation_video_shows_the_mesh_moving(tmp_path, closed_mesh):
     assert video.is_file()
 
 
-def test_a_motion_is_continued_only_with_the_cage_and_mesh_it_was_made_from(tmp_path, closed_mesh, capsys):
-    """The motion records its cage and mesh by content digest: a rebuilt cage (wind) or an edited mesh
-    (simulate --mesh) refuses to continue it, in one line."""
+def test_a_motion_is_continued_only_with_the_cage_and_mesh_it_was_made_from(
+    tmp_path, closed_mesh, capsys, caplog
+):
+    """The motion records its asset, cage and mesh by content digest: another field is logged, a rebuilt
+    cage (wind) or an edited mesh (simulate --mesh) refuses to continue it, in one line."""
     from meshes import save_embedded_cage
     from test_wind import _write_asset, column
 
@@ -245,6 +247,13 @@ def test_a_motion_is_continued_only_with_the_cage_and_mesh_it_was_made_from(tmp_
     out = tmp_path / "wind.npz"
     args = ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
     assert main([*args, "--frames", "3"]) == 0
+    from shellsim.cage import cage_for_motion
+
+    (asset.root / "field.safetensors").write_bytes(b"retrained")  # same shells and cage, another field
+    with caplog.at_level("WARNING"):
+        cage = cage_for_motion(asset, load_motion(out))
+    np.testing.assert_array_equal(cage.vertices, verts - [0.2, 0.2, 0.05])
+    assert f"{out} was made for another version of the asset 'rod'" in caplog.text
     save_embedded_cage(asset, verts - [0.2, 0.2, 0.06], tets)  # the cage rebuilt: 1 cm lower
     err = _fail([*args, "--frames", "5"], capsys)
     assert err.startswith(f"shellsim: error: {out}: the motion's rest cage differs from the asset's cage")

@@ -103,9 +103,8 @@ def add_options(parser: argparse.ArgumentParser, cls, skip: typing.Collection[st
                 )
             target = groups[meta["group"]]
         help_text = meta["help"]
-        shown = meta["shown_default"] or (
-            None if field.default in (None, False, True, ()) else _show(field.default)
-        )
+        hidden = field.default is None or isinstance(field.default, bool) or field.default == ()
+        shown = meta["shown_default"] or (None if hidden else _show(field.default))
         if shown:
             help_text += f" (default {shown})"
         kwargs: dict = {"dest": field.name, "help": help_text.replace("%", "%%")}

@@ -22,6 +22,7 @@ class Toy:
     pin: tuple[str, ...] = option(help="a rule", repeat=True, metavar="RULE")
     ground: bool = option(True, help="no ground plane", flag="--no-ground", negate=True)
     mode: str = option("fast", help="how", choices=("fast", "slow"))
+    wait: float = option(0.0, help="how long it waits")
     internal: int = 7
 
     def __post_init__(self):
@@ -58,6 +59,7 @@ def test_help_shows_each_default_once_and_the_group_is_exclusive_and_required():
     text = " ".join(parser.format_help().split())
     assert "number of frames (default 90)" in text
     assert "frames per second (default 30)" in text
+    assert "how long it waits (default 0)" in text  # a zero default is shown (0 == False in Python)
     assert "(default the asset's)" in text and "(default 0,0,0)" in text
     assert "internal" not in text
     with pytest.raises(SystemExit):

@@ -63,6 +63,25 @@ MAX_FRAMES = 10_000  # frames of one motion (about 1 GB of positions for a 10,00
 MAX_FPS = 1000.0
 
 
+def resume_option():
+    """The ``resume`` field of a producer's settings (:mod:`shellsim.options`): continue OUT."""
+    from .options import option
+
+    return option(
+        False,
+        help="continue OUT after its last frame (what happens anyway when OUT exists and was made with the "
+        "same settings; other settings are refused)",
+        group="again",
+    )
+
+
+def overwrite_option():
+    """The ``overwrite`` field of a producer's settings (:mod:`shellsim.options`): start OUT anew."""
+    from .options import option
+
+    return option(False, help="start OUT anew even if it was made with other settings", group="again")
+
+
 def cage_digest(vertices: np.ndarray, tets: np.ndarray) -> str:
     """sha256 (hex) of a rest cage: its vertices (V, 3) as float64 and tets (T, 4) as int64, with shapes."""
     h = hashlib.sha256()

@@ -179,7 +179,9 @@ def test_an_existing_motion_is_continued_or_refused_never_replaced_silently(tmp_
     assert fresh.n_frames == 2 and fresh.settings["fps"] == 24
 
 
-def test_wind_run_again_continues_or_refuses(tmp_path, capsys):
+@pytest.fixture
+def rod(tmp_path):
+    """A rod asset whose cage is a column of Kuhn tets (no fTetWild run): (asset, cage vertices, tets)."""
     from meshes import save_embedded_cage
     from test_wind import _write_asset, column
 
@@ -188,8 +190,17 @@ def test_wind_run_again_continues_or_refuses(tmp_path, capsys):
     asset = load_asset(_write_asset(tmp_path / "rod"))
     verts, tets = column(n_xy=2, n_z=6, width=0.4, height=1.1)
     save_embedded_cage(asset, verts - [0.2, 0.2, 0.05], tets)
+    return asset, verts, tets
+
+
+def _wind_args(asset, out):
+    return ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
+
+
+def test_wind_run_again_continues_or_refuses(tmp_path, capsys, rod):
+    asset = rod[0]
     out = tmp_path / "wind.npz"
-    args = ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
+    args = _wind_args(asset, out)
     assert main([*args, "--frames", "3"]) == 0
     assert main([*args, "--frames", "5"]) == 0
     assert load_motion(out).n_frames == 5
@@ -232,20 +243,15 @@ def test_mesh_simulation_video_shows_the_mesh_moving(tmp_path, closed_mesh):
 
 
 def test_a_motion_is_continued_only_with_the_cage_and_mesh_it_was_made_from(
-    tmp_path, closed_mesh, capsys, caplog
+    tmp_path, closed_mesh, capsys, caplog, rod
 ):
     """The motion records its asset, cage and mesh by content digest: another field is logged, a rebuilt
     cage (wind) or an edited mesh (simulate --mesh) refuses to continue it, in one line."""
     from meshes import save_embedded_cage
-    from test_wind import _write_asset, column
 
-    from neural.asset import load_asset
-
-    asset = load_asset(_write_asset(tmp_path / "rod"))
-    verts, tets = column(n_xy=2, n_z=6, width=0.4, height=1.1)
-    save_embedded_cage(asset, verts - [0.2, 0.2, 0.05], tets)
+    asset, verts, tets = rod
     out = tmp_path / "wind.npz"
-    args = ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
+    args = _wind_args(asset, out)
     assert main([*args, "--frames", "3"]) == 0
     from shellsim.cage import cage_for_motion
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.motion import MAX_FPS, MAX_FRAMES
+from shellsim.motion import MAX_FPS, MAX_FRAMES, overwrite_option, resume_option
 from shellsim.options import SettingError, check_range, floats, option
 from shellsim.selection import parse_selection, selection_text
 
@@ -120,15 +120,8 @@ class SimulateSettings:
     damping: float = option(0.0, help="Kelvin-Voigt damping in seconds")
     tets: int | None = option(help="target cage tet count when the cage is built")
     out: str | None = option(help="motion file", shown_default="NAME_sim.npz")
-    resume: bool = option(
-        False,
-        help="continue OUT after its last frame (what happens anyway when OUT exists and was made with the "
-        "same settings; other settings are refused)",
-        group="again",
-    )
-    overwrite: bool = option(
-        False, help="start OUT anew even if it was made with other settings", group="again"
-    )
+    resume: bool = resume_option()
+    overwrite: bool = overwrite_option()
     video: str | None = option(
         help="then render the motion (orbiting camera) to this MP4 and its frames to VIDEO_frames/ (with "
         "--mesh: the mesh's surface, drawn with pyvista); frames already there are kept only when they show "

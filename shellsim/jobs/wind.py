@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neural.errors import InputError
-from shellsim.motion import MAX_FPS, MAX_FRAMES
+from shellsim.motion import MAX_FPS, MAX_FRAMES, overwrite_option, resume_option
 from shellsim.options import SettingError, check_range, floats, option
 from shellsim.selection import selection_text
 from shellsim.wind import RANGES, WindSettings, max_frequency
@@ -57,15 +57,8 @@ class WindJobSettings:
         shown_default="the stored cage's, else 0.02",
     )
     out: str | None = option(help="motion file to write", shown_default="ASSETNAME_wind.npz")
-    resume: bool = option(
-        False,
-        help="continue OUT after its last frame (what happens anyway when OUT exists and was made with the "
-        "same settings; other settings are refused)",
-        group="again",
-    )
-    overwrite: bool = option(
-        False, help="start OUT anew even if it was made with other settings", group="again"
-    )
+    resume: bool = resume_option()
+    overwrite: bool = overwrite_option()
 
     def __post_init__(self):
         check_range("frames", self.frames, 1, MAX_FRAMES, "an integer")

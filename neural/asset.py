@@ -18,6 +18,7 @@ Shells, cage and cameras all live in the dataset's world frame.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shlex
@@ -125,6 +126,16 @@ class Asset:
     @property
     def cage_path(self) -> Path:
         return self.root / CAGE_FILE
+
+    def digest(self) -> str:
+        """sha256 (hex) of the asset's content: the normalisation and field settings of ``asset.json``, the
+        field weights and both shells (what a motion records of the asset it was made for)."""
+        h = hashlib.sha256(json.dumps([self.meta.get(k) for k in ("normalisation", "field")]).encode())
+        for key in ("field", "shell_outer", "shell_inner"):
+            with open(self.file(key), "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    h.update(block)
+        return h.hexdigest()
 
     def outer_mesh(self):
         """M+ as a ``trimesh.Trimesh`` in world coordinates."""

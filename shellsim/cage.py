@@ -48,6 +48,7 @@ from neural.errors import InputError
 
 from .embed import BARY_TOL, check_embedding, embed_points, interpolate, outside_distance
 from .geometry import check_tets, connected_parts, tet_quality, tet_volumes
+from .motion import cage_digest
 from .npz import load_npz, save_npz
 from .outputs import check_writable_file
 from .tetwild import tetrahedralize
@@ -135,6 +136,11 @@ class Cage:
     shell_digest: str
     config: CageConfig = field(default_factory=CageConfig)
     path: str = ""
+
+    @property
+    def digest(self) -> str:
+        """:func:`shellsim.motion.cage_digest` of the rest cage: the identity a motion records."""
+        return cage_digest(self.vertices, self.tets)
 
 
 def check_tet_mesh(vertices: np.ndarray, tets: np.ndarray, what: str, apart: str = APART_DILATED) -> None:
@@ -498,15 +504,24 @@ def asset_cages(asset, digest: str) -> list[Path]:
     return [asset.cage_path, *sorted((cache_dir() / "cages").glob(f"{digest[:16]}-*.npz"))]
 
 
-def cage_for_motion(asset, motion, source: str) -> Cage:
-    """The asset's cage (its own or a cached one) that ``motion`` (:class:`shellsim.motion.Motion`, read from
-    ``source``) moves; an :class:`InputError` saying how they differ when there is none."""
+def cage_for_motion(asset, motion, source: str | None = None) -> Cage:
+    """The asset's cage (its own or a cached one) that ``motion`` (:class:`shellsim.motion.Motion`) moves,
+    found by :func:`shellsim.motion.cage_digest`; an :class:`InputError` (``source: ...``, default the
+    motion's file) saying how they differ when there is none. A motion recording another digest of the
+    asset (:meth:`neural.asset.Asset.digest`: a retrained field) is logged, and rendered all the same."""
+    made_for = motion.asset.get("digest")
+    if made_for and "name" in motion.asset and made_for != asset.digest():
+        logger.warning(
+            "%s was made for another version of the asset %r (its field or shells changed since)",
+            source or motion.path or "the motion",
+            motion.asset["name"],
+        )
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     digest = shell_digest(outer, inner)
     first = None  # the first readable cage, the one a mismatch is reported against
     for path in asset_cages(asset, digest):
         cage = _read(path, (outer, inner), digest)
-        if cage is not None and same_cage(cage.vertices, cage.tets, motion.rest_vertices, motion.tets):
+        if cage is not None and cage.digest == motion.cage_digest:
             return cage
         first = first or cage
     if first is None:
@@ -514,34 +529,5 @@ def cage_for_motion(asset, motion, source: str) -> Cage:
             first = load_or_build_cage(asset)
         except (ImportError, RuntimeError, ValueError, OSError) as err:  # fTetWild and friends
             raise InputError(f"{asset.cage_path}: no usable cage and building one failed ({err})") from None
-        if same_cage(first.vertices, first.tets, motion.rest_vertices, motion.tets):
-            return first
-    check_motion(motion, first, source)  # raises, saying how the motion's cage differs
-    raise AssertionError("unreachable: no cage matched, so the check raised")
-
-
-def check_motion(motion, cage: Cage, source: str = "motion") -> None:
-    """:class:`InputError` (``source: problem``) unless ``motion`` moves ``cage``: the same vertex count, the
-    same tets and the same rest positions."""
-    n_motion, n_cage = motion.positions.shape[1], len(cage.vertices)
-    if n_motion != n_cage:
-        raise InputError(
-            f"{source}: the motion moves {n_motion} cage vertices but the asset's cage has {n_cage}; it was "
-            "made for another cage"
-        )
-    if not same_cage(cage.vertices, cage.tets, motion.rest_vertices, motion.tets):
-        raise InputError(
-            f"{source}: the motion's rest cage differs from the asset's cage (rebuilt since?); "
-            "make the motion again"
-        )
-
-
-def same_cage(
-    vertices: np.ndarray, tets: np.ndarray, other_vertices: np.ndarray, other_tets: np.ndarray
-) -> bool:
-    """Whether two rest cages are one: the same tets and vertices within 1e-6 of the cage's size."""
-    return (
-        np.shape(vertices) == np.shape(other_vertices)
-        and np.array_equal(tets, other_tets)
-        and np.allclose(vertices, other_vertices, rtol=0, atol=1e-6 * float(np.ptp(vertices, axis=0).max()))
-    )
+    motion.check_against(first, source)  # raises, saying how the motion's cage differs, unless it was built
+    return first

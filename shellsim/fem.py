@@ -43,7 +43,6 @@ decreasing and the tets uninverted. A frame whose state squeezes a tet below ``m
 
 from __future__ import annotations
 
-import base64
 import logging
 import math
 import time
@@ -637,45 +636,29 @@ class WorldMap:
         return np.asarray(x, np.float64) / self.scale + np.asarray(self.origin)
 
 
-def encode_velocities(v: np.ndarray) -> str:
-    """(V, 3) velocities -> base64 of little-endian float32, for the motion's ``meta['state']``."""
-    return base64.b64encode(np.asarray(v, "<f4").tobytes()).decode("ascii")
-
-
-def decode_velocities(text: str, n_vertices: int) -> np.ndarray:
-    """Inverse of :func:`encode_velocities`; a malformed string is an :class:`InputError`."""
-    try:
-        v = np.frombuffer(base64.b64decode(text, validate=True), dtype="<f4")
-    except (ValueError, TypeError) as err:
-        raise InputError(f"motion meta state: velocities are not valid base64 ({err})") from None
-    if v.size != 3 * n_vertices or not np.isfinite(v).all():
-        raise InputError(f"motion meta state: expected {n_vertices} finite velocities, got {v.size / 3:g}")
-    return v.reshape(n_vertices, 3).astype(np.float64)
-
-
 def restore_state(sim: Simulator, writer, world: WorldMap = WorldMap()) -> None:
     """Set ``sim`` to the last frame of ``writer``'s motion, written by :func:`simulate`: its positions, time
-    and the velocities of ``meta['state']``, so that :func:`simulate` continues the trajectory exactly.
-
-    A state missing or stored for another frame than the last is an :class:`InputError`."""
-    state = writer.motion.meta.get("state")
-    if not isinstance(state, dict):
-        raise InputError(f"{writer.path}: no simulation state in the motion's meta; cannot resume it")
-    if state.get("frame") != writer.n_frames - 1:
+    and the velocities of its state (``state["velocities"]`` (V, 3), world units per second), so that
+    :func:`simulate` continues the trajectory exactly. A missing or malformed state is an
+    :class:`InputError`."""
+    velocities = writer.motion.state.get("velocities")
+    shape = writer.motion.rest_vertices.shape
+    if velocities is None or velocities.shape != shape or not np.isfinite(velocities).all():
         raise InputError(
-            f"{writer.path}: the stored state is for frame {state.get('frame')}, "
-            f"not the last frame {writer.n_frames - 1}; cannot resume it"
+            f"{writer.path}: no simulation state ({shape[0]} finite velocities) after its last frame; cannot "
+            "resume it"
         )
-    velocities = decode_velocities(state["velocities"], len(writer.motion.rest_vertices)) * world.scale
+    velocities = np.asarray(velocities, np.float64) * world.scale
     sim.set_state(world.to_sim(writer.last_positions), velocities, writer.last_time)
 
 
 def simulate(sim: Simulator, frames: int, writer, world: WorldMap = WorldMap(), progress: bool = True):
     """Step ``sim`` ``frames`` times, appending each frame (world coordinates) to ``writer``.
 
-    An empty ``writer`` first gets the current state as frame 0. Before each append ``writer.motion.meta``
-    gets ``state`` (frame velocities in world units per second, :func:`encode_velocities`, so ``--resume``
-    can continue exactly) and ``stats``. A frame that :meth:`Simulator.step` finds invalid (e.g. a tet
+    An empty ``writer`` first gets the current state as frame 0. Each frame is appended with the state
+    ``velocities`` (V, 3) float64 in world units per second (so :func:`restore_state` continues exactly),
+    after ``writer.motion.meta["stats"]`` is updated.
+    A frame that :meth:`Simulator.step` finds invalid (e.g. a tet
     squeezed below ``min_volume_ratio``) is not written: the :class:`SimulationError` gets its index as
     ``frame``. The writer is flushed on every exit, so an error or an interrupt keeps every frame made
     before. Returns the list of :class:`StepStats`.
@@ -685,11 +668,6 @@ def simulate(sim: Simulator, frames: int, writer, world: WorldMap = WorldMap(), 
     meta = writer.motion.meta
 
     def record(stats: StepStats | None):
-        meta["state"] = {
-            "frame": writer.n_frames,
-            "time": sim.time,
-            "velocities": encode_velocities(sim.velocities / world.scale),
-        }
         if stats is not None:
             total = meta.setdefault(
                 "stats",
@@ -708,7 +686,8 @@ def simulate(sim: Simulator, frames: int, writer, world: WorldMap = WorldMap(), 
             total["cg_iterations"] += stats.cg_iterations
             total["retries"] += stats.retries
             total["seconds"] += stats.seconds
-        writer.append(world.to_world(sim.positions), sim.time)
+        velocities = np.asarray(sim.velocities, np.float64) / world.scale
+        writer.append(world.to_world(sim.positions), sim.time, {"velocities": velocities})
 
     history = []
     try:

@@ -36,7 +36,6 @@ import numpy as np
 
 from neural.errors import InputError, ShellsimError
 
-from .cage import check_motion
 from .embed import interpolate
 
 #: Point-data array of ``M+`` holding the colouring, per ``color`` option.
@@ -147,7 +146,7 @@ def build_scene(asset, cage, motion=None, color: str = "width", frame: int = 0, 
     if color not in SCALARS:
         raise ValueError(f"color: expected one of {sorted(SCALARS)}, got {color!r}")
     if motion is not None:
-        check_motion(motion, cage)
+        motion.check_against(cage)
     frame = _check_frame(motion, frame)
     pv = _pyvista()
     from .geometry import boundary_faces

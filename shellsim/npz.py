@@ -44,13 +44,22 @@ def load_npz(path: str | os.PathLike, keys, what: str, optional=()) -> dict[str,
         raise InputError(f"{path}: cannot read {what} file ({err.strerror})") from None
     if head not in _ZIP_MAGIC:
         raise refuse("not an .npz archive" if head else "the file is empty")
+    return read_npz(path, keys, optional, refuse)
+
+
+def read_npz(source, keys, optional, refuse, prefix: str | None = None) -> dict[str, np.ndarray]:
+    """The arrays ``keys`` (and those of ``optional``, and any named ``prefix...``, present) of the npz
+    archive ``source`` (a path or a binary file object), never unpickling; ``refuse(reason)`` makes the
+    error for a missing key, an array of Python objects or a damaged archive."""
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with np.load(source, allow_pickle=False) as data:
             members = set(data.zip.namelist())
             missing = [k for k in keys if f"{k}.npy" not in members]
             if missing:
                 raise refuse(f"missing the array{'s' * (len(missing) > 1)} {', '.join(missing)}")
             present = [k for k in optional if f"{k}.npy" in members]
+            if prefix is not None:
+                present += sorted(m[:-4] for m in members if m.startswith(prefix) and m.endswith(".npy"))
             for k in (*keys, *present):
                 if _header_dtype(data, k).hasobject:
                     raise refuse(f"{k!r} holds Python objects, which are never loaded")

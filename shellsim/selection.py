@@ -83,3 +83,13 @@ def select_vertices(rules: list[Selection], vertices: np.ndarray, name: str) -> 
             raise rule.refusal(name, vertices)
         chosen |= mask
     return chosen
+
+
+def selection_text(text: str) -> str:
+    """``text`` if it is a selection :func:`parse_selection` accepts, else a ``ValueError`` saying what is
+    expected (the ``parse`` of a settings option, :mod:`shellsim.options`)."""
+    try:
+        parse_selection(text)
+    except InputError:
+        raise ValueError(GRAMMAR) from None
+    return text

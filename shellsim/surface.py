@@ -91,8 +91,9 @@ class SurfaceRenderer:
 
 
 def _motion_up(motion) -> np.ndarray:
-    """The up axis a motion was simulated with (``meta["params"]["up"]``), else +z."""
-    up = motion.meta.get("params", {}).get("up", [0.0, 0.0, 1.0])
+    """The up axis a motion was simulated with (``meta["up"]``; format 1: ``meta["params"]["up"]``), else
+    +z."""
+    up = motion.meta.get("up") or motion.meta.get("params", {}).get("up", [0.0, 0.0, 1.0])
     return np.asarray(up, np.float64)
 
 

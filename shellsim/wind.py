@@ -39,6 +39,7 @@ import math
 import numbers
 import time
 from dataclasses import asdict, dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -287,47 +288,38 @@ def _turbulence(rest: np.ndarray, t: float, wind: np.ndarray, length: float, set
     return (np.sin(phase) / k).sum(-1) / (1.0 / k).sum()
 
 
-def wind_meta(settings: WindSettings, fps: float) -> dict:
-    """The motion file's ``meta`` for a wind animation: what made it and with which parameters."""
-    return {
-        "made_by": "shellsim.wind",
-        "model": "analytic cantilever wind",
-        "fps": float(fps),
-        "settings": json.loads(json.dumps(asdict(settings))),
-    }
+def wind_settings(settings: WindSettings, fps: float) -> dict:
+    """The motion's ``settings`` for a wind animation: the model, ``fps`` and the fields of ``settings``."""
+    fields = json.loads(json.dumps(asdict(settings)))
+    return {"model": "analytic cantilever wind", "fps": float(fps), **fields}
 
 
-def motion_changes(motion, wanted: dict, rest_vertices: np.ndarray, tets: np.ndarray) -> list[str]:
+def motion_changes(motion, wanted: dict) -> list[str]:
     """What keeps the wind motion ``motion`` (a :class:`shellsim.motion.Motion`) from being continued with
-    the ``wanted`` meta (keys of :func:`wind_meta`, and ``asset`` where given) on the cage ``rest_vertices``
-    (V, 3), ``tets`` (T, 4): ``"name: old -> new"`` lines (:func:`shellsim.motion.describe_changes`),
-    empty when nothing differs."""
+    the ``wanted`` settings (:func:`wind_settings`): ``"name: old -> new"`` lines
+    (:func:`shellsim.motion.describe_changes`), empty when nothing differs."""
     from .motion import describe_changes
 
-    changes = describe_changes({k: motion.meta.get(k) for k in wanted}, wanted, _SETTING_NAMES)
-    rest = motion.rest_vertices
-    same_cage = rest.shape == rest_vertices.shape and np.array_equal(motion.tets, tets)
-    if not (same_cage and np.allclose(rest, rest_vertices)):
-        changes.append(f"the cage: the file's has {len(motion.tets)} tets, this one {len(tets)}")
-    return changes
+    return describe_changes(motion.settings, wanted, _SETTING_NAMES)
 
 
-#: Names of the wind meta keys whose option is not ``--key-with-dashes``.
-_SETTING_NAMES = {"settings.up": "the asset's up axis", "settings.base_fraction": "base fraction"}
+#: Names of the wind settings whose option is not ``--key-with-dashes``.
+_SETTING_NAMES = {"up": "the asset's up axis", "base_fraction": "base fraction"}
 
 
 def animate_wind(
     rest_vertices, tets, settings: WindSettings, frames: int, fps: float, writer, progress: bool = True
 ) -> None:
     """Append wind frames ``writer.n_frames .. frames - 1`` (times ``i / fps``) to a
-    :class:`shellsim.motion.MotionWriter` made with :func:`wind_meta` (fresh or resumed).
+    :class:`shellsim.motion.MotionWriter`, fresh (its ``settings`` become :func:`wind_settings`) or resumed
+    from a motion made with the same settings and cage.
 
     rest_vertices : (V, 3) float; tets : (T, 4) int, positively oriented. Every frame is
     :func:`limited_wind_displacement`: no tet's volume ratio goes below ``MIN_VOLUME_RATIO``. Records in
     ``meta["stats"]`` the smallest volume ratio, the frames whose bending was scaled down
     (``limited_frames``) and the smallest scale (``min_bend_scale``), and the wall time. A ``frequency``
-    above :func:`max_frequency` of ``fps``, or resuming a file made with other settings or another cage, is
-    an :class:`InputError`.
+    above :func:`max_frequency` of ``fps``, or resuming a file made with other settings or for another cage
+    (:meth:`shellsim.motion.Motion.check_against`), is an :class:`InputError`.
     """
     from tqdm import tqdm
 
@@ -341,14 +333,15 @@ def animate_wind(
             f"{max_frequency(fps):g} Hz (the fastest turbulence mode, {_MODES} x the frequency, must stay "
             "below half the frame rate)"
         )
+    wanted = wind_settings(settings, fps)
+    if writer.n_frames:
+        writer.motion.check_against(SimpleNamespace(vertices=rest, tets=tets), str(writer.path))
+        changes = motion_changes(writer.motion, wanted)
+        if changes:
+            raise InputError(f"{writer.path}: was made with other wind settings ({'; '.join(changes)})")
+    writer.motion.settings = wanted
     meta = writer.motion.meta
-    wanted = wind_meta(settings, fps)
-    changes = motion_changes(writer.motion, wanted if writer.n_frames else {}, rest, tets)
-    if changes:
-        raise InputError(
-            f"{writer.path}: was made with other wind settings or another cage ({'; '.join(changes)})"
-        )
-    meta.update(wanted)
+    meta["fps"] = float(fps)
     stats = meta.setdefault("stats", {})
     start, wall = time.perf_counter(), float(stats.get("wall_seconds", 0.0))
     limited = 0

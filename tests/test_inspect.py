@@ -15,7 +15,6 @@ from shellsim.embed import interpolate  # noqa: E402
 from shellsim.inspect import (  # noqa: E402
     SCALARS,
     build_scene,
-    check_motion,
     make_plotter,
     screenshot,
     shell_width,
@@ -109,10 +108,10 @@ def test_bad_scene_arguments(ball):
         build_scene(asset, cage, frame=1)
     short = Motion(cage.vertices[:-1], cage.tets[:1], motion.positions[:, :-1], motion.times)
     with pytest.raises(InputError, match="moves 63 cage vertices but the asset's cage has 64"):
-        check_motion(short, cage, "short.npz")
+        short.check_against(cage, "short.npz")
     moved = Motion(cage.vertices + 0.1, cage.tets, motion.positions, motion.times)
     with pytest.raises(InputError, match="rest cage differs"):
-        check_motion(moved, cage)
+        moved.check_against(cage)
 
 
 def test_kernel_colouring_without_a_field_is_a_clear_error(ball, monkeypatch):

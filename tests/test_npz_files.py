@@ -49,13 +49,13 @@ def _write_pickled(path, marker):
 
 
 def _truncated(path):
-    save_motion(path, _motion())
+    np.savez(path, **_arrays())  # format 1
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])
 
 
 def _bit_flipped(path):
-    save_motion(path, _motion())
+    np.savez(path, **_arrays())  # format 1
     data = bytearray(path.read_bytes())
     data[200] ^= 0xFF  # inside the first member's data: its CRC no longer matches
     path.write_bytes(bytes(data))

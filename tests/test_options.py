@@ -33,6 +33,7 @@ class Toy:
     mode: str = option("fast", help="how", choices=("fast", "slow"))
     copies: int = option(1, help="copies")
     offset: float = option(0.0, help="offset")
+    wait: float = option(0.0, help="how long it waits")
     internal: int = 7
 
     def __post_init__(self):
@@ -69,6 +70,7 @@ def test_help_shows_each_default_once_and_the_group_is_exclusive_and_required():
     text = " ".join(parser.format_help().split())
     assert "number of frames (default 90)" in text
     assert "frames per second (default 30)" in text
+    assert "how long it waits (default 0)" in text  # a zero default is shown (0 == False in Python)
     assert "(default the asset's)" in text and "(default 0,0,0)" in text
     assert "copies (default 1)" in text and "offset (default 0)" in text  # 1 == True, 0 == False
     assert "internal" not in text

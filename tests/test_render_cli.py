@@ -250,7 +250,7 @@ def test_bad_options_fail_before_the_asset_loads(tmp_path, asset_dir, capsys, mo
     assert options[0] in error_line(capsys)
 
 
-def test_wind_example_run_again_at_another_size_renders_again(tmp_path, asset_dir):
+def test_wind_example_run_again_at_another_size_renders_again(tmp_path, asset_dir, capsys):
     import importlib.util
     from pathlib import Path
 
@@ -259,21 +259,26 @@ def test_wind_example_run_again_at_another_size_renders_again(tmp_path, asset_di
     example_module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example_module)
     out = tmp_path / "wind"
-    example = example_module.Example(str(asset_dir), out, frames=3, fps=10.0, strength=0.1)
-    example.animate()
-    assert example.render(16, "cpu")["rendered"] == 3
-    example.animate()  # same wind: the motion file is kept
-    again = example.render(20, "cpu")
+    argv = ["--asset", str(asset_dir), "--out", str(out), "--frames", "3", "--fps", "10", "--device", "cpu"]
+
+    def example(*extra):
+        return example_module.main([*argv, *extra])
+
+    assert example("--strength", "0.1", "--size", "16")["rendered"] == 3
+    again = example("--strength", "0.1", "--size", "20")  # same wind: the motion file is kept
     assert again["rendered"] == 3 and again["replaced"] == 3
     assert all(Image.open(p).size == (20, 20) for p in (out / "frames").iterdir())
     import imageio.v2 as imageio
 
     with imageio.get_reader(out / "wind.mp4") as reader:
         assert all(frame.shape[:2] == (20, 20) for frame in reader)
-    assert example.render(20, "cpu")["skipped"] == 3
-    stronger = example_module.Example(str(asset_dir), out, frames=3, fps=10.0, strength=0.2)
-    stronger.animate()  # another wind: the motion is recomputed, and the orbit that frames it moves
+    assert example("--strength", "0.1", "--size", "20")["skipped"] == 3
+    with pytest.raises(
+        SystemExit, match=r"wind_animation: error: .*made with other settings \(--strength: 0.1 -> 0.2"
+    ):
+        example("--strength", "0.2", "--size", "20")
+    # another wind with --overwrite: the motion is recomputed, and the orbit that frames it moves
     from shellsim.motion import load_motion
 
-    assert load_motion(out / "wind.npz").meta["settings"]["strength"] == 0.2
-    assert stronger.render(20, "cpu")["rendered"] == 3
+    assert example("--strength", "0.2", "--size", "20", "--overwrite")["rendered"] == 3
+    assert load_motion(out / "wind.npz").settings["strength"] == 0.2

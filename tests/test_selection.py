@@ -107,7 +107,7 @@ def test_cli_names_the_option(tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert (
-            err.startswith(f"shellsim: error: {flag} ")
+            err.startswith(f"shellsim: error: {flag}: ")
             and "expected AXIS OP VALUE" in err
             and "\n" not in err
         )

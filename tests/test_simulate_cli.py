@@ -162,10 +162,12 @@ def test_an_existing_motion_is_continued_or_refused_never_replaced_silently(tmp_
 
     assert main([*base, "--frames", "2", "--fps", "24", "--overwrite"]) == 0
     fresh = load_motion(out)
-    assert fresh.n_frames == 2 and fresh.meta["params"]["fps"] == 24
+    assert fresh.n_frames == 2 and fresh.settings["fps"] == 24
 
 
-def test_wind_run_again_continues_or_refuses(tmp_path, capsys):
+@pytest.fixture
+def rod(tmp_path):
+    """A rod asset whose cage is a column of Kuhn tets (no fTetWild run): (asset, cage vertices, tets)."""
     from meshes import save_embedded_cage
     from test_wind import _write_asset, column
 
@@ -174,8 +176,17 @@ def test_wind_run_again_continues_or_refuses(tmp_path, capsys):
     asset = load_asset(_write_asset(tmp_path / "rod"))
     verts, tets = column(n_xy=2, n_z=6, width=0.4, height=1.1)
     save_embedded_cage(asset, verts - [0.2, 0.2, 0.05], tets)
+    return asset, verts, tets
+
+
+def _wind_args(asset, out):
+    return ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
+
+
+def test_wind_run_again_continues_or_refuses(tmp_path, capsys, rod):
+    asset = rod[0]
     out = tmp_path / "wind.npz"
-    args = ["wind", "--asset", str(asset.root), "--fps", "10", "--out", str(out), "--anchor", "z<0.1"]
+    args = _wind_args(asset, out)
     assert main([*args, "--frames", "3"]) == 0
     assert main([*args, "--frames", "5"]) == 0
     assert load_motion(out).n_frames == 5
@@ -215,3 +226,36 @@ def test_mesh_simulation_video_shows_the_mesh_moving(tmp_path, closed_mesh):
     assert all(f.shape == (24, 32, 3) and (f.min(axis=2) < 200).sum() > 20 for f in frames)
     assert (np.abs(frames[2].astype(int) - frames[0]).max(axis=2) > 50).sum() > 20
     assert video.is_file()
+
+
+def test_a_motion_is_continued_only_with_the_cage_and_mesh_it_was_made_from(
+    tmp_path, closed_mesh, capsys, caplog, rod
+):
+    """The motion records its asset, cage and mesh by content digest: another field is logged, a rebuilt
+    cage (wind) or an edited mesh (simulate --mesh) refuses to continue it, in one line."""
+    from meshes import save_embedded_cage
+
+    asset, verts, tets = rod
+    out = tmp_path / "wind.npz"
+    args = _wind_args(asset, out)
+    assert main([*args, "--frames", "3"]) == 0
+    from shellsim.cage import cage_for_motion
+
+    (asset.root / "field.safetensors").write_bytes(b"retrained")  # same shells and cage, another field
+    with caplog.at_level("WARNING"):
+        cage = cage_for_motion(asset, load_motion(out))
+    np.testing.assert_array_equal(cage.vertices, verts - [0.2, 0.2, 0.05])
+    assert f"{out} was made for another version of the asset 'rod'" in caplog.text
+    save_embedded_cage(asset, verts - [0.2, 0.2, 0.06], tets)  # the cage rebuilt: 1 cm lower
+    err = _fail([*args, "--frames", "5"], capsys)
+    assert err.startswith(f"shellsim: error: {out}: the motion's rest cage differs from the asset's cage")
+    assert load_motion(out).n_frames == 3
+
+    mesh, _ = closed_mesh
+    out = tmp_path / "m.npz"
+    base = ["simulate", "--mesh", str(mesh), "--substeps", "1", "--out", str(out), "--device", "cpu"]
+    assert main([*base, "--frames", "2"]) == 0
+    trimesh.creation.box((1, 1, 1.5)).export(mesh)
+    err = _fail([*base, "--frames", "3"], capsys)
+    assert f"{out}: made from another content of {mesh} (changed since)" in err
+    assert load_motion(out).n_frames == 2

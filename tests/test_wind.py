@@ -18,7 +18,6 @@ from shellsim.wind import (
     beam_profile,
     heights,
     wind_displacement,
-    wind_meta,
 )
 
 
@@ -165,7 +164,7 @@ def test_animate_wind_writes_a_motion_file(tmp_path):
     verts, tets = column()
     settings = WindSettings(strength=0.1)
     path = tmp_path / "wind.npz"
-    with MotionWriter(path, verts, tets, wind_meta(settings, 24.0)) as writer:
+    with MotionWriter(path, verts, tets) as writer:
         animate_wind(verts, tets, settings, 10, 24.0, writer, progress=False)
     motion = load_motion(path)
     assert motion.positions.shape == (10, len(verts), 3)
@@ -175,14 +174,14 @@ def test_animate_wind_writes_a_motion_file(tmp_path):
     np.testing.assert_allclose(
         motion.positions[7], verts + wind_displacement(verts, 7 / 24.0, settings), atol=1e-6
     )
-    assert motion.meta["made_by"] == "shellsim.wind"
-    assert motion.meta["settings"]["strength"] == 0.1 and motion.meta["fps"] == 24.0
+    assert motion.settings["model"] == "analytic cantilever wind"
+    assert motion.settings["strength"] == 0.1 and motion.meta["fps"] == 24.0
     assert 0 < motion.meta["stats"]["min_volume_ratio"] < 1
     json.dumps(motion.meta)
 
     # resuming continues where the file stops and gives the same frames as one run
     short = tmp_path / "short.npz"
-    with MotionWriter(short, verts, tets, wind_meta(settings, 24.0)) as writer:
+    with MotionWriter(short, verts, tets) as writer:
         animate_wind(verts, tets, settings, 4, 24.0, writer, progress=False)
     with MotionWriter.resume(short) as writer:
         animate_wind(verts, tets, settings, 10, 24.0, writer, progress=False)
@@ -211,7 +210,7 @@ def test_a_wind_too_strong_for_the_cage_is_limited_never_folds_it(tmp_path):
     settings = WindSettings(strength=1.0, gust=1.0, turbulence=1.0, frequency=1.0, direction=(1.0, 0.3, 0.0))
     fps, frames = 10.0, 24
     path = tmp_path / "wind.npz"
-    with MotionWriter(path, verts, tets, wind_meta(settings, fps)) as writer:
+    with MotionWriter(path, verts, tets) as writer:
         animate_wind(verts, tets, settings, frames, fps, writer, progress=False)
     motion = load_motion(path)
     assert motion.n_frames == frames
@@ -244,7 +243,7 @@ def test_a_wind_too_strong_for_the_cage_is_limited_never_folds_it(tmp_path):
 def test_gusts_faster_than_the_frames_can_show_are_refused(tmp_path):
     verts, tets = column()
     settings = WindSettings(frequency=2.0)
-    with MotionWriter(tmp_path / "w.npz", verts, tets, wind_meta(settings, 10.0)) as writer:
+    with MotionWriter(tmp_path / "w.npz", verts, tets) as writer:
         with pytest.raises(InputError, match=r"frequency 2 Hz: frames at 10 fps show at most 1.66667 Hz"):
             animate_wind(verts, tets, settings, 5, 10.0, writer, progress=False)
 
@@ -320,7 +319,7 @@ def test_cli_writes_and_resumes(tmp_path):
     assert main([*args, "--frames", "3"]) == 0
     assert main([*args, "--frames", "5", "--resume"]) == 0
     motion = load_motion(out)
-    assert motion.n_frames == 5 and motion.meta["asset"] == "rod"
+    assert motion.n_frames == 5 and motion.asset["name"] == "rod" and motion.producer == "shellsim wind"
     np.testing.assert_allclose(motion.rest_vertices, verts)
     np.testing.assert_allclose(motion.times, np.arange(5) / 10)
     assert np.array_equal(motion.positions[0], verts.astype(np.float32))

@@ -1,0 +1,44 @@
+"""The examples run on a tiny setting (the shipped LEGO, 2 frames of 16x16 pixels) and write what they say."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from shellsim.motion import load_motion
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(script: str, *argv: str) -> str:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *sys.path])}
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / script), *argv, "--device", "cpu"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done.stdout
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "script, motion, frames",
+    [("drop_on_ground.py", "drop.npz", "drop_frames"), ("wind_animation.py", "wind.npz", "frames")],
+)
+def test_example_runs_tiny(tmp_path, script, motion, frames):
+    out = tmp_path / "out"
+    printed = _run(script, "--frames", "2", "--size", "16", "--out", str(out))
+    assert "2 frames in" in printed
+    m = load_motion(out / motion)
+    assert m.n_frames == 2 and m.asset["name"] == "lego" and len(m.asset["digest"]) == 64
+    assert np.abs(m.positions[1] - m.positions[0]).max() > 0  # it moved
+    images = sorted((out / frames).glob("*.png"))
+    assert [Image.open(p).size for p in images] == [(16, 16)] * 2
+    assert (out / motion.replace(".npz", ".mp4")).stat().st_size > 0

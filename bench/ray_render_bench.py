@@ -32,7 +32,9 @@ def main() -> None:
     args = parser.parse_args()
     out = Path(args.out or tempfile.mkdtemp(prefix="ray_render_bench_"))
     motion = out / "wind.npz"
-    wind(WindJobSettings(asset=args.asset, frames=args.frames, out=str(motion), overwrite=True), progress=False)
+    wind(
+        WindJobSettings(asset=args.asset, frames=args.frames, out=str(motion), overwrite=True), progress=False
+    )
     size = (args.size, args.size)
     times = {}
     for name, ray in (("serial", None), ("ray", args.address)):

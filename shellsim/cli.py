@@ -19,7 +19,19 @@ from pathlib import Path
 
 from neural.errors import ShellsimError
 
-COMMANDS = ("poses", "train", "extract", "render", "eval", "cage", "simulate", "wind", "inspect", "export")
+COMMANDS = (
+    "poses",
+    "train",
+    "extract",
+    "render",
+    "eval",
+    "cage",
+    "simulate",
+    "wind",
+    "inspect",
+    "export",
+    "sweep",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

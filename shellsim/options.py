@@ -175,6 +175,17 @@ def options_named(cls):
         raise InputError(err.render(flags)) from None
 
 
+def device_setting(name: str, warp: bool = False) -> str:
+    """:func:`neural.device.pick_device` for the setting ``device``: its refusal is a :class:`SettingError`
+    (so the command line names ``--device``)."""
+    from neural.device import pick_device
+
+    try:
+        return pick_device(name, warp)
+    except InputError as err:
+        raise SettingError("device", str(err)) from None
+
+
 def floats(count: int) -> Callable[[str], tuple[float, ...]]:
     """A parser of ``count`` comma-separated finite numbers: ``"1,0,0.5"`` -> (1.0, 0.0, 0.5)."""
 

@@ -6,7 +6,7 @@ import argparse
 import logging
 
 from shellsim.jobs.export import ExportSettings
-from shellsim.options import add_options, from_args
+from shellsim.options import add_options, from_args, options_named
 
 log = logging.getLogger(__name__)
 
@@ -27,5 +27,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     from shellsim.jobs.export import export
 
-    written = export(from_args(ExportSettings, args), progress=not args.verbose)
+    with options_named(ExportSettings):
+        written = export(from_args(ExportSettings, args), progress=not args.verbose)
     log.info("wrote %d file(s): %s", len(written), written[-1])

@@ -26,14 +26,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     from shellsim.jobs.simulate import SimulateSettings, simulate
-    from shellsim.options import from_args
+    from shellsim.options import from_args, options_named
 
     settings = from_args(SimulateSettings, args)
     if settings.video and settings.mesh and not args.verbose:
         from shellsim.inspect import quiet_vtk
 
         quiet_vtk()
-    result = simulate(settings)
+    with options_named(SimulateSettings):
+        result = simulate(settings)
     log.info("motion written to %s (%d frames)", result.out, result.frames)
     if result.history:
         history = result.history

@@ -26,9 +26,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     from shellsim.jobs.wind import WindJobSettings, wind
-    from shellsim.options import from_args
+    from shellsim.options import from_args, options_named
 
-    result = wind(from_args(WindJobSettings, args))
+    with options_named(WindJobSettings):
+        result = wind(from_args(WindJobSettings, args))
     log.info(
         "wrote %d frames to %s (smallest tet volume ratio %.3g)",
         result.frames,

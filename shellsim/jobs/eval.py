@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neural.device import DEVICES
-from shellsim.options import SettingError, check_choice, option
+from shellsim.options import SettingError, check_choice, device_setting, option
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,6 @@ def evaluate(settings: EvalSettings) -> dict:
 
     from neural.asset import command_line, load_asset, load_field, refuse_shipped, write_meta
     from neural.data import load_dataset
-    from neural.device import pick_device
     from neural.metrics import lpips_status
     from neural.render.view import asset_sampler, full_ray_sampler
     from neural.train import evaluate as evaluate_views
@@ -56,7 +55,7 @@ def evaluate(settings: EvalSettings) -> dict:
     if settings.record:
         refuse_shipped(asset, "recording the figures")
         check_writable_dir(asset.root, "record")  # asset.json is rewritten there
-    device = pick_device(settings.device)
+    device = device_setting(settings.device)
     downscale = settings.downscale or asset.training_downscale
     data = load_dataset(settings.data, downscale=downscale, background=asset.background)
     views = np.asarray(data.test_idx)[: settings.views]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from neural.config import ShellConfig
 from neural.device import DEVICES
-from shellsim.options import SettingError, check_choice, option
+from shellsim.options import SettingError, check_choice, device_setting, option
 
 log = logging.getLogger(__name__)
 
@@ -62,14 +62,13 @@ def extract(settings: ExtractSettings) -> dict:
     """Extract the shells of ``settings.asset`` again and replace its shell files; returns the shells'
     statistics (faces of M+ and M-, widths) with ``seconds``, the extraction's wall time."""
     from neural.asset import command_line, load_asset, load_field, refuse_shipped, replace_shells
-    from neural.device import pick_device
     from neural.shell.from_field import extract_field_shells
     from shellsim.outputs import check_writable_dir
 
     asset = load_asset(settings.asset)
     refuse_shipped(asset, "extract")
     check_writable_dir(asset.root, "asset")  # new shells and asset.json are written there
-    device = pick_device(settings.device)
+    device = device_setting(settings.device)
     known = {f.name for f in dataclasses.fields(ShellConfig)}
     stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}
     try:

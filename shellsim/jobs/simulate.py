@@ -23,7 +23,7 @@ import numpy as np
 
 from neural.errors import InputError
 from shellsim.motion import MAX_FPS, MAX_FRAMES, overwrite_option, resume_option
-from shellsim.options import SettingError, check_range, floats, option
+from shellsim.options import SettingError, check_range, device_setting, floats, option, pixels
 from shellsim.selection import parse_selection, select_vertices, selection_text
 
 log = logging.getLogger(__name__)
@@ -35,14 +35,6 @@ ASSET_SIZE = 0.3
 MAX_SUBSTEPS = 1000  # per frame; a retried frame runs up to 4 times as many
 #: The settings that do not change the motion (not compared when a file is continued).
 NOT_MOTION = ("frames", "out", "resume", "overwrite", "video", "video_size", "device")
-
-
-def image_size(text: str) -> tuple[int, int]:
-    """``"800x600"`` -> (800, 600)."""
-    parts = text.lower().split("x")
-    if len(parts) != 2 or not all(p.strip().isdigit() and 0 < int(p) <= 16384 for p in parts):
-        raise ValueError("expected WIDTHxHEIGHT in pixels (e.g. 800x600)")
-    return int(parts[0]), int(parts[1])
 
 
 def _presets() -> str:
@@ -128,7 +120,7 @@ class SimulateSettings:
         "the same motion frame, camera and size"
     )
     video_size: tuple[int, int] = option(
-        (200, 200), help="WxH of the rendered frames", parse=image_size, shown_default="200x200"
+        (200, 200), help="WxH of the rendered frames", parse=pixels, shown_default="200x200"
     )
     device: str = option("auto", help="auto, cpu or cuda")
 
@@ -233,7 +225,6 @@ class SimulateResult:
 
 def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResult:
     """Run the simulation ``settings`` describe into ``settings.out_path`` (module docstring)."""
-    from neural.device import pick_device, warp_device
     from shellsim.fem import SimulationError, Simulator, WorldMap, restore_state
     from shellsim.fem import simulate as run_frames
     from shellsim.materials import get_material
@@ -247,7 +238,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         frames_dir = check_writable_dir(video.with_name(video.stem + "_frames"), "--video")
     material = get_material(s.material, s.youngs, s.poisson, s.density)
     rules = [parse_selection(text) for text in s.pin]
-    device = pick_device(s.device)
+    device = device_setting(s.device, warp=True)  # the simulator runs in Warp
     record = motion_settings(s)
 
     if out.is_file() and not s.overwrite:  # same settings: continue the file; other settings: refuse
@@ -273,9 +264,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
 
     pinned = select_vertices(rules, vertices, "--pin")
     sim_settings = _sim_settings(s, world, world.to_sim(vertices), up)
-    sim = Simulator(
-        world.to_sim(vertices), tets, material, sim_settings, pinned=pinned, device=warp_device(device)
-    )
+    sim = Simulator(world.to_sim(vertices), tets, material, sim_settings, pinned=pinned, device=device)
     if writer is None:
         if s.resume:
             log.info("%s does not exist: nothing to resume, starting it", out)
@@ -325,7 +314,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
             raise InputError(_failure_line(err, out, material)) from None
     result = SimulateResult(out, writer.n_frames, history)
     if s.video:
-        result.video = _render(s, out, frames_dir, video, device)
+        result.video = _render(s, out, frames_dir, video, s.device)
     return result
 
 

@@ -22,7 +22,7 @@ from neural.config import (
     scaled_defaults,
 )
 from neural.device import DEVICES
-from shellsim.options import SettingError, check_choice, check_range, option
+from shellsim.options import SettingError, check_choice, check_range, device_setting, option
 from shellsim.outputs import check_writable_dir
 
 COLOURS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
@@ -158,7 +158,6 @@ class TrainSettings:
 def train(settings: TrainSettings) -> Path:
     """Train the asset ``settings.out`` from the dataset ``settings.data`` (resuming from its checkpoints);
     returns the asset directory. The output is checked before anything is loaded."""
-    from neural.device import pick_device
     from neural.pipeline import train_asset
 
     check_writable_dir(settings.out, "out")
@@ -167,7 +166,7 @@ def train(settings: TrainSettings) -> Path:
         settings.data,
         settings.out,
         settings.pipeline_config(),
-        pick_device(settings.device),
+        device_setting(settings.device),
         name=settings.name,
         keep_checkpoints=settings.keep_checkpoints,
     )

@@ -1,0 +1,177 @@
+"""``shellsim sweep``: the product of materials and drop heights as simulations (plus wind strengths as wind
+animations), each rendered, one sub-directory per combination, an index and a labelled contact sheet.
+
+``OUT/<name>/`` holds ``motion.npz``, ``frames/<k:05d>.png`` (an orbiting camera) and, with ``video``,
+``video.mp4``; ``<name>`` is ``<material>_h<height>`` for a drop and ``wind_<strength>`` for wind.
+``OUT/index.json`` lists every combination with its settings, files and figures and is rewritten as each
+finishes; ``OUT/contact_sheet.png`` shows the last frame of each, labelled. Every step resumes: a motion
+made with the same settings is continued (or left as it is when complete) and frames already rendered are
+kept, so running the same sweep again after an interruption finishes it. With ``ray``, each combination is
+a Ray task (:mod:`shellsim.distributed`).
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from shellsim.options import SettingError, check_range, float_list, name_list, option, pixels
+
+
+@dataclass(frozen=True)
+class SweepSettings:
+    """What :func:`sweep` runs (module docstring)."""
+
+    asset: str = option(help="asset directory or shipped asset name", required=True)
+    out: str = option(help="directory of the sweep: one sub-directory per combination", required=True)
+    material: tuple[str, ...] = option(("rubber",), help="material presets, comma-separated", parse=name_list)
+    drop_height: tuple[float, ...] = option(
+        (0.1,), help="drop heights in metres, comma-separated", parse=float_list
+    )
+    wind: tuple[float, ...] = option(
+        help="also wind animations of these strengths (tip deflection / height), comma-separated",
+        parse=float_list,
+        shown_default="none",
+    )
+    frames: int = option(60, help="frames of each motion")
+    size: tuple[int, int] = option(
+        (200, 200), help="WxH of the frames", parse=pixels, shown_default="200x200"
+    )
+    video: bool = option(help="also assemble each combination's frames into an MP4")
+    ray: str | None = option(
+        help="run the combinations as Ray tasks: alone, on a local Ray instance using every core; with an "
+        "ADDRESS, on that cluster ('auto': the one this machine belongs to)",
+        const="local",
+        metavar="ADDRESS",
+    )
+    device: str = option("auto", help="auto, cpu or cuda")
+
+    def __post_init__(self):
+        from shellsim.materials import get_material
+
+        for name in self.material:
+            try:
+                get_material(name)
+            except ValueError as err:
+                raise SettingError("material", str(err)) from None
+        for height in self.drop_height:
+            check_range("drop_height", height, 0, 100, "a height in metres")
+        for strength in self.wind:
+            check_range("wind", strength, 0, 1, "a tip deflection / height")
+        check_range("frames", self.frames, 1, 10_000, "an integer")
+        names = [c["name"] for c in self.combinations()]
+        if len(set(names)) != len(names):
+            raise SettingError("material", "each value may be given once")
+
+    def combinations(self) -> list[dict]:
+        """The runs, drops first: [{"name", "kind": "drop", "material", "drop_height"} or {"name", "kind":
+        "wind", "strength"}]."""
+        drops = [
+            {"name": f"{m}_h{h:g}", "kind": "drop", "material": m, "drop_height": h}
+            for m, h in itertools.product(self.material, self.drop_height)
+        ]
+        return drops + [{"name": f"wind_{w:g}", "kind": "wind", "strength": w} for w in self.wind]
+
+
+def run_combination(settings: SweepSettings, combo: dict, progress: bool = False) -> dict:
+    """Simulate (or animate) and render one combination into ``settings.out / combo["name"]``; returns its
+    entry of the index: the combination, its files (relative to ``out``) and figures."""
+    from shellsim.jobs.simulate import SimulateSettings, simulate
+    from shellsim.jobs.wind import WindJobSettings, wind
+    from shellsim.render import render_motion
+
+    out = Path(settings.out)
+    folder = out / combo["name"]
+    folder.mkdir(parents=True, exist_ok=True)
+    motion = folder / "motion.npz"
+    if combo["kind"] == "drop":
+        simulate(
+            SimulateSettings(
+                asset=settings.asset,
+                material=combo["material"],
+                drop_height=combo["drop_height"],
+                frames=settings.frames,
+                out=str(motion),
+                device=settings.device,
+            ),
+            progress=progress,
+        )
+    else:
+        wind(
+            WindJobSettings(
+                asset=settings.asset, strength=combo["strength"], frames=settings.frames, out=str(motion)
+            ),
+            progress=progress,
+        )
+    video = folder / "video.mp4" if settings.video else None
+    summary = render_motion(
+        settings.asset,
+        motion,
+        folder / "frames",
+        orbit=True,
+        size=settings.size,
+        video=video,
+        device=settings.device,
+        progress=progress,
+    )
+    still = folder / "frames" / f"{settings.frames - 1:05d}.png"
+    figures = {k: round(v, 3) for k, v in summary.items() if isinstance(v, float)}
+    return {
+        **combo,
+        "motion": str(motion.relative_to(out)),
+        "frames": str((folder / "frames").relative_to(out)),
+        "still": str(still.relative_to(out)),
+        "video": str(video.relative_to(out)) if video else None,
+        "render": {"rendered": summary["rendered"], "kept": summary["skipped"], **figures},
+    }
+
+
+def _combination_runner(settings: SweepSettings):
+    """A :func:`shellsim.distributed.run_on_ray` recipe: combination -> its index entry."""
+    return functools.partial(run_combination, settings)
+
+
+def _write_json(path: Path, value) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(value, indent=1))
+    os.replace(tmp, path)
+
+
+def sweep(settings: SweepSettings, progress: bool = True) -> dict:
+    """Run every combination of ``settings`` (serially, or as Ray tasks with ``settings.ray``), writing
+    ``OUT/index.json`` as each finishes and ``OUT/contact_sheet.png`` at the end. Returns the index."""
+    from tqdm import tqdm
+
+    from shellsim.contact_sheet import contact_sheet
+    from shellsim.outputs import check_writable_dir
+
+    out = check_writable_dir(settings.out, "--out")
+    out.mkdir(parents=True, exist_ok=True)
+    combos = settings.combinations()
+    index = {"asset": settings.asset, "frames": settings.frames, "combinations": [None] * len(combos)}
+    bar = tqdm(total=len(combos), desc="sweep", unit="run", disable=not progress)
+
+    def done(i: int, entry: dict) -> None:
+        index["combinations"][i] = entry
+        _write_json(out / "index.json", {**index, "combinations": [e for e in index["combinations"] if e]})
+        bar.update()
+
+    with bar:
+        if settings.ray is None:
+            for i, combo in enumerate(combos):
+                bar.set_postfix_str(combo["name"])
+                done(i, run_combination(settings, combo))
+        else:
+            from shellsim.distributed import run_on_ray
+
+            address = None if settings.ray == "local" else settings.ray
+            run_on_ray(combos, functools.partial(_combination_runner, settings), done, address)
+    entries = index["combinations"]
+    contact_sheet(
+        [out / e["still"] for e in entries], [e["name"] for e in entries], out / "contact_sheet.png"
+    )
+    return index

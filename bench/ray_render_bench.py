@@ -45,8 +45,8 @@ def main() -> None:
         times[name] = time.perf_counter() - start
         print(
             f"{name:6s} {summary['rendered']} frames in {times[name]:.1f} s "
-            f"({1e3 * times[name] / summary['rendered']:.0f} ms per frame wall; {summary['ms']:.0f} ms per frame "
-            f"in the renderer)"
+            f"({1e3 * times[name] / summary['rendered']:.0f} ms per frame wall; "
+            f"{summary['ms']:.0f} ms per frame in the renderer)"
         )
     same = [
         (out / "serial" / p.name).read_bytes() == p.read_bytes() for p in sorted((out / "ray").glob("*.png"))

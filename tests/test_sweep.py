@@ -12,8 +12,6 @@ from PIL import Image
 from shellsim.cli import main
 from shellsim.contact_sheet import LABEL_HEIGHT
 
-pytestmark = pytest.mark.slow
-
 ARGS = [
     "--asset",
     "lego",
@@ -28,6 +26,7 @@ ARGS = [
 ]
 
 
+@pytest.mark.slow
 def test_sweep_writes_each_combination_an_index_and_a_contact_sheet_and_resumes(tmp_path):
     out = tmp_path / "sweep"
     assert main(["sweep", *ARGS, "--wind", "0.1", "--out", str(out)]) == 0
@@ -52,6 +51,7 @@ def test_sweep_writes_each_combination_an_index_and_a_contact_sheet_and_resumes(
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
 
 
+@pytest.mark.slow
 def test_ray_sweep_makes_the_same_pngs(tmp_path):
     assert main(["sweep", *ARGS, "--out", str(tmp_path / "serial")]) == 0
     assert main(["sweep", *ARGS, "--out", str(tmp_path / "ray"), "--ray"]) == 0
@@ -59,3 +59,19 @@ def test_ray_sweep_makes_the_same_pngs(tmp_path):
     assert serial == sorted(p.relative_to(tmp_path / "ray") for p in (tmp_path / "ray").rglob("*.png"))
     for rel in serial:
         assert (tmp_path / "serial" / rel).read_bytes() == (tmp_path / "ray" / rel).read_bytes(), rel
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--material", "rubber,cheese"], "--material: unknown material 'cheese'"),
+        (["--drop-height", "0.1,-1"], "--drop-height: expected a height in metres in [0, 100], got -1"),
+        (["--wind", "0.1,x"], "--wind: expected comma-separated numbers, got '0.1,x'"),
+        (["--material", "rubber,rubber"], "--material: each value may be given once"),
+    ],
+)
+def test_bad_values_are_one_line_before_any_work(tmp_path, capsys, extra, message):
+    assert main(["sweep", "--asset", "lego", "--out", str(tmp_path / "s"), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"shellsim: error: {message}") and err.count("\n") == 1
+    assert not (tmp_path / "s").exists()

@@ -33,6 +33,7 @@ class SweepSettings:
         (0.1,), help="drop heights in metres, comma-separated", parse=float_list
     )
     wind: tuple[float, ...] = option(
+        (),
         help="also wind animations of these strengths (tip deflection / height), comma-separated",
         parse=float_list,
         shown_default="none",

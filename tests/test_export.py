@@ -168,3 +168,20 @@ def test_a_missing_usd_extra_is_one_line_naming_it(rod, tmp_path, capsys, monkey
     err = capsys.readouterr().err
     assert err.endswith("pip install 'shellsim[usd]'\n") and err.count("\n") == 1
     assert not (tmp_path / "a.usd").exists()
+
+
+def test_usd_of_a_mesh_motion_takes_the_motion_up_axis(tmp_path):
+    from pxr import Usd, UsdGeom
+
+    verts, tets, _ = kuhn_grid(0.0, 1.0, 2)
+    sphere = trimesh.creation.icosphere(1, radius=0.3)
+    sphere.apply_translation([0.5, 0.5, 0.5])
+    surface = Surface(*embed_points(verts, tets, sphere.vertices), np.asarray(sphere.faces))
+    motion = tmp_path / "m.npz"
+    write_motion(motion, SimpleNamespace(vertices=verts, tets=tets), {"up": [0.0, 1.0, 0.0]}, surface)
+    out = tmp_path / "mesh.usda"
+    assert main(["export", "--motion", str(motion), "--out", str(out)]) == 0
+    stage = Usd.Stage.Open(str(out))
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
+    points = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/Root/surface")).GetPointsAttr().Get(3))
+    assert np.abs(points - moved(sphere.vertices, 3)).max() < 1e-5

@@ -112,7 +112,7 @@ def export(settings: ExportSettings, progress: bool = True) -> list[Path]:
             )
         if settings.format == "ply":
             return write_ply_sequence(out, meshes[0], frames, bar.update)
-        up = motion.meta.get("params", {}).get("up") or _asset_up(settings)
+        up = motion.meta.get("up") or _asset_up(settings)
         metres = float(motion.meta.get("world", {}).get("scale", 1.0))
         return [write_usd(out, meshes, frames, motion_fps(motion), up, metres, bar.update)]
 

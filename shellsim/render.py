@@ -491,6 +491,7 @@ def render_motion(
     overwrite: bool = False,
     progress: bool = True,
     ray: str | None = None,
+    framing=None,
 ) -> dict:
     """Render frames of a motion to ``out_dir/<k:05d>.png`` (``k`` the motion frame), optionally an MP4.
 
@@ -506,6 +507,8 @@ def render_motion(
         (:func:`frame_record`: motion frame, camera, size, asset, renderer settings) matches, so an
         interrupted render resumes and frames of another motion, camera or size are rendered again
     ray : "local" or a Ray cluster address: each frame a Ray task (:func:`render_frames`)
+    framing : (N, 3) points the orbit keeps in view (default: every cage vertex of the whole motion), so
+        that several motions can be seen by the same orbit
     The motion, ``frames`` and the camera file are checked before the asset and its field load.
     Returns a summary: counts, mean ms per frame and per stage, ``video``.
     """
@@ -523,7 +526,7 @@ def render_motion(
     indices = parse_frames(frames, motion.n_frames, source=str(motion_path))
     if orbit:
         width, height = size or (400, 400)
-        center, distance = orbit_framing(motion.positions)
+        center, distance = orbit_framing(motion.positions if framing is None else framing)
     else:
         view = load_camera_file(cameras, *(size or (None, None))).subset([0])
     asset = load_asset(asset_spec)

@@ -36,6 +36,7 @@ def serial(k: int, seed: int = 3) -> float:
 def ray_local():
     import ray
 
+    ray.shutdown()  # a Ray instance of an earlier test lacks this test's environment
     here = os.path.dirname(__file__)  # the workers import this module to unpickle the recipe
     path = os.pathsep.join(filter(None, [here, os.environ.get("PYTHONPATH")]))
     env = {"env_vars": {"PYTHONPATH": path, "OMP_NUM_THREADS": "1"}}

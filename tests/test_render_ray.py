@@ -27,3 +27,37 @@ def test_ray_frames_equal_serial_frames_and_resume(tmp_path):
     )
     assert (again["rendered"], again["skipped"]) == (1, 2)
     assert (tmp_path / "ray" / "00001.png").read_bytes() == (tmp_path / "serial" / "00001.png").read_bytes()
+
+
+def test_a_worker_killed_mid_render_loses_no_frame(tmp_path, monkeypatch):
+    import os
+    import signal
+    import subprocess
+
+    import shellsim.render as render
+
+    motion = tmp_path / "w.npz"
+    assert main(["wind", "--asset", "lego", "--frames", "6", "--out", str(motion)]) == 0
+    killed, save = [], render.save_png
+
+    def save_then_kill(path, image, record=None):
+        save(path, image, record)
+        if not killed:  # after the first frame: kill a worker that is rendering the next one
+            found = subprocess.run(
+                ["pgrep", "-f", "ray::_run"], capture_output=True, text=True
+            ).stdout.split()
+            if found:
+                os.kill(int(found[0]), signal.SIGKILL)
+                killed.append(int(found[0]))
+
+    monkeypatch.setattr(render, "save_png", save_then_kill)
+    summary = render_motion(
+        "lego", motion, tmp_path / "ray", orbit=True, size=(24, 24), progress=False, ray="local"
+    )
+    assert killed and summary["rendered"] == 6
+    monkeypatch.setattr(render, "save_png", save)
+    serial = render_motion("lego", motion, tmp_path / "serial", orbit=True, size=(24, 24), progress=False)
+    assert serial["rendered"] == 6
+    for k in range(6):
+        name = f"{k:05d}.png"
+        assert (tmp_path / "ray" / name).read_bytes() == (tmp_path / "serial" / name).read_bytes(), name

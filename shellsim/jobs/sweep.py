@@ -1,7 +1,8 @@
 """``shellsim sweep``: the product of materials and drop heights as simulations (plus wind strengths as wind
 animations), each rendered, one sub-directory per combination, an index and a labelled contact sheet.
 
-``OUT/<name>/`` holds ``motion.npz``, ``frames/<k:05d>.png`` (an orbiting camera) and, with ``video``,
+``OUT/<name>/`` holds ``motion.npz``, ``frames/<k:05d>.png`` (one orbiting camera for all, framing every
+motion of the sweep, so the stills compare at one scale) and, with ``video``,
 ``video.mp4``; ``<name>`` is ``<material>_h<height>`` for a drop and ``wind_<strength>`` for wind.
 ``OUT/index.json`` lists every combination with its settings, files and figures and is rewritten as each
 finishes; ``OUT/contact_sheet.png`` shows the last frame of each, labelled. Every step resumes: a motion
@@ -18,6 +19,8 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from shellsim.options import SettingError, check_range, float_list, name_list, option, pixels
 
@@ -78,68 +81,96 @@ class SweepSettings:
         return drops + [{"name": f"wind_{w:g}", "kind": "wind", "strength": w} for w in self.wind]
 
 
-def run_combination(settings: SweepSettings, combo: dict, progress: bool = False) -> dict:
-    """Simulate (or animate) and render one combination into ``settings.out / combo["name"]``; returns its
-    entry of the index: the combination, its files (relative to ``out``) and figures."""
+def simulate_combination(settings: SweepSettings, combo: dict, progress: bool = False) -> np.ndarray:
+    """Simulate (or animate) one combination into ``settings.out / combo["name"] / "motion.npz"`` (continued
+    when it exists with the same settings); returns the (2, 3) corners of the box its cage moves in."""
     from shellsim.jobs.simulate import SimulateSettings, simulate
     from shellsim.jobs.wind import WindJobSettings, wind
+    from shellsim.motion import load_motion
+
+    folder = Path(settings.out) / combo["name"]
+    folder.mkdir(parents=True, exist_ok=True)
+    motion = folder / "motion.npz"
+    if combo["kind"] == "drop":
+        drop = SimulateSettings(
+            asset=settings.asset,
+            material=combo["material"],
+            drop_height=combo["drop_height"],
+            frames=settings.frames,
+            out=str(motion),
+            device=settings.device,
+        )
+        simulate(drop, progress=progress)
+    else:
+        gusts = WindJobSettings(
+            asset=settings.asset, strength=combo["strength"], frames=settings.frames, out=str(motion)
+        )
+        wind(gusts, progress=progress)
+    positions = load_motion(motion).positions.reshape(-1, 3)
+    return np.stack([positions.min(0), positions.max(0)])
+
+
+def render_combination(
+    settings: SweepSettings, combo: dict, framing: np.ndarray, progress: bool = False
+) -> dict:
+    """Render one simulated combination by the orbit that keeps ``framing`` (N, 3) in view (the same for
+    every combination); returns its entry of the index: the combination, its files (relative to ``out``)
+    and figures."""
     from shellsim.render import render_motion
 
     out = Path(settings.out)
     folder = out / combo["name"]
-    folder.mkdir(parents=True, exist_ok=True)
-    motion = folder / "motion.npz"
-    if combo["kind"] == "drop":
-        simulate(
-            SimulateSettings(
-                asset=settings.asset,
-                material=combo["material"],
-                drop_height=combo["drop_height"],
-                frames=settings.frames,
-                out=str(motion),
-                device=settings.device,
-            ),
-            progress=progress,
-        )
-    else:
-        wind(
-            WindJobSettings(
-                asset=settings.asset, strength=combo["strength"], frames=settings.frames, out=str(motion)
-            ),
-            progress=progress,
-        )
     video = folder / "video.mp4" if settings.video else None
     summary = render_motion(
         settings.asset,
-        motion,
+        folder / "motion.npz",
         folder / "frames",
         orbit=True,
         size=settings.size,
         video=video,
         device=settings.device,
         progress=progress,
+        framing=framing,
     )
-    still = folder / "frames" / f"{settings.frames - 1:05d}.png"
     figures = {k: round(v, 3) for k, v in summary.items() if isinstance(v, float)}
     return {
         **combo,
-        "motion": str(motion.relative_to(out)),
-        "frames": str((folder / "frames").relative_to(out)),
-        "still": str(still.relative_to(out)),
+        "motion": f"{combo['name']}/motion.npz",
+        "frames": f"{combo['name']}/frames",
+        "still": f"{combo['name']}/frames/{settings.frames - 1:05d}.png",
         "video": str(video.relative_to(out)) if video else None,
         "render": {"rendered": summary["rendered"], "kept": summary["skipped"], **figures},
     }
 
 
-def _combination_runner(settings: SweepSettings):
-    """A :func:`shellsim.distributed.run_on_ray` recipe: combination -> its index entry."""
-    return functools.partial(run_combination, settings)
+def _recipe(step, settings: SweepSettings, *args):
+    """A :func:`shellsim.distributed.run_on_ray` recipe: payload -> ``step(settings, payload, *args)``."""
+    return functools.partial(_call, step, settings, args)
+
+
+def _call(step, settings, args, payload):
+    return step(settings, payload, *args)
 
 
 def _write_json(path: Path, value) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(value, indent=1))
     os.replace(tmp, path)
+
+
+def _run(settings: SweepSettings, combos: list[dict], step, args: tuple, on_result, bar, what: str) -> None:
+    """``step(settings, combo, *args)`` for every combination, serially or as Ray tasks; ``on_result(i, r)``
+    as each finishes."""
+    bar.set_description(f"sweep: {what}")
+    if settings.ray is None:
+        for i, combo in enumerate(combos):
+            bar.set_postfix_str(combo["name"])
+            on_result(i, step(settings, combo, *args))
+        return
+    from shellsim.distributed import run_on_ray
+
+    address = None if settings.ray == "local" else settings.ray
+    run_on_ray(combos, functools.partial(_recipe, step, settings, *args), on_result, address)
 
 
 def sweep(settings: SweepSettings, progress: bool = True) -> dict:
@@ -161,16 +192,17 @@ def sweep(settings: SweepSettings, progress: bool = True) -> dict:
         _write_json(out / "index.json", {**index, "combinations": [e for e in index["combinations"] if e]})
         bar.update()
 
-    with bar:
-        if settings.ray is None:
-            for i, combo in enumerate(combos):
-                bar.set_postfix_str(combo["name"])
-                done(i, run_combination(settings, combo))
-        else:
-            from shellsim.distributed import run_on_ray
+    corners = [None] * len(combos)
 
-            address = None if settings.ray == "local" else settings.ray
-            run_on_ray(combos, functools.partial(_combination_runner, settings), done, address)
+    def simulated(i: int, box: np.ndarray) -> None:
+        corners[i] = box
+        bar.update()
+
+    with bar:
+        _run(settings, combos, simulate_combination, (), simulated, bar, "simulate")
+        framing = np.concatenate(corners)  # one orbit for all: the stills compare at one scale
+        bar.reset(total=len(combos))
+        _run(settings, combos, render_combination, (framing,), done, bar, "render")
     entries = index["combinations"]
     contact_sheet(
         [out / e["still"] for e in entries], [e["name"] for e in entries], out / "contact_sheet.png"

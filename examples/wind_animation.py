@@ -19,6 +19,7 @@ from pathlib import Path
 
 from neural.errors import ShellsimError
 from shellsim.jobs.wind import WindJobSettings, wind
+from shellsim.options import options_named
 from shellsim.render import render_motion
 
 
@@ -43,16 +44,17 @@ def main(argv: list[str] | None = None) -> dict:
     out = Path(args.out)
     settings = dict(strength=args.strength, gust=0.4, frequency=0.8, anchor=args.anchor)
     try:
-        result = wind(
-            WindJobSettings(
-                asset=args.asset,
-                frames=args.frames,
-                fps=args.fps,
-                out=str(out / "wind.npz"),
-                overwrite=args.overwrite,
-                **settings,
+        with options_named(WindJobSettings):  # setting errors name the options of this script
+            result = wind(
+                WindJobSettings(
+                    asset=args.asset,
+                    frames=args.frames,
+                    fps=args.fps,
+                    out=str(out / "wind.npz"),
+                    overwrite=args.overwrite,
+                    **settings,
+                )
             )
-        )
         summary = render_motion(
             args.asset,
             result.out,

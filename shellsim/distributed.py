@@ -19,7 +19,7 @@ from neural.errors import InputError
 log = logging.getLogger(__name__)
 
 #: The install line for the distributed options, printed when ``ray`` is missing.
-RAY_HINT = "--ray needs the ray package: pip install 'shellsim[cluster]'"
+RAY_HINT = "Ray is not installed: pip install 'shellsim[cluster]'"
 
 _STATE: dict = {}  # per worker process: recipe -> what it built
 

@@ -586,13 +586,14 @@ def _show(value) -> str:
 
 def describe_changes(stored: dict, wanted: dict, names: dict[str, str] | None = None) -> list[str]:
     """The settings that differ between a file's ``stored`` ones and the ``wanted`` ones, as
-    ``"--material: rubber -> jelly"`` (nested dicts compared key by key, ``a.b``). ``names`` maps a
-    (dotted) key to the option that sets it; others are shown as ``--key-with-dashes``."""
+    ``"{material}: rubber -> jelly"`` (nested dicts compared key by key, ``a.b``), each setting named as a
+    ``{field}`` placeholder of :class:`shellsim.options.SettingError` (the library shows the field, the
+    command line its option). ``names`` maps a (dotted) key to another name for it."""
     names = names or {}
     old, new = _flatten(json.loads(json.dumps(stored))), _flatten(json.loads(json.dumps(wanted)))
     changes = []
     for key in [*new, *(k for k in old if k not in new)]:
         if old.get(key) != new.get(key):
-            name = names.get(key, "--" + key.split(".")[-1].replace("_", "-"))
+            name = names.get(key, "{" + key.split(".")[-1] + "}")
             changes.append(f"{name}: {_show(old.get(key))} -> {_show(new.get(key))}")
     return changes

@@ -42,8 +42,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neural.errors import InputError
-
 from .motion import parse_frames
 
 log = logging.getLogger(__name__)
@@ -521,7 +519,7 @@ def render_motion(
     if (cameras is None) == (not orbit):
         raise ValueError("give exactly one of cameras and orbit=True")
     if fps is not None and not (fps > 0 and math.isfinite(fps)):
-        raise InputError(f"--fps: expected a positive number, got {fps}")
+        raise ValueError(f"fps: expected a positive number, got {fps}")
     motion = load_motion(motion_path)
     indices = parse_frames(frames, motion.n_frames, source=str(motion_path))
     if orbit:

@@ -53,12 +53,15 @@ class Selection:
         return _COMPARE[self.op](vertices[:, self.axis], self.threshold(vertices))
 
     def refusal(self, name: str, vertices: np.ndarray, what: str = "no") -> InputError:
-        """The error for a rule (given as ``name``) that selects ``what`` ("no", "every") of the cage vertices
-        (V, 3), with where they lie along its axis."""
+        """The error (a :class:`~shellsim.options.SettingError` of the setting ``name``) for a rule that
+        selects ``what`` ("no", "every") of the cage vertices (V, 3), with where they lie along its axis."""
+        from .options import SettingError
+
         coord = vertices[:, self.axis]
-        return InputError(
-            f"{name} {self.text!r} selects {what} cage vertex ({'xyz'[self.axis]} spans "
-            f"{coord.min():.4g} .. {coord.max():.4g})"
+        return SettingError(
+            name,
+            f"{self.text!r} selects {what} cage vertex ({'xyz'[self.axis]} spans "
+            f"{coord.min():.4g} .. {coord.max():.4g})",
         )
 
 

@@ -338,7 +338,11 @@ def animate_wind(
         writer.motion.check_against(SimpleNamespace(vertices=rest, tets=tets), str(writer.path))
         changes = motion_changes(writer.motion, wanted)
         if changes:
-            raise InputError(f"{writer.path}: was made with other wind settings ({'; '.join(changes)})")
+            from .options import SettingError
+
+            raise SettingError(
+                "out", f"was made with other wind settings ({'; '.join(changes)})", writer.path
+            )
     writer.motion.settings = wanted
     meta = writer.motion.meta
     meta["fps"] = float(fps)

@@ -63,7 +63,7 @@ def test_select_vertices_is_the_union_and_refuses_an_empty_rule():
     assert select_vertices(rules, v, "--pin").tolist() == [True, False, False, True]
     with pytest.raises(InputError) as err:
         select_vertices([*rules, parse_selection("y > 3")], v, "--pin")
-    assert str(err.value) == "--pin 'y > 3' selects no cage vertex (y spans 0 .. 0)"
+    assert str(err.value) == "--pin: 'y > 3' selects no cage vertex (y spans 0 .. 0)"
 
 
 def test_selection_in_world_units_and_percent():

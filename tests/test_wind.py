@@ -154,7 +154,7 @@ def test_settings_are_validated():
     with pytest.raises(InputError, match=r"^anchor 'z<<1': expected AXIS OP VALUE"):
         WindSettings(anchor="z<<1")
     verts, _ = column()
-    with pytest.raises(InputError, match=r"^anchor 'z<-1' selects no cage vertex \(z spans 0 .. 1\)$"):
+    with pytest.raises(InputError, match=r"^anchor: 'z<-1' selects no cage vertex \(z spans 0 .. 1\)$"):
         heights(verts, WindSettings(anchor="z<-1"))
     with pytest.raises(InputError, match="selects every cage vertex"):
         heights(verts, WindSettings(anchor="z<5"))

@@ -93,8 +93,8 @@ def export(settings: ExportSettings, progress: bool = True) -> list[Path]:
     out = Path(settings.out)
     taken = out.is_dir() and any(out.iterdir()) if settings.format == "ply" else out.exists()
     if taken and not settings.overwrite:
-        raise InputError(f"{out}: exists; give --overwrite to replace it, or another --out")
-    (check_writable_dir if settings.format == "ply" else check_writable_file)(out, "--out")
+        raise SettingError("out", "exists; give {overwrite} to replace it, or another {out}", out)
+    (check_writable_dir if settings.format == "ply" else check_writable_file)(out, "out")
     motion = load_motion(settings.motion)
     frames = parse_frames(settings.frames, motion.n_frames, settings.motion)
     meshes = None if settings.format == "vtu" else _meshes(settings, motion)

@@ -203,12 +203,12 @@ def motion_settings(settings: SimulateSettings) -> dict:
     return record
 
 
-#: The option behind each setting whose name is not ``--key-with-dashes``.
+#: How a changed setting is named when it is not the field itself (placeholders of SettingError).
 _OPTIONS = {
-    "youngs": "Young's modulus (--youngs)",
-    "poisson": "Poisson ratio (--poisson)",
-    "density": "density (--density)",
-    "drop_height": "--drop-height (none: --no-ground)",
+    "youngs": "Young's modulus ({youngs})",
+    "poisson": "Poisson ratio ({poisson})",
+    "density": "density ({density})",
+    "drop_height": "{drop_height} (none: {ground})",
 }
 
 
@@ -232,24 +232,24 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     from shellsim.outputs import check_writable_dir, check_writable_file
 
     s = settings
-    out = check_writable_file(s.out_path, "--out")
+    out = check_writable_file(s.out_path, "out")
     if s.video:
-        video = check_writable_file(s.video, "--video")
-        frames_dir = check_writable_dir(video.with_name(video.stem + "_frames"), "--video")
+        video = check_writable_file(s.video, "video")
+        frames_dir = check_writable_dir(video.with_name(video.stem + "_frames"), "video")
     material = get_material(s.material, s.youngs, s.poisson, s.density)
     rules = [parse_selection(text) for text in s.pin]
     device = device_setting(s.device, warp=True)  # the simulator runs in Warp
     record = motion_settings(s)
 
     if out.is_file() and not s.overwrite:  # same settings: continue the file; other settings: refuse
-        replace = "give --overwrite to start it anew, or another --out"
+        replace = "give {overwrite} to start it anew, or another {out}"
         writer = MotionWriter.resume(out)  # not a motion file: refused as it is, never replaced
         meta = writer.motion.meta
         if writer.motion.producer != "shellsim simulate" or not {"world", "up"} <= set(meta):
-            raise InputError(f"{out}: not a 'shellsim simulate' motion file; {replace}")
+            raise SettingError("out", f"not a 'shellsim simulate' motion file; {replace}", out)
         changes = describe_changes(writer.motion.settings, record, _OPTIONS)
         if changes:
-            raise InputError(f"{out}: made with other settings ({'; '.join(changes)}); {replace}")
+            raise SettingError("out", f"made with other settings ({'; '.join(changes)}); {replace}", out)
         _check_source(s, writer.motion)
         vertices, tets, up = writer.motion.rest_vertices, writer.motion.tets, np.asarray(meta["up"])
         world = WorldMap(tuple(meta["world"]["origin"]), float(meta["world"]["scale"]))
@@ -262,7 +262,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         log.info("%s: %s", s.name, how)
     up = up / np.linalg.norm(up)
 
-    pinned = select_vertices(rules, vertices, "--pin")
+    pinned = select_vertices(rules, vertices, "pin")
     sim_settings = _sim_settings(s, world, world.to_sim(vertices), up)
     sim = Simulator(world.to_sim(vertices), tets, material, sim_settings, pinned=pinned, device=device)
     if writer is None:

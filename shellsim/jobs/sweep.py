@@ -181,7 +181,7 @@ def sweep(settings: SweepSettings, progress: bool = True) -> dict:
     from shellsim.contact_sheet import contact_sheet
     from shellsim.outputs import check_writable_dir
 
-    out = check_writable_dir(settings.out, "--out")
+    out = check_writable_dir(settings.out, "out")
     out.mkdir(parents=True, exist_ok=True)
     combos = settings.combinations()
     index = {"asset": settings.asset, "frames": settings.frames, "combinations": [None] * len(combos)}

@@ -12,7 +12,6 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from neural.errors import InputError
 from shellsim.motion import MAX_FPS, MAX_FRAMES, overwrite_option, resume_option
 from shellsim.options import SettingError, check_range, floats, option
 from shellsim.selection import selection_text
@@ -112,18 +111,18 @@ def wind(settings: WindJobSettings, progress: bool = True) -> WindResult:
     s = settings
     asset = load_asset(s.asset)
     wind_ = s.wind_settings(asset.up)
-    out = check_writable_file(Path(s.out) if s.out else Path(f"{asset.name}_wind.npz"), "--out")
+    out = check_writable_file(Path(s.out) if s.out else Path(f"{asset.name}_wind.npz"), "out")
     # the stored cage whatever its settings (unless margin asks for another), else a default one
     cage = load_or_build_cage(asset, None if s.margin is None else CageConfig(margin=s.margin))
     if out.is_file() and not s.overwrite:
-        replace = "give --overwrite to start it anew, or another --out"
+        replace = "give {overwrite} to start it anew, or another {out}"
         writer = MotionWriter.resume(out)  # not a motion file: refused as it is, never replaced
         if writer.motion.producer != "shellsim wind":
-            raise InputError(f"{out}: not a 'shellsim wind' motion file; {replace}")
+            raise SettingError("out", f"not a 'shellsim wind' motion file; {replace}", out)
         writer.motion.check_against(cage)
         changes = motion_changes(writer.motion, wind_settings(wind_, s.fps))
         if changes:
-            raise InputError(f"{out}: made with other settings ({'; '.join(changes)}); {replace}")
+            raise SettingError("out", f"made with other settings ({'; '.join(changes)}); {replace}", out)
         log.info("continuing %s after frame %d", out, writer.n_frames - 1)
     else:
         if out.exists():

@@ -15,6 +15,7 @@ import os
 from collections.abc import Callable, Sequence
 
 from neural.errors import InputError
+from shellsim.options import SettingError
 
 log = logging.getLogger(__name__)
 
@@ -65,9 +66,8 @@ def connect(address: str | None = None):
         else:
             ray.init(address=address, log_to_driver=False, runtime_env=env, configure_logging=False)
     except (ConnectionError, RuntimeError, ValueError) as err:
-        raise InputError(
-            f"--ray {address or ''}: cannot start or reach Ray ({err})".replace("  ", " ")
-        ) from None
+        where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+        raise SettingError("ray", f"cannot start or reach {where} ({err})") from None
     return ray
 
 

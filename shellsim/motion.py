@@ -45,6 +45,7 @@ from neural.errors import InputError
 
 from .geometry import check_tets
 from .npz import load_npz, read_npz
+from .options import SettingError
 
 log = logging.getLogger(__name__)
 
@@ -532,8 +533,9 @@ def _load_surface(path: Path, arrays: dict, n_tets: int) -> Surface | None:
 
 
 def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
-    """``--frames``: ``"a:b"`` (b exclusive; either may be left out), ``"k"`` or None (all) -> the frame
-    indices, checked against ``n_frames``; a malformed or out-of-range spec is an :class:`InputError`."""
+    """The setting ``frames``: ``"a:b"`` (b exclusive; either may be left out), ``"k"`` or None (all) -> the
+    frame indices, checked against ``n_frames``; a malformed or out-of-range spec is a
+    :class:`~shellsim.options.SettingError` of ``frames``."""
     if spec is None:
         return range(n_frames)
     text = str(spec).strip()
@@ -548,14 +550,16 @@ def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
         else:
             raise ValueError
     except ValueError:
-        raise InputError(
-            f"--frames {text!r}: expected START:END (END exclusive, either optional) or one frame "
-            f"number, e.g. 0:60"
+        raise SettingError(
+            "frames",
+            "expected START:END (END exclusive, either optional) or one frame number, e.g. 0:60",
+            repr(text),
         ) from None
     if not 0 <= a < b <= n_frames:
-        raise InputError(
-            f"--frames {text!r}: {source} has {n_frames} frames (0..{n_frames - 1}); need "
-            f"0 <= START < END <= {n_frames}"
+        raise SettingError(
+            "frames",
+            f"{source} has {n_frames} frames (0..{n_frames - 1}); need 0 <= START < END <= {n_frames}",
+            repr(text),
         )
     return range(a, b)
 

@@ -229,7 +229,8 @@ def test_parse_frames(spec, expected):
 
 @pytest.mark.parametrize("spec", ["a:b", "1:2:3", "5:3", "0:11", "-1:2", "10"])
 def test_parse_frames_rejects_bad_specs(spec):
-    from neural.errors import InputError
+    from shellsim.options import SettingError
 
-    with pytest.raises(InputError, match="--frames"):
+    with pytest.raises(SettingError, match=f"^frames {spec!r}: ") as err:  # the CLI shows --frames instead
         parse_frames(spec, 10)
+    assert err.value.name == "frames"

@@ -27,16 +27,19 @@ class SettingError(InputError):
 
     ``value`` (e.g. a path) is shown after the name: ``"out /tmp/x: cannot write here"``. The message may
     name other settings as ``{field}``: the library shows the field's name, the command line its option
-    (``"give {overwrite} to replace it"``)."""
+    (``"give {overwrite} to replace it"``). ``name`` None: an error of the job as a whole whose message
+    names the settings to change."""
 
-    def __init__(self, name: str, message: str, value=None):
+    def __init__(self, name: str | None, message: str, value=None):
         self.name, self.message, self.value = name, message, value
         super().__init__(self.render({}))
 
     def render(self, flags: typing.Mapping[str, str]) -> str:
         """The message with each setting named by ``flags`` (field -> option) where it has one."""
-        where = flags.get(self.name, self.name) + ("" if self.value is None else f" {self.value}")
         message = re.sub(r"[{]([a-z_]+)[}]", lambda m: flags.get(m[1], m[1]), self.message)
+        if self.name is None:
+            return message
+        where = flags.get(self.name, self.name) + ("" if self.value is None else f" {self.value}")
         return f"{where}: {message}"
 
 
@@ -170,7 +173,7 @@ def options_named(cls):
         yield
     except SettingError as err:
         flags = {f.name: flag_of(f) for f in options(cls)}
-        if err.name not in flags:
+        if err.name is not None and err.name not in flags:
             raise
         raise InputError(err.render(flags)) from None
 

@@ -112,3 +112,13 @@ def test_an_option_with_const_takes_an_optional_value_and_lists_parse():
     ):
         with pytest.raises(InputError, match=f"^{message}$"):
             from_args(Job, parser.parse_args(argv))
+
+
+def test_an_error_of_the_whole_job_names_settings_as_options_at_the_command_line():
+    from shellsim.options import options_named
+
+    err = SettingError(None, "frame 3 failed; use more {frames} or a lower {fps}")
+    assert str(err) == "frame 3 failed; use more frames or a lower fps"
+    with pytest.raises(InputError) as raised, options_named(Toy):
+        raise err
+    assert str(raised.value) == "frame 3 failed; use more --frames or a lower --fps"

@@ -311,7 +311,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         try:
             history = run_frames(sim, remaining, writer, world, progress=progress)
         except SimulationError as err:
-            raise InputError(_failure_line(err, out, material)) from None
+            raise _failure(err, out, material) from None
     result = SimulateResult(out, writer.n_frames, history)
     if s.video:
         result.video = _render(s, out, frames_dir, video, s.device)
@@ -422,12 +422,13 @@ def _world_map(s: SimulateSettings, vertices: np.ndarray):
     )
 
 
-def _failure_line(err, out: Path, material) -> str:
-    """The one line for a :class:`shellsim.fem.SimulationError`: the frame, the value, what to change."""
+def _failure(err, out: Path, material) -> SettingError:
+    """The one line for a :class:`shellsim.fem.SimulationError`: the frame, the value, what to change (the
+    settings named as placeholders, which the command line shows as its options)."""
     advice = {
-        "collapse": f"use a stiffer material (--material, --youngs; now {material.youngs:g} Pa), a smaller "
-        "--size or --drop-height, or more --damping",
-        "speed": "lower --drop-height, --velocity or --spin",
-        "nonfinite": "use more --substeps or a lower --drop-height",
+        "collapse": f"use a stiffer material ({{material}}, {{youngs}}; now {material.youngs:g} Pa), a "
+        "smaller {size} or {drop_height}, or more {damping}",
+        "speed": "lower {drop_height}, {velocity} or {spin}",
+        "nonfinite": "use more {substeps} or a lower {drop_height}",
     }[err.kind]
-    return f"{err}; frames 0-{err.frame - 1} are kept in {out}; {advice}"
+    return SettingError(None, f"{err}; frames 0-{err.frame - 1} are kept in {out}; {advice}")

@@ -8,9 +8,8 @@ import pytest
 from shellsim.cli import main
 from shellsim.render import render_motion
 
-pytestmark = pytest.mark.slow
 
-
+@pytest.mark.slow
 def test_ray_frames_equal_serial_frames_and_resume(tmp_path):
     motion = tmp_path / "w.npz"
     assert main(["wind", "--asset", "lego", "--frames", "3", "--out", str(motion)]) == 0
@@ -29,6 +28,7 @@ def test_ray_frames_equal_serial_frames_and_resume(tmp_path):
     assert (tmp_path / "ray" / "00001.png").read_bytes() == (tmp_path / "serial" / "00001.png").read_bytes()
 
 
+@pytest.mark.slow
 def test_a_worker_killed_mid_render_loses_no_frame(tmp_path, monkeypatch):
     import os
     import signal
@@ -61,3 +61,16 @@ def test_a_worker_killed_mid_render_loses_no_frame(tmp_path, monkeypatch):
     for k in range(6):
         name = f"{k:05d}.png"
         assert (tmp_path / "ray" / name).read_bytes() == (tmp_path / "serial" / name).read_bytes(), name
+
+
+@pytest.mark.parametrize(
+    "command", [["render", "--asset", "lego", "--cameras", "none.json"], ["sweep", "--asset", "lego"]]
+)
+def test_a_missing_cluster_extra_is_one_line_naming_it(tmp_path, capsys, monkeypatch, command):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    assert main([*command, "--out", str(tmp_path / "out"), "--ray"]) == 2
+    err = capsys.readouterr().err
+    assert err.endswith("pip install 'shellsim[cluster]'\n") and err.count("\n") == 1
+    assert not (tmp_path / "out").exists()

@@ -181,6 +181,10 @@ def sweep(settings: SweepSettings, progress: bool = True) -> dict:
     from shellsim.contact_sheet import contact_sheet
     from shellsim.outputs import check_writable_dir
 
+    if settings.ray is not None:
+        from shellsim.distributed import require_ray
+
+        require_ray()  # before anything is written
     out = check_writable_dir(settings.out, "out")
     out.mkdir(parents=True, exist_ok=True)
     combos = settings.combinations()

@@ -7,6 +7,7 @@ Ray path includes starting Ray and loading the asset in every worker.
 
     python bench/ray_render_bench.py                    # lego, 24 frames at 200x200
     python bench/ray_render_bench.py --frames 48 --size 400 --address auto
+    python bench/ray_render_bench.py --serial-threads 1   # the serial path on one core
 """
 
 from __future__ import annotations
@@ -29,7 +30,15 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=200, help="frame width and height in pixels")
     parser.add_argument("--address", default="local", help="Ray cluster address (default: a local instance)")
     parser.add_argument("--out", default=None, help="directory to keep the frames in (default: temporary)")
+    parser.add_argument(
+        "--serial-threads",
+        type=int,
+        default=None,
+        help="torch threads of the serial path (default: all cores)",
+    )
     args = parser.parse_args()
+    if args.serial_threads:
+        torch.set_num_threads(args.serial_threads)
     out = Path(args.out or tempfile.mkdtemp(prefix="ray_render_bench_"))
     motion = out / "wind.npz"
     wind(

@@ -40,6 +40,15 @@ def warp_device(torch_device: str) -> str:
     return "cpu" if str(torch_device).startswith("cpu") else "cuda:0"
 
 
+def cpu_threads() -> int:
+    """CPU threads this process may use for its parallel work: torch's thread count (the cores, unless
+    ``OMP_NUM_THREADS`` or ``torch.set_num_threads`` says fewer, as a Ray worker does), so that Warp's
+    chunked launches never oversubscribe what torch was given."""
+    import torch
+
+    return max(1, torch.get_num_threads())
+
+
 def run_in_chunks(n: int, launch, threads: int, min_chunk: int) -> None:
     """Call ``launch(lo, hi)`` over ``[0, n)`` cut into contiguous chunks, one per Python thread: at most
     ``threads`` chunks of at least ``min_chunk`` items (one chunk, on this thread, when ``n`` is small).

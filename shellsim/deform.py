@@ -21,11 +21,10 @@ contains all content, so a renderer drops those samples.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import warp as wp
 
+from neural.device import cpu_threads as default_cpu_threads
 from neural.device import run_in_chunks
 
 from .embed import interpolate
@@ -194,7 +193,7 @@ class InverseMap:
     rest_vertices : (V, 3) float, the rest cage
     device : Warp device ("cpu", "cuda:0"); None picks Warp's preferred device (CUDA when present)
     tol : barycentric tolerance of the point-in-tet test
-    cpu_threads : threads sharing a query on the CPU (None: all cores)
+    cpu_threads : threads sharing a query on the CPU (None: :func:`neural.device.cpu_threads`)
 
     Building costs one Warp kernel over the tets and one BVH build (a few ms for 10k tets on a CPU).
     Queries accept numpy arrays (answered as float64 numpy) or torch tensors (answered as tensors of
@@ -225,7 +224,7 @@ class InverseMap:
             raise ValueError(f"cpu_threads: expected a positive int or None, got {cpu_threads!r}")
         self.device = wp.get_device(device)
         self.tol = float(tol)
-        self.cpu_threads = cpu_threads or os.cpu_count() or 1
+        self.cpu_threads = cpu_threads or default_cpu_threads()
         lo, hi = deformed.min(0), deformed.max(0)
         #: (float) diagonal of the deformed cage's bounding box
         self.diagonal = float(np.linalg.norm(hi - lo))

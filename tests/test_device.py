@@ -42,3 +42,27 @@ def test_the_cli_names_the_option(tmp_path, capsys, monkeypatch, name):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("shellsim: error: --device: device ")
     assert repr(name) in err[0]
+
+
+def test_parallel_work_takes_no_more_threads_than_torch_was_given(monkeypatch):
+    """A Ray worker sets torch to one thread: the Warp casts, the inverse map and the hash grid follow."""
+    import trimesh
+
+    from neural.field.hashgrid import HashGridConfig, HashGridEncoding
+    from neural.render.raycast import WarpCaster
+    from shellsim.deform import InverseMap
+
+    seen = []
+    monkeypatch.setattr(
+        "neural.field.hashgrid_warp.hash_encode_warp",
+        lambda x, t, r, cpu_threads: seen.append(cpu_threads) or x,
+    )
+    sphere = trimesh.creation.icosphere(1)
+    tets, verts = [[0, 1, 2, 3]], [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]
+    encoding = HashGridEncoding(HashGridConfig(log2_table_size=10), cpu_threads=2)
+    for threads in (2, 1):
+        monkeypatch.setattr(torch, "get_num_threads", lambda n=threads: n)
+        assert WarpCaster(sphere, sphere.copy(), device="cpu").cpu_threads == threads
+        assert InverseMap(verts, tets, verts, device="cpu").cpu_threads == threads
+        encoding(torch.zeros(4, 3))
+    assert seen == [2, 1]

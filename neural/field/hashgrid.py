@@ -20,6 +20,7 @@ import torch
 from torch import nn
 
 from ..config import BACKENDS, HashGridConfig
+from ..device import cpu_threads
 
 PRIMES = (1, 2654435761, 805459861)
 
@@ -113,7 +114,8 @@ class HashGridEncoding(nn.Module):
             return hash_encode_torch(x, self.table, self.resolutions)
         from .hashgrid_warp import hash_encode_warp
 
-        return hash_encode_warp(x, self.table, self.resolutions, cpu_threads=self.cpu_threads)
+        threads = min(self.cpu_threads, cpu_threads())  # no more than this process was given
+        return hash_encode_warp(x, self.table, self.resolutions, cpu_threads=threads)
 
     def extra_repr(self) -> str:
         return f"{self.config}, backend={self.backend!r}"

@@ -14,7 +14,6 @@ peeling), over interchangeable backends that only cast one batch of rays against
 
 from __future__ import annotations
 
-import os
 from abc import ABC, abstractmethod
 
 import numpy as np
@@ -22,6 +21,7 @@ import torch
 import trimesh
 import warp as wp
 
+from neural.device import cpu_threads as default_cpu_threads
 from neural.device import run_in_chunks
 
 # Step past a hit before casting again, relative to the scene's bounding-box diagonal: far above float32
@@ -244,7 +244,8 @@ class WarpCaster(ShellCaster):
     positions (same faces) and refits the BVHs in linear time, so deformed shells (paper Sec. 5) are cast
     without a rebuild per frame (refitting 440k faces takes ~12 ms on a CPU core, building them into Embree
     ~600 ms). Casts run on ``device`` ("cpu", "cuda:0"; None: Warp's preferred), on the CPU split over
-    ``cpu_threads`` threads (None: all cores). Centre and peeling step stay those of the shells given here.
+    ``cpu_threads`` threads (None: :func:`neural.device.cpu_threads`). Centre and peeling step stay those
+    of the shells given here.
     """
 
     def __init__(
@@ -255,7 +256,7 @@ class WarpCaster(ShellCaster):
         cpu_threads: int | None = None,
     ):
         self.device = wp.get_device(device)
-        self.cpu_threads = 1 if self.device.is_cuda else (cpu_threads or os.cpu_count() or 1)
+        self.cpu_threads = 1 if self.device.is_cuda else (cpu_threads or default_cpu_threads())
         super().__init__(outer, inner)
 
     def _build(self, vertices: np.ndarray, faces: np.ndarray) -> wp.Mesh:

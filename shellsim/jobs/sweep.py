@@ -2,8 +2,8 @@
 animations), each rendered, one sub-directory per combination, an index and a labelled contact sheet.
 
 ``OUT/<name>/`` holds ``motion.npz``, ``frames/<k:05d>.png`` (one orbiting camera for all, framing every
-motion of the sweep, so the stills compare at one scale) and, with ``video``,
-``video.mp4``; ``<name>`` is ``<material>_h<height>`` for a drop and ``wind_<strength>`` for wind.
+motion of the sweep, so the stills compare at one scale) and, with ``video``, ``video.mp4``; ``<name>``
+is ``<material>_h<height>`` for a drop and ``wind_<strength>`` for wind.
 ``OUT/index.json`` lists every combination with its settings, files and figures and is rewritten as each
 finishes; ``OUT/contact_sheet.png`` shows the last frame of each, labelled. Every step resumes: a motion
 made with the same settings is continued (or left as it is when complete) and frames already rendered are
@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from shellsim.motion import MAX_FRAMES
 from shellsim.options import SettingError, check_range, float_list, name_list, option, pixels
 
 
@@ -66,10 +67,11 @@ class SweepSettings:
             check_range("drop_height", height, 0, 100, "a height in metres")
         for strength in self.wind:
             check_range("wind", strength, 0, 1, "a tip deflection / height")
-        check_range("frames", self.frames, 1, 10_000, "an integer")
-        names = [c["name"] for c in self.combinations()]
-        if len(set(names)) != len(names):
-            raise SettingError("material", "each value may be given once")
+        check_range("frames", self.frames, 1, MAX_FRAMES, "an integer")
+        for name in ("material", "drop_height", "wind"):
+            values = getattr(self, name)
+            if len(set(values)) != len(values):
+                raise SettingError(name, "each value may be given once")
 
     def combinations(self) -> list[dict]:
         """The runs, drops first: [{"name", "kind": "drop", "material", "drop_height"} or {"name", "kind":

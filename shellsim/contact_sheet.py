@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
 from pathlib import Path
+
+from .outputs import write_atomically
 
 #: Height in pixels of the label strip under each still.
 LABEL_HEIGHT = 16
@@ -31,8 +32,4 @@ def contact_sheet(stills: Sequence[Path], labels: Sequence[str], path, columns: 
         image.thumbnail((cell_w, cell_h))
         sheet.paste(image, (x + (cell_w - image.width) // 2, y + (cell_h - image.height) // 2))
         draw.text((x + 3, y + cell_h + 2), label, fill="black", font=font)
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    sheet.save(tmp)
-    os.replace(tmp, path)
-    return path
+    return write_atomically(path, sheet.save)

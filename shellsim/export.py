@@ -8,7 +8,6 @@ when complete: an interrupted export leaves no half-written file under the final
 
 from __future__ import annotations
 
-import os
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -17,6 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
+
+from .outputs import write_atomically
 
 #: The install line for USD export, printed when ``pxr`` is missing.
 USD_HINT = "USD export needs the usd-core package: pip install 'shellsim[usd]'"
@@ -29,18 +30,6 @@ class AnimatedMesh:
     name: str
     faces: np.ndarray
     points: Callable[[int], np.ndarray]
-
-
-def _replace_atomically(write: Callable[[Path], None], path: Path) -> Path:
-    """Call ``write(tmp)`` for a temporary file beside ``path``, then rename it to ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
 
 
 def require_usd() -> None:
@@ -119,7 +108,7 @@ def write_usd(
                 progress()
         stage.GetRootLayer().Save()
 
-    return _replace_atomically(write, path)
+    return write_atomically(path, write)
 
 
 def write_vtu_series(
@@ -151,7 +140,7 @@ def write_vtu_series(
         grid.point_data["displacement"] = x - rest
         grid.cell_data["volume_ratio"] = volume_ratios(rest, x, tets)
         name = f"frame_{frame:05d}.vtu"
-        written.append(_replace_atomically(lambda tmp, g=grid: g.save(str(tmp), binary=True), folder / name))
+        written.append(write_atomically(folder / name, lambda tmp, g=grid: g.save(str(tmp), binary=True)))
         ET.SubElement(
             collection,
             "DataSet",
@@ -165,7 +154,7 @@ def write_vtu_series(
     document = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
     document.append(collection)
     ET.indent(document)
-    written.append(_replace_atomically(lambda tmp: ET.ElementTree(document).write(tmp, "utf-8", True), path))
+    written.append(write_atomically(path, lambda tmp: ET.ElementTree(document).write(tmp, "utf-8", True)))
     return written
 
 
@@ -183,9 +172,7 @@ def write_ply_sequence(
     for frame in frames:
         surface = trimesh.Trimesh(np.asarray(mesh.points(frame), np.float64), mesh.faces, process=False)
         target = directory / f"{mesh.name}_{frame:05d}.ply"
-        written.append(
-            _replace_atomically(lambda tmp, s=surface: s.export(str(tmp), file_type="ply"), target)
-        )
+        written.append(write_atomically(target, lambda tmp, s=surface: s.export(str(tmp), file_type="ply")))
         if progress:
             progress()
     return written

@@ -189,15 +189,21 @@ def device_setting(name: str, warp: bool = False) -> str:
         raise SettingError("device", str(err)) from None
 
 
+def _finite_numbers(text: str) -> tuple[float, ...]:
+    """The comma-separated numbers of ``text``; () when one is not a finite number."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        return ()
+    return values if all(math.isfinite(v) for v in values) else ()
+
+
 def floats(count: int) -> Callable[[str], tuple[float, ...]]:
     """A parser of ``count`` comma-separated finite numbers: ``"1,0,0.5"`` -> (1.0, 0.0, 0.5)."""
 
     def parse(text: str) -> tuple[float, ...]:
-        try:
-            values = tuple(float(v) for v in text.split(","))
-        except ValueError:
-            values = ()
-        if len(values) != count or not all(math.isfinite(v) for v in values):
+        values = _finite_numbers(text)
+        if len(values) != count:
             raise ValueError(f"expected {count} comma-separated numbers")
         return values
 
@@ -206,11 +212,8 @@ def floats(count: int) -> Callable[[str], tuple[float, ...]]:
 
 def float_list(text: str) -> tuple[float, ...]:
     """``"0.1,0.3"`` -> (0.1, 0.3): one or more comma-separated finite numbers."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if not values or not all(math.isfinite(v) for v in values):
+    values = _finite_numbers(text)
+    if not values:
         raise ValueError("expected comma-separated numbers")
     return values
 

@@ -109,13 +109,20 @@ def test_vtu_series_carries_displacement_and_det_f(rod, tmp_path):
         )
 
 
-def test_ply_sequence_of_a_simulated_mesh_surface(tmp_path):
+def mesh_motion(path, meta=None) -> trimesh.Trimesh:
+    """A 'simulate --mesh'-like motion at ``path``: a sphere carried by a Kuhn-box cage under the affine
+    motion; returns the sphere at rest."""
     verts, tets, _ = kuhn_grid(0.0, 1.0, 2)
     sphere = trimesh.creation.icosphere(1, radius=0.3)
     sphere.apply_translation([0.5, 0.5, 0.5])
     surface = Surface(*embed_points(verts, tets, sphere.vertices), np.asarray(sphere.faces))
+    write_motion(path, SimpleNamespace(vertices=verts, tets=tets), meta, surface)
+    return sphere
+
+
+def test_ply_sequence_of_a_simulated_mesh_surface(tmp_path):
     motion = tmp_path / "m.npz"
-    write_motion(motion, SimpleNamespace(vertices=verts, tets=tets), surface=surface)
+    sphere = mesh_motion(motion)
     out = tmp_path / "ply"
     assert main(["export", "--format", "ply", "--motion", str(motion), "--out", str(out)]) == 0
     files = sorted(out.glob("*.ply"))
@@ -173,12 +180,8 @@ def test_a_missing_usd_extra_is_one_line_naming_it(rod, tmp_path, capsys, monkey
 def test_usd_of_a_mesh_motion_takes_the_motion_up_axis(tmp_path):
     from pxr import Usd, UsdGeom
 
-    verts, tets, _ = kuhn_grid(0.0, 1.0, 2)
-    sphere = trimesh.creation.icosphere(1, radius=0.3)
-    sphere.apply_translation([0.5, 0.5, 0.5])
-    surface = Surface(*embed_points(verts, tets, sphere.vertices), np.asarray(sphere.faces))
     motion = tmp_path / "m.npz"
-    write_motion(motion, SimpleNamespace(vertices=verts, tets=tets), {"up": [0.0, 1.0, 0.0]}, surface)
+    sphere = mesh_motion(motion, {"up": [0.0, 1.0, 0.0]})
     out = tmp_path / "mesh.usda"
     assert main(["export", "--motion", str(motion), "--out", str(out)]) == 0
     stage = Usd.Stage.Open(str(out))

@@ -16,7 +16,6 @@ from __future__ import annotations
 import functools
 import itertools
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -154,12 +153,6 @@ def _call(step, settings, args, payload):
     return step(settings, payload, *args)
 
 
-def _write_json(path: Path, value) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(value, indent=1))
-    os.replace(tmp, path)
-
-
 def _run(settings: SweepSettings, combos: list[dict], step, args: tuple, on_result, bar, what: str) -> None:
     """``step(settings, combo, *args)`` for every combination, serially or as Ray tasks; ``on_result(i, r)``
     as each finishes."""
@@ -181,7 +174,7 @@ def sweep(settings: SweepSettings, progress: bool = True) -> dict:
     from tqdm import tqdm
 
     from shellsim.contact_sheet import contact_sheet
-    from shellsim.outputs import check_writable_dir
+    from shellsim.outputs import check_writable_dir, write_atomically
 
     if settings.ray is not None:
         from shellsim.distributed import require_ray
@@ -195,7 +188,8 @@ def sweep(settings: SweepSettings, progress: bool = True) -> dict:
 
     def done(i: int, entry: dict) -> None:
         index["combinations"][i] = entry
-        _write_json(out / "index.json", {**index, "combinations": [e for e in index["combinations"] if e]})
+        listed = {**index, "combinations": [e for e in index["combinations"] if e]}
+        write_atomically(out / "index.json", lambda tmp: tmp.write_text(json.dumps(listed, indent=1)))
         bar.update()
 
     corners = [None] * len(combos)

@@ -1,32 +1,34 @@
-"""Stage-1 benchmark on the LEGO scene (paper Sec. 3.5 / Procedure 4 lines 1-5).
+"""Time to quality on the LEGO scene: ``shellsim train`` end to end (stage 1, shell extraction, stage 2) at
+200x200, as a user runs it.
 
-Trains stage 1 on ``../shared/data/lego`` at downscale 4 (200x200) on every 8th-view-held-out split and
-prints held-out PSNR/SSIM (all held-out views, rendered with the training occupancy grid: within 0.01 dB of
-full-ray rendering on lego), minutes, steps per minute and peak memory. Target on a 2-core CPU: PSNR >= 27
-dB within 20 minutes (measured: 27.32 dB after 5000 steps in 22.1 minutes; 27.36 dB in 19.4 minutes in an
-earlier run; 26.74 dB with ``random_background``).
+Runs ``shellsim train --data DATA --out OUT --downscale 4 --steps N --eval-every K --eval-views 0`` (any
+further ``shellsim train`` options after ``--``) in a child process, then reads the curve of held-out PSNR
+(all 12 held-out views, every 8th) against training minutes that the command records in ``asset.json``:
+stage-1 points rendered with the training occupancy grid (within 0.01 dB of full-ray rendering on lego),
+then stage-2 points in the narrow band (what ``shellsim eval`` reports), after the shell extraction's time.
+Minutes leave the evaluations out. Prints the curve, the first minute at which it reached 27 and 28 dB, the
+final narrow-band figures and the command's whole wall time. Target on a 2-core CPU: 28 dB held-out
+(narrow band) within 25 minutes. Run it on a quiet machine.
 
-    python bench/train_lego.py [--steps N] [--data DIR] [--out DIR] [--device cpu|cuda] [--resume]
+    python bench/train_lego.py [--steps N] [--every K] [--data DIR] [--out DIR] [-- TRAIN_OPTIONS]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import resource
 import shutil
+import subprocess
+import sys
 import time
 from pathlib import Path
 
-import numpy as np
-import torch
+from neural.config import Stage1Config
 
-from neural.data import load_dataset
-from neural.device import pick_device
-from neural.field import FieldConfig
-from neural.pipeline import build_field
-from neural.render.view import occupancy_sampler
-from neural.train import Stage1Config, evaluate, train_stage1
+
+def crossing(curve: list[dict], level: float) -> float | None:
+    """First training minute at which a curve point reached ``level`` dB (None: never)."""
+    return next((p["minutes"] for p in curve if p["psnr"] >= level), None)
 
 
 def main() -> None:
@@ -35,40 +37,39 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--data", default=str(here.parent / "shared" / "data" / "lego"))
-    parser.add_argument(
-        "--steps", type=int, default=5000, help="stage-1 steps (default 5000: about 20 minutes on 2 cores)"
-    )
     parser.add_argument("--out", default=str(here / "runs" / "bench_lego"))
-    parser.add_argument("--device", default="auto")
-    parser.add_argument(
-        "--resume", action="store_true", help="continue an earlier run instead of starting over"
-    )
+    parser.add_argument("--steps", type=int, default=Stage1Config.steps, help="stage-1 steps")
+    parser.add_argument("--every", type=int, default=1000, help="stage-1 steps between curve points")
+    parser.add_argument("train_options", nargs="*", help="more shellsim train options (after --)")
     args = parser.parse_args()
-    device = pick_device(args.device)
-    if not args.resume:
-        shutil.rmtree(args.out, ignore_errors=True)
-    torch.set_num_threads(max(1, torch.get_num_threads()))
-    data = load_dataset(args.data, downscale=4, background=(1.0, 1.0, 1.0))
-    config = Stage1Config(steps=args.steps, eval_every=max(args.steps // 4, 1))
-    field = build_field(data, FieldConfig(), device)
+    shutil.rmtree(args.out, ignore_errors=True)
+    command = [
+        *("train", "--data", args.data, "--out", args.out, "--downscale", "4"),
+        *("--steps", str(args.steps), "--eval-every", str(args.every), "--eval-views", "0"),
+        *args.train_options,
+    ]
     start = time.perf_counter()
-    result = train_stage1(field, data, Path(args.out), config, device)
-    minutes = (time.perf_counter() - start) / 60.0
-    background = torch.as_tensor(data.background, dtype=torch.float32, device=device)
-    sampler = occupancy_sampler(result["occupancy"], field, config.step_size, config.max_samples_per_ray)
-    heldout = evaluate(field, data, np.asarray(data.test_idx), sampler, background)
-    peak_gib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    subprocess.run([sys.executable, "-m", "shellsim.cli", *command], check=True)
+    wall = (time.perf_counter() - start) / 60.0
+    meta = json.loads((Path(args.out) / "asset.json").read_text())
+    curve = meta["training"]["curve"]
+    print("stage  step  minutes  held-out PSNR  samples/pixel")
+    for p in curve:
+        print(
+            f"{p['stage']:>5} {p['step']:>5} {p['minutes']:8.2f} {p['psnr']:10.2f} dB "
+            f"{p['samples_per_pixel']:10.2f}"
+        )
+    final = meta["metrics"]["stage2_narrow_band"]
     figures = {
-        "device": device,
-        "steps": args.steps,
-        "train_minutes": round(minutes, 2),
-        "steps_per_minute": round(args.steps / minutes, 1) if minutes > 0 else None,
-        "heldout_views": len(data.test_idx),
-        "heldout_psnr": round(heldout["psnr"], 3),
-        "heldout_ssim": round(heldout["ssim"], 4),
-        "samples_per_pixel": round(heldout["samples_per_pixel"], 2),
-        "ms_per_frame_occupancy_grid": round(heldout["ms_per_frame"], 1),
-        "peak_rss_gib": round(peak_gib, 2),
+        "command": meta["training"]["command"],
+        "training_minutes": curve[-1]["minutes"],
+        "command_wall_minutes": round(wall, 2),
+        "heldout_views": len(final["views"]),
+        "narrow_band_psnr": round(final["psnr"], 3),
+        "narrow_band_ssim": round(final["ssim"], 4),
+        "narrow_band_samples_per_pixel": round(final["samples_per_pixel"], 2),
+        "minute_27dB": crossing(curve, 27.0),
+        "minute_28dB": crossing(curve, 28.0),
     }
     print(json.dumps(figures, indent=1))
 

@@ -149,6 +149,8 @@ class Stage1Config:
 
     steps: int = 6000
     target_samples: int = 65536  # samples per batch; the ray count adapts to it (Instant-NGP)
+    min_transmittance: float = 1e-4  # samples behind this transmittance are dropped before the gradient pass
+    max_candidates: int = 196608  # samples per batch of that geometry-only pass; the ray count obeys both
     initial_rays: int = 2048
     max_rays: int = 16384
     lr_encoding: float = 3e-2  # ~3x Instant-NGP's 1e-2 / 3e-3: lego +1.3 dB after 5000 steps (white bg)
@@ -170,7 +172,7 @@ class Stage1Config:
     occupancy_every: int = 16
     random_background: bool = False  # see PixelSampler; only for images with alpha
     eval_every: int = 1000
-    eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
+    eval_views: int = 2  # held-out views of the periodic evaluations (0: all); the final one uses all
     checkpoint_every: int = 250
     checkpoint_seconds: float = 120.0  # also checkpoint when this much time passed since the last one
     seed: int = 0
@@ -187,7 +189,7 @@ class Stage2Config:
     final_lr_factor: float = 0.3
     random_background: bool = False  # see PixelSampler; only for images with alpha
     eval_every: int = 500
-    eval_views: int = 2  # held-out views of the periodic evaluations; the final one uses all
+    eval_views: int = 2  # held-out views of the periodic evaluations (0: all); the final one uses all
     checkpoint_every: int = 250
     checkpoint_seconds: float = 120.0  # also checkpoint when this much time passed since the last one
     seed: int = 1

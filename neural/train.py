@@ -32,7 +32,7 @@ from .losses import (
     total_loss,
 )
 from .metrics import psnr, ssim
-from .render.fullray import render_rays
+from .render.fullray import render_rays, visible_samples
 from .render.view import (
     field_occupancy_grid,
     narrow_band_sampler,
@@ -159,15 +159,30 @@ def _psnr(color: torch.Tensor, target: torch.Tensor) -> float:
     return -10.0 * math.log10(max(float(((color.detach() - target) ** 2).mean()), 1e-10))
 
 
+class _TrainingClock:
+    """Seconds this run has spent training: wall time since it started, evaluations excluded."""
+
+    def __init__(self):
+        self.start, self.excluded = time.perf_counter(), 0.0
+
+    def seconds(self) -> float:
+        return time.perf_counter() - self.start - self.excluded
+
+
 def _periodic_evaluation(
-    stage: str, done: int, config, field, data: SceneData, sampler, background, bar
+    stage: str, done: int, config, field, data: SceneData, sampler, background, bar, clock: _TrainingClock
 ) -> dict | None:
     """Held-out evaluation every ``config.eval_every`` steps on ``config.eval_views`` views, and at the last
-    step on every held-out view; None on the other steps."""
+    step on every held-out view; None on the other steps. The metrics hold ``train_seconds``, this run's
+    training time so far (``clock``, which then leaves the evaluation's time out)."""
     if done % config.eval_every and done != config.steps:
         return None
-    views = data.test_idx if done == config.steps else np.asarray(data.test_idx)[: config.eval_views]
+    every_view = done == config.steps or config.eval_views == 0
+    views = data.test_idx if every_view else np.asarray(data.test_idx)[: config.eval_views]
+    tick, seconds = time.perf_counter(), clock.seconds()
     metrics = {**evaluate(field, data, views, sampler, background), "step": done}
+    metrics["train_seconds"] = round(seconds, 2)
+    clock.excluded += time.perf_counter() - tick
     bar.write(
         f"{stage} step {done}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.3f}, "
         f"{metrics['samples_per_pixel']:.2f} samples/pixel"
@@ -227,7 +242,7 @@ def train_stage1(
         "sharp": config.lambda_k,
     }
     bar = _progress(config.steps, start, "stage 1")
-    history = []
+    history, clock = [], _TrainingClock()
 
     def save(done: int) -> None:
         meta = {"step": done, "n_rays": n_rays, "final": final if done == config.steps else None}
@@ -241,12 +256,13 @@ def train_stage1(
                     grid.update(sdf_kernel_fn(field), step)
             set_learning_rate(optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor)
             origins, dirs, target, ray_background = pixels.sample(n_rays)
-            samples = sampler(origins, dirs)
+            anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
+            candidates = sampler(origins, dirs)
+            samples = visible_samples(field, origins, dirs, candidates, config.min_transmittance, anneal)
             n_samples = len(samples.ray_indices)
             if n_samples == 0:
                 bar.update(1)
                 continue
-            anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
             out = render_rays(field, origins, dirs, samples, ray_background, cos_anneal=anneal)
             k = max(1, int(n_samples * config.reg_fraction))
             pick = torch.randperm(n_samples, generator=reg_gen)[:k].to(origins.device)
@@ -257,18 +273,19 @@ def train_stage1(
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-            n_rays = int(np.clip(n_rays * config.target_samples / n_samples, 256, config.max_rays))
+            grow = min(config.target_samples / n_samples, config.max_candidates / len(candidates.ray_indices))
+            n_rays = int(np.clip(n_rays * grow, 256, config.max_rays))
             bar.set_postfix(
                 loss=f"{loss.item():.4f}",
                 psnr=f"{_psnr(out['color'], target):.2f}",
                 rays=n_rays,
-                spp=f"{n_samples / len(origins):.1f}",
+                spp=f"{n_samples / len(origins):.1f}/{len(candidates.ray_indices) / len(origins):.1f}",
                 s=f"{float(1 / out['inv_s'].detach().mean()) * scale:.4f}",
             )
             bar.update(1)
             done = step + 1
             final = _periodic_evaluation(
-                "stage 1", done, config, field, data, eval_sampler, pixels.background, bar
+                "stage 1", done, config, field, data, eval_sampler, pixels.background, bar, clock
             )
             history += [final] if final else []
             checkpoints.due(done)
@@ -278,7 +295,7 @@ def train_stage1(
         raise
     if final is None and done == config.steps:  # resumed after the last step, before its evaluation
         final = _periodic_evaluation(
-            "stage 1", done, config, field, data, eval_sampler, pixels.background, bar
+            "stage 1", done, config, field, data, eval_sampler, pixels.background, bar, clock
         )
         history.append(final)
     bar.close()
@@ -310,7 +327,7 @@ def train_stage2(
     sampler = narrow_band_sampler(EmbreeCaster(outer, inner), narrowband)
     pixels = PixelSampler(data, device, config.seed + start, config.random_background)
     bar = _progress(config.steps, start, "stage 2")
-    history = []
+    history, clock = [], _TrainingClock()
 
     def save(done: int) -> None:
         save_checkpoint(
@@ -336,7 +353,7 @@ def train_stage2(
             bar.update(1)
             done = step + 1
             final = _periodic_evaluation(
-                "stage 2", done, config, field, data, sampler, pixels.background, bar
+                "stage 2", done, config, field, data, sampler, pixels.background, bar, clock
             )
             history += [final] if final else []
             checkpoints.due(done)
@@ -345,7 +362,9 @@ def train_stage2(
         checkpoints.interrupted(done, "stage 2")
         raise
     if final is None and done == config.steps:  # resumed after the last step, before its evaluation
-        final = _periodic_evaluation("stage 2", done, config, field, data, sampler, pixels.background, bar)
+        final = _periodic_evaluation(
+            "stage 2", done, config, field, data, sampler, pixels.background, bar, clock
+        )
         history.append(final)
     bar.close()
     return {"history": history, "final": history[-1] if history else final}

@@ -7,7 +7,7 @@ import pytest
 import torch
 from scenes import SphereField
 
-from neural.render.fullray import ray_aabb, render_rays, stepped_samples
+from neural.render.fullray import ray_aabb, render_rays, stepped_samples, visible_samples
 from neural.render.occupancy import OccupancyConfig, OccupancyGrid
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -200,6 +200,30 @@ def test_occupancy_sampling_renders_like_dense_sampling(device):
     assert 50 < hits < 250  # both hits and misses are exercised
     for key in ("opacity", "color", "depth"):  # skipped cells could add at most ~exp(-band_widths) = 3e-4
         assert (a[key] - b[key]).abs().max() < 1e-4, key
+
+
+@pytest.mark.parametrize("inv_s, left", [(30.0, 0.9), (1000.0, 0.6)])
+def test_visible_samples_drop_a_tail_that_changes_colours_by_at_most_the_threshold(inv_s, left):
+    field = SphereField(0.6, inv_s)
+    origins, dirs = random_rays(256, 7, spread=0.9)
+    near, far = ray_aabb(origins, dirs, LO, HI)
+    samples = stepped_samples(near, far, 0.01, 1024, perturb=True, generator=torch.Generator().manual_seed(1))
+    bg = torch.tensor([0.2, 0.9, 0.4])
+    full = render_rays(field, origins, dirs, samples, bg)
+    for threshold in (1e-2, 1e-4):
+        kept = visible_samples(field, origins, dirs, samples, threshold)
+        # a prefix of every ray: per ray, the kept count and the first samples coincide
+        counts = samples.counts()
+        first = torch.cumsum(counts, 0) - counts
+        rank = torch.arange(len(samples.ray_indices)) - first[samples.ray_indices]
+        assert torch.equal(kept.t_starts, samples.t_starts[rank < kept.counts()[samples.ray_indices]])
+        # what a dropped tail can add to a colour in [0, 1] is at most T at its start
+        part = render_rays(field, origins, dirs, kept, bg)
+        assert (part["color"] - full["color"]).abs().max() <= threshold
+        # the samples behind the sphere's front go: all but ``left`` of them on rays through the solid
+        hit = full["opacity"] > 0.99
+        assert hit.sum() > 50 and kept.counts()[hit].sum() < left * counts[hit].sum()
+    assert visible_samples(field, origins, dirs, samples, 0.0) is samples
 
 
 def test_occupancy_perturbed_samples_lie_in_occupied_cells():

@@ -72,6 +72,11 @@ def test_asset_records_training_and_the_narrow_band_renders_well(fuzzy):
     assert meta["format_version"] == 1 and meta["shell"]["resolution"] == 96
     nb = meta["metrics"]["stage2_narrow_band"]
     assert nb["views"] == [0, 8, 16] and nb["psnr"] > 22.0 and nb["samples_per_pixel"] < 20
+    # the curve: each stage's last evaluation, stage 2's after stage 1's minutes and the extraction's
+    first, last = meta["training"]["curve"]
+    assert (first["stage"], first["step"], last["stage"], last["step"]) == (1, 300, 2, 40)
+    assert 0 < first["minutes"] < last["minutes"] < meta["training"]["wall_minutes"]
+    assert last["psnr"] == nb["psnr"] and first["psnr"] == meta["metrics"]["stage1_full_ray"]["psnr"]
     assert not (asset_dir / "checkpoints").exists()
 
 

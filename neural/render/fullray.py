@@ -7,7 +7,8 @@ sections of a fixed length (Instant-NGP marching), the candidates that the occup
 live in ``bench/fullray_samplers.py``.)
 
 :func:`render_rays` evaluates a field once on all samples, turns SDF, kernel and predicted normal into opacity
-and composites (Eq. 2-3).
+and composites (Eq. 2-3). :func:`visible_samples` drops, before that, the samples that no light reaches
+(training: the gradient pass then only pays for the samples that can change a pixel).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any
 
 import torch
 
-from .composite import composite
+from .composite import composite, transmittance
 from .neus import neus_alpha
 from .samples import RaySamples
 
@@ -214,3 +215,32 @@ def render_samples(
         geometry=geometry,
     )
     return out
+
+
+@torch.no_grad()
+def visible_samples(
+    field: Any,
+    origins: torch.Tensor,
+    dirs: torch.Tensor,
+    samples: RaySamples,
+    min_transmittance: float,
+    cos_anneal: float = 1.0,
+) -> RaySamples:
+    """The samples that light still reaches: transmittance ``T_i > min_transmittance`` (Eq. 2).
+
+    One pass of the geometry network (no colour, no gradient) gives each sample's NeuS opacity as
+    :func:`render_rays` computes it. T is non-increasing along a ray, so what is dropped is a tail of each
+    ray; rendering the kept samples changes a ray's colour by at most ``T`` at its first dropped sample
+    times the largest colour difference, i.e. by at most ``min_transmittance`` for colours in [0, 1].
+    origins, dirs : (R, 3) ; samples : packed samples of these rays ; ``min_transmittance <= 0`` keeps all.
+    """
+    rays = samples.ray_indices
+    if min_transmittance <= 0 or rays.numel() == 0:
+        return samples
+    norm = dirs.norm(dim=1)[rays]
+    unit_dirs = dirs[rays] / norm[:, None].clamp_min(1e-12)
+    geometry = field.geometry(samples.points(origins, dirs))
+    cos = (unit_dirs * geometry.normal).sum(dim=1)
+    fronts = (samples.t_mid - samples.t_starts) * norm
+    alpha = neus_alpha(geometry.sdf, geometry.inv_s, cos, samples.deltas * norm, cos_anneal, fronts)
+    return samples.select(transmittance(alpha, rays, samples.n_rays) > min_transmittance)

@@ -19,6 +19,7 @@ from neural.config import (
     PipelineConfig,
     ShellConfig,
     Stage1Config,
+    Stage2Config,
     scaled_defaults,
 )
 from neural.device import DEVICES
@@ -102,12 +103,22 @@ class TrainSettings:
         help="colour input: the view direction mirrored about the normal (reflected: glossy surfaces stay "
         "surfaces) or the view direction itself (direction: the paper's)",
     )
+    eval_every: int = option(
+        Stage1Config.eval_every,
+        help="stage-1 steps between held-out evaluations (stage 2: every "
+        f"{Stage2Config.eval_every}); asset.json records them as a curve of PSNR against minutes",
+    )
+    eval_views: int = option(
+        Stage1Config.eval_views, help="held-out views of each evaluation but the last (0: all; the last: all)"
+    )
     name: str | None = option(help="asset name", shown_default="the output directory's name")
     keep_checkpoints: bool = option(False, help="keep OUT/checkpoints after success")
     device: str = option("auto", help="cpu, cuda or auto")
 
     def __post_init__(self):
-        for name in ("downscale", "steps", "stage2_steps"):
+        if self.eval_views < 0:
+            raise SettingError("eval_views", f"expected an integer >= 0, got {self.eval_views}")
+        for name in ("downscale", "steps", "stage2_steps", "eval_every"):
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise SettingError(name, f"expected a positive integer, got {value}")
@@ -138,12 +149,15 @@ class TrainSettings:
             lambda_k=self.sharpness,
             random_background=self.random_background,
             checkpoint_seconds=seconds,
+            eval_every=self.eval_every,
+            eval_views=self.eval_views,
         )
         config.stage2 = dataclasses.replace(
             config.stage2,
             steps=self.stage2_steps or scaled["stage2_steps"],
             random_background=self.random_background,
             checkpoint_seconds=seconds,
+            eval_views=self.eval_views,
         )
         config.shell = dataclasses.replace(
             config.shell, resolution=self.shell_resolution or scaled["shell_resolution"]

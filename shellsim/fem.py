@@ -32,9 +32,10 @@ rest volume ``V_t``, deformation gradient ``F = D_s D_m^-1`` and ``J = det F``:
 
 Newton's method solves each substep: the PSD Hessian is assembled into a block-sparse (3x3) matrix with a
 fixed sparsity pattern and the step solves ``H d = -grad E`` by preconditioned conjugate gradients, warm
-started from the previous substep's correction. On CPU one Warp kernel runs the whole PCG loop with a
-symmetric Gauss-Seidel preconditioner (Warp runs CPU kernels on one thread, so launch overhead would
-dominate and a serial preconditioner costs nothing in parallelism: 3x fewer iterations than block-Jacobi);
+started from the previous substep's correction. On CPU one Warp kernel runs the whole PCG loop with an
+SSOR preconditioner (:data:`shellsim.linsolve.SSOR_OMEGA`; Warp runs CPU kernels on one thread, so launch
+overhead would dominate and a serial preconditioner costs nothing in parallelism: 3x fewer iterations than
+block-Jacobi, a quarter fewer than symmetric Gauss-Seidel);
 on CUDA :func:`warp.optim.linear.cg` with block-Jacobi. A backtracking line search on ``E`` keeps the energy
 decreasing and the tets uninverted. A frame whose state squeezes a tet below ``min_volume_ratio``
 (:data:`shellsim.geometry.MIN_VOLUME_RATIO`: inverted or near-degenerate), turns non-finite or exceeds

@@ -449,9 +449,9 @@ class Simulator:
         force_tol = tol * self._min_free_mass / (h * h)
         converged = False
         iterations = 0
+        energy, min_det, force_norm = self._evaluate(self._x, terms, FORCE)  # kept current at x below
         while iterations < s.newton_iterations:
             iterations += 1
-            energy, min_det, force_norm = self._evaluate(self._x, terms, FORCE)
             if not math.isfinite(energy):
                 return ("nonfinite", math.nan, math.nan)
             if force_norm <= force_tol:
@@ -465,8 +465,10 @@ class Simulator:
             if float(self._scalars.numpy()[0]) <= tol:
                 converged = True
                 break
-            if not self._line_search(energy, min_det, terms):
+            evaluation = self._line_search(energy, min_det, terms)
+            if evaluation is None:
                 break
+            energy, min_det, force_norm = evaluation
         stats.newton_iterations += iterations
         stats.max_newton_iterations = max(stats.max_newton_iterations, iterations)
         stats.unconverged_substeps += not converged
@@ -480,7 +482,6 @@ class Simulator:
             device=dev,
         )
         speed = float(self._scalars.numpy()[0])
-        energy, min_det, _ = self._evaluate(self._x, terms, ENERGY)
         stats.min_volume_ratio, stats.max_speed = min_det, speed
         if not (math.isfinite(energy) and math.isfinite(speed)):
             return ("nonfinite", math.nan, math.nan)
@@ -490,19 +491,21 @@ class Simulator:
             return ("speed", speed, s.max_speed)
         return None
 
-    def _line_search(self, energy: float, min_det: float, terms: dict) -> bool:
-        """Backtrack x + alpha d until E decreases (and no tet inverts that was not); False if none does."""
+    def _line_search(self, energy: float, min_det: float, terms: dict) -> tuple[float, float, float] | None:
+        """Backtrack x + alpha d until E decreases (and no tet inverts that was not); move x there and return
+        :meth:`_evaluate` (FORCE) of the new x, or None if no alpha does."""
         alpha = 1.0
         for _ in range(12):
             wp.launch(
                 step_positions, self.n_vertices, [self._x, self._d, alpha, self._x_trial], device=self.device
             )
-            trial, trial_det, _ = self._evaluate(self._x_trial, terms, ENERGY)
+            evaluation = self._evaluate(self._x_trial, terms, FORCE)
+            trial, trial_det, _ = evaluation
             if trial <= energy and (trial_det > 0 or min_det <= 0):
                 wp.copy(self._x, self._x_trial)
-                return True
+                return evaluation
             alpha *= 0.5
-        return False
+        return None
 
     def _evaluate(self, x: wp.array, terms: dict, order: int) -> tuple[float, float, float]:
         """Incremental potential at ``x``, min det F and |force| (0 for ENERGY); fills the force (FORCE),

@@ -148,6 +148,16 @@ def sym_eigenvalues(A: mat33) -> vec3:
 
 
 @wp.func
+def positive_definite(A: mat33) -> bool:
+    """Whether a symmetric 3x3 matrix is positive definite (Sylvester: its leading minors are positive)."""
+    return (
+        A[0, 0] > f64(0.0)
+        and A[0, 0] * A[1, 1] - A[0, 1] * A[0, 1] > f64(0.0)
+        and wp.determinant(A) > f64(0.0)
+    )
+
+
+@wp.func
 def snh_min_eigenvalue(F: mat33, mu: f64, lam: f64) -> f64:
     """Smallest eigenvalue of d2Psi/dF2 from the singular values alone (Smith et al. 2019 eigenvalues)."""
     e = sym_eigenvalues(wp.transpose(F) * F)
@@ -161,19 +171,9 @@ def snh_min_eigenvalue(F: mat33, mu: f64, lam: f64) -> f64:
     k = phi[1] - mu
     twist_flip = mu - wp.abs(k) * s[0]
     A = scaling_modes(s, mu, phi[2], k)
+    if positive_definite(A - twist_flip * wp.identity(n=3, dtype=f64)):
+        return twist_flip  # every scaling eigenvalue lies above it: no eigen-solve (the common case)
     return wp.min(twist_flip, sym_eigenvalues(A)[2])
-
-
-@wp.func
-def snh_block(F: mat33, cof: mat33, mu: f64, lam: f64, k: f64, ga: vec3, gb: vec3) -> mat33:
-    """Exact Hessian block d2Psi/dx_a dx_b = mu (ga.gb) I + lam (cof ga)(cof gb)^T + k d2J/dx_a dx_b
-    (``lam = phi''(J)``, ``k = phi'(J) - mu``),
-    with d2J/dx_a dx_b [i, k] = eps_ikm (F (ga x gb))_m."""
-    return (
-        mu * wp.dot(ga, gb) * wp.identity(n=3, dtype=f64)
-        + lam * wp.outer(cof * ga, cof * gb)
-        - k * wp.skew(F * wp.cross(ga, gb))
-    )
 
 
 @wp.func
@@ -190,12 +190,14 @@ def contract(H: mat99, ga: vec3, gb: vec3) -> mat33:
     return out
 
 
+mat43 = wp.types.matrix(shape=(4, 3), dtype=f64)
+
+
 @wp.func
-def shape_gradient(dm_inv: mat33, a: int) -> vec3:
-    """Gradient of linear shape function ``a`` in rest space: F = sum_a x_a g_a^T."""
-    if a == 0:
-        return -(dm_inv[0] + dm_inv[1] + dm_inv[2])
-    return dm_inv[a - 1]
+def shape_gradients(dm_inv: mat33) -> mat43:
+    """Rows g_a (4, 3): the rest-space gradients of the linear shape functions, F = sum_a x_a g_a^T."""
+    g = -(dm_inv[0] + dm_inv[1] + dm_inv[2])
+    return wp.matrix_from_rows(g, dm_inv[0], dm_inv[1], dm_inv[2])
 
 
 @wp.func
@@ -229,6 +231,32 @@ def add_block(
     wp.atomic_add(values, block_index[t, 4 * a + b], block)
     if b != a:
         wp.atomic_add(values, block_index[t, 4 * b + a], wp.transpose(block))
+
+
+@wp.func
+def projected_blocks(
+    F: mat33,
+    Fp: mat33,
+    G: mat43,
+    vol: f64,
+    mu: f64,
+    lam: f64,
+    damp_mu: f64,
+    damp_lam: f64,
+    pinned: wp.array(dtype=wp.int32),
+    tets: wp.array2d(dtype=wp.int32),
+    block_index: wp.array2d(dtype=wp.int32),
+    t: int,
+    values: wp.array(dtype=mat33),
+):
+    """Add tet ``t``'s Hessian blocks from the eigen-projected d2Psi/dF2 (:func:`snh_hessian_psd`)."""
+    H = snh_hessian_psd(F, mu, lam)
+    for a in range(4):
+        if pinned[tets[t, a]] == 0:
+            for b in range(4):
+                if b >= a and pinned[tets[t, b]] == 0:
+                    block = contract(H, G[a], G[b]) + damping_block(Fp, damp_mu, damp_lam, G[a], G[b])
+                    add_block(values, block_index, t, a, b, vol * block)
 
 
 @wp.kernel
@@ -269,36 +297,37 @@ def tet_terms(
         return
     S = f64(2.0) * damp_mu * symA + damp_lam * trA * wp.identity(n=3, dtype=f64)
     P = vol * (snh_stress(F, mu, lam) + Fp * S)
+    G = shape_gradients(Dinv)
     for a in range(4):
         ia = tets[t, a]
         if pinned[ia] == 0:
-            wp.atomic_sub(force, ia, P * shape_gradient(Dinv, a))
+            wp.atomic_sub(force, ia, P * G[a])
     if order != HESSIAN:
         return
     # Definiteness: where the smallest eigenvalue of d2Psi/dF2 is >= -shift_limit mu, the exact blocks plus
     # a shift of (-eigenvalue) mu-like identity (PSD, cheap); beyond, the eigen-projected Hessian (SVD).
     shift = wp.max(-snh_min_eigenvalue(F, mu, lam), f64(0.0))
-    exact = shift <= shift_limit * mu
-    H = mat99()
-    if not exact:
-        H = snh_hessian_psd(F, mu, lam)
-    cof = det_gradient(F)
+    if shift > shift_limit * mu:
+        projected_blocks(F, Fp, G, vol, mu, lam, damp_mu, damp_lam, pinned, tets, block_index, t, values)
+        return
+    # exact block d2Psi/dx_a dx_b = mu (g_a.g_b) I + phi'' (cof g_a)(cof g_b)^T + k d2J/dx_a dx_b,
+    # k = phi' - mu, d2J/dx_a dx_b [i, k] = eps_ikm (F (g_a x g_b))_m
     phi = volume_terms(wp.determinant(F), lam)
     k = phi[1] - mu
+    C = G * wp.transpose(det_gradient(F))  # rows cof g_a
     for a in range(4):
-        if pinned[tets[t, a]] != 0:
-            continue
-        ga = shape_gradient(Dinv, a)
-        for b in range(a, 4):
-            if pinned[tets[t, b]] == 0:
-                gb = shape_gradient(Dinv, b)
-                block = mat33()
-                if exact:
-                    block = snh_block(F, cof, mu + shift, phi[2], k, ga, gb)
-                else:
-                    block = contract(H, ga, gb)
-                block += damping_block(Fp, damp_mu, damp_lam, ga, gb)
-                add_block(values, block_index, t, a, b, vol * block)
+        if pinned[tets[t, a]] == 0:
+            for b in range(4):
+                if b >= a and pinned[tets[t, b]] == 0:
+                    ga = G[a]
+                    gb = G[b]
+                    block = (
+                        (mu + shift) * wp.dot(ga, gb) * wp.identity(n=3, dtype=f64)
+                        + phi[2] * wp.outer(C[a], C[b])
+                        - k * wp.skew(F * wp.cross(ga, gb))
+                    )
+                    block += damping_block(Fp, damp_mu, damp_lam, ga, gb)
+                    add_block(values, block_index, t, a, b, vol * block)
 
 
 def snh_energy_reference(F: np.ndarray, mu: float, lam: float) -> np.ndarray:

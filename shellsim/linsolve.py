@@ -17,7 +17,8 @@ vec3 = wp.vec3d
 mat33 = wp.mat33d
 f64 = wp.float64
 
-SSOR_OMEGA = 1.4  # over-relaxation of the serial PCG's SSOR: 25-30% fewer CG steps than 1 (SGS) on 2k-41k tets
+# over-relaxation of the serial PCG's SSOR: 25-30% fewer CG steps than 1 (SGS) on the 2k-41k-tet bench cubes
+SSOR_OMEGA = 1.4
 
 
 @wp.func
@@ -119,9 +120,9 @@ def pcg_serial(
     product with ``A`` and the two sweeps of ``M^-1`` are two; ``x`` moves by ``t`` per unit of the
     transformed step (``inv_diag`` holds ``D^-1``; ``z`` is scaled by ``omega``, which leaves CG unchanged).
 
-    ``r`` holds ``(D' + L)^-1 (b - A x)``, so ``r . z = omega (b - A x)^T M^-1 (b - A x)``; that times the ratio
-    ``|b - A x|^2 / r . z`` of the last exact residual estimates ``|b - A x|^2``, and an exact residual (one
-    product with ``A``) confirms ``|b - A x| <= max(tol |b|, atol)`` before it stops.
+    ``r`` holds ``(D' + L)^-1 (b - A x)``, so ``r . z = omega (b - A x)^T M^-1 (b - A x)``; that times the
+    ratio ``|b - A x|^2 / r . z`` of the last exact residual estimates ``|b - A x|^2``, and an exact residual
+    (one product with ``A``) confirms ``|b - A x| <= max(tol |b|, atol)`` before it stops.
     ``result`` = (iterations, |b - A x| / |b|)."""
     n = b.shape[0]
     bb = f64(0.0)
@@ -200,11 +201,23 @@ def block_topology(tets: np.ndarray, n_vertices: int):
 
 
 def serial_pcg_solver(
-    offsets, columns, values, diag_index, inv_diag, b, d, work, result, tol, max_iter, device, omega=SSOR_OMEGA
+    offsets,
+    columns,
+    values,
+    diag_index,
+    inv_diag,
+    b,
+    d,
+    work,
+    result,
+    tol,
+    max_iter,
+    device,
+    omega=SSOR_OMEGA,
 ):
-    """``solve(atol) -> CG steps`` for ``H d = b`` by :func:`pcg_serial` (one thread, SSOR factor ``omega``
-    in (0, 2); 1 is symmetric Gauss-Seidel); ``offsets``, ``columns``, ``values``, ``diag_index``, ``inv_diag``
-    are the Warp arrays of the pattern and the blocks, ``work`` the five (V,) vec3 scratch arrays
+    """``solve(atol) -> CG steps`` for ``H d = b`` by :func:`pcg_serial` (one thread, SSOR factor
+    ``omega`` in (0, 2); 1 is symmetric Gauss-Seidel); ``offsets``, ``columns``, ``values``, ``diag_index``,
+    ``inv_diag`` are the Warp arrays of the pattern and the blocks, ``work`` the five (V,) vec3 scratch arrays
     (r, z, p, q, t), ``result`` a (2,) f64 array."""
     r, z, p, q, t = work
 

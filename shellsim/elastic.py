@@ -259,53 +259,27 @@ def projected_blocks(
                     add_block(values, block_index, t, a, b, vol * block)
 
 
-@wp.kernel
-def tet_terms(
-    x: wp.array(dtype=vec3),
-    tets: wp.array2d(dtype=wp.int32),
-    dm_inv: wp.array(dtype=mat33),
-    rest_volume: wp.array(dtype=f64),
-    f_prev: wp.array(dtype=mat33),
+@wp.func
+def add_hessian_blocks(
+    F: mat33,
+    Fp: mat33,
+    G: mat43,
+    vol: f64,
     mu: f64,
     lam: f64,
     damp_mu: f64,
     damp_lam: f64,
     shift_limit: f64,
     pinned: wp.array(dtype=wp.int32),
+    tets: wp.array2d(dtype=wp.int32),
     block_index: wp.array2d(dtype=wp.int32),
-    order: int,
-    energy: wp.array(dtype=f64),
-    min_det: wp.array(dtype=f64),
-    force: wp.array(dtype=vec3),
+    t: int,
     values: wp.array(dtype=mat33),
 ):
-    """Tet ``t``: V (Psi(F) + D(A)) (``damp_* = beta/h * Lamé``) and min det F; from ``order`` FORCE on the
-    forces ``-V P g_a`` and from HESSIAN on the 16 Hessian blocks ``V g_a^T H g_b`` (+ damping blocks) of
-    its free vertices (10 computed, 6 their transposes)."""
-    t = wp.tid()
-    Dinv = dm_inv[t]
-    F = deformation_gradient(x, tets, t, Dinv)
-    vol = rest_volume[t]
-    Fp = f_prev[t]
-    A = wp.transpose(Fp) * (F - Fp)
-    symA = f64(0.5) * (A + wp.transpose(A))
-    trA = wp.trace(A)
-    e = snh_energy(F, mu, lam) + damp_mu * wp.ddot(symA, symA) + f64(0.5) * damp_lam * trA * trA
-    wp.atomic_add(energy, 0, vol * e)
-    wp.atomic_min(min_det, 0, wp.determinant(F))
-    if order == ENERGY:
-        return
-    S = f64(2.0) * damp_mu * symA + damp_lam * trA * wp.identity(n=3, dtype=f64)
-    P = vol * (snh_stress(F, mu, lam) + Fp * S)
-    G = shape_gradients(Dinv)
-    for a in range(4):
-        ia = tets[t, a]
-        if pinned[ia] == 0:
-            wp.atomic_sub(force, ia, P * G[a])
-    if order != HESSIAN:
-        return
-    # Definiteness: where the smallest eigenvalue of d2Psi/dF2 is >= -shift_limit mu, the exact blocks plus
-    # a shift of (-eigenvalue) mu-like identity (PSD, cheap); beyond, the eigen-projected Hessian (SVD).
+    """Add tet ``t``'s Hessian blocks ``V g_a^T H g_b`` (+ damping blocks) of its free vertices (10 computed,
+    6 their transposes). Definiteness: where the smallest eigenvalue of d2Psi/dF2 is >= -shift_limit mu,
+    the exact blocks plus a shift of (-eigenvalue) mu-like identity (PSD, cheap); beyond, the
+    eigen-projected Hessian (SVD)."""
     shift = wp.max(-snh_min_eigenvalue(F, mu, lam), f64(0.0))
     if shift > shift_limit * mu:
         projected_blocks(F, Fp, G, vol, mu, lam, damp_mu, damp_lam, pinned, tets, block_index, t, values)
@@ -328,6 +302,56 @@ def tet_terms(
                     )
                     block += damping_block(Fp, damp_mu, damp_lam, ga, gb)
                     add_block(values, block_index, t, a, b, vol * block)
+
+
+@wp.kernel
+def tet_terms(
+    x: wp.array(dtype=vec3),
+    tets: wp.array2d(dtype=wp.int32),
+    dm_inv: wp.array(dtype=mat33),
+    rest_volume: wp.array(dtype=f64),
+    f_prev: wp.array(dtype=mat33),
+    mu: f64,
+    lam: f64,
+    damp_mu: f64,
+    damp_lam: f64,
+    shift_limit: f64,
+    pinned: wp.array(dtype=wp.int32),
+    block_index: wp.array2d(dtype=wp.int32),
+    order: int,
+    energy: wp.array(dtype=f64),
+    min_det: wp.array(dtype=f64),
+    force: wp.array(dtype=vec3),
+    values: wp.array(dtype=mat33),
+):
+    """Tet ``t``: for ``order`` ENERGY and FORCE, V (Psi(F) + D(A)) (``damp_* = beta/h * Lamé``) and min
+    det F, for FORCE also the forces ``-V P g_a`` of its free vertices; for HESSIAN only its Hessian blocks
+    (:func:`add_hessian_blocks`)."""
+    t = wp.tid()
+    Dinv = dm_inv[t]
+    F = deformation_gradient(x, tets, t, Dinv)
+    vol = rest_volume[t]
+    Fp = f_prev[t]
+    G = shape_gradients(Dinv)
+    if order == HESSIAN:
+        add_hessian_blocks(
+            F, Fp, G, vol, mu, lam, damp_mu, damp_lam, shift_limit, pinned, tets, block_index, t, values
+        )
+        return
+    A = wp.transpose(Fp) * (F - Fp)
+    symA = f64(0.5) * (A + wp.transpose(A))
+    trA = wp.trace(A)
+    e = snh_energy(F, mu, lam) + damp_mu * wp.ddot(symA, symA) + f64(0.5) * damp_lam * trA * trA
+    wp.atomic_add(energy, 0, vol * e)
+    wp.atomic_min(min_det, 0, wp.determinant(F))
+    if order == ENERGY:
+        return
+    S = f64(2.0) * damp_mu * symA + damp_lam * trA * wp.identity(n=3, dtype=f64)
+    P = vol * (snh_stress(F, mu, lam) + Fp * S)
+    for a in range(4):
+        ia = tets[t, a]
+        if pinned[ia] == 0:
+            wp.atomic_sub(force, ia, P * G[a])
 
 
 def snh_energy_reference(F: np.ndarray, mu: float, lam: float) -> np.ndarray:
@@ -366,29 +390,21 @@ def elastic_energy(
     scalars = wp.array([0.0, 1.0e300], dtype=f64, device=dev)
     force = wp.zeros(n, dtype=vec3, device=dev)
     values = wp.zeros(len(columns), dtype=mat33, device=dev)
-    wp.launch(
-        tet_terms,
-        len(tets),
-        [
-            wp.array(positions, dtype=vec3, device=dev),
-            wp.array(tets.astype(np.int32), dtype=wp.int32, device=dev),
-            wp.array(np.linalg.inv(dm), dtype=mat33, device=dev),
-            wp.array(tet_volumes(rest, tets), dtype=f64, device=dev),
-            wp.array(np.broadcast_to(np.eye(3), (len(tets), 3, 3)), dtype=mat33, device=dev),
-            material.mu,
-            material.lam + material.mu,
-            0.0,
-            0.0,
-            shift_limit,
-            wp.zeros(n, dtype=wp.int32, device=dev),
-            wp.array(block_index, dtype=wp.int32, device=dev),
-            HESSIAN,
-            scalars[0:1],
-            scalars[1:2],
-            force,
-            values,
-        ],
-        device=dev,
-    )
+    args = [
+        wp.array(positions, dtype=vec3, device=dev),
+        wp.array(tets.astype(np.int32), dtype=wp.int32, device=dev),
+        wp.array(np.linalg.inv(dm), dtype=mat33, device=dev),
+        wp.array(tet_volumes(rest, tets), dtype=f64, device=dev),
+        wp.array(np.broadcast_to(np.eye(3), (len(tets), 3, 3)), dtype=mat33, device=dev),
+        material.mu,
+        material.lam + material.mu,
+        0.0,
+        0.0,
+        shift_limit,
+        wp.zeros(n, dtype=wp.int32, device=dev),
+        wp.array(block_index, dtype=wp.int32, device=dev),
+    ]
+    for order in (FORCE, HESSIAN):
+        wp.launch(tet_terms, len(tets), [*args, order, scalars[0:1], scalars[1:2], force, values], device=dev)
     hessian = scipy.sparse.bsr_matrix((values.numpy(), columns, offsets), shape=(3 * n, 3 * n))
     return float(scalars.numpy()[0]), -force.numpy(), hessian

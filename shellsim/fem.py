@@ -436,20 +436,23 @@ class Simulator:
         terms = dict(h=h, contact=contact)
 
         # start from the inertial prediction plus the previous substep's correction, or from the prediction
-        # alone, whichever has the lower energy and inverts no tet (else from x^n)
-        start_energy = math.inf
-        for weight in (1.0, 0.0):
+        # alone, whichever has the lower energy and inverts no tet (else from x^n); the former, most often
+        # chosen, is evaluated with its force, which Newton's first iteration then needs
+        start_energy, start_weight = math.inf, None
+        for weight in (0.0, 1.0):
             wp.launch(step_positions, n, [self._x_tilde, self._correction, weight, self._x_trial], device=dev)
-            energy, min_det, _ = self._evaluate(self._x_trial, terms, ENERGY)
-            if min_det > 0 and energy < start_energy:
+            energy, min_det, force_norm = self._evaluate(self._x_trial, terms, FORCE if weight else ENERGY)
+            if min_det > 0 and energy < math.inf and energy <= start_energy:
                 wp.copy(self._x, self._x_trial)
-                start_energy = energy
+                start_energy, start_weight = energy, weight
+        if start_weight != 1.0:
+            energy, min_det, force_norm = self._evaluate(self._x, terms, FORCE)
+        # energy, min_det, force_norm stay those of x from here on
         # Newton stops once the step is below tol; H >= M / h^2 bounds |d| <= |force| h^2 / m_min
         tol = s.newton_tol * self.size * h
         force_tol = tol * self._min_free_mass / (h * h)
         converged = False
         iterations = 0
-        energy, min_det, force_norm = self._evaluate(self._x, terms, FORCE)  # kept current at x below
         while iterations < s.newton_iterations:
             iterations += 1
             if not math.isfinite(energy):
@@ -507,17 +510,18 @@ class Simulator:
             alpha *= 0.5
         return None
 
-    def _evaluate(self, x: wp.array, terms: dict, order: int) -> tuple[float, float, float]:
-        """Incremental potential at ``x``, min det F and |force| (0 for ENERGY); fills the force (FORCE),
-        and the Hessian blocks and the block-Jacobi preconditioner (HESSIAN)."""
+    def _evaluate(self, x: wp.array, terms: dict, order: int) -> tuple[float, float, float] | None:
+        """ENERGY, FORCE: the incremental potential at ``x``, min det F and |force| (0 for ENERGY); FORCE
+        fills the force. HESSIAN: only the Hessian blocks and the block-Jacobi preconditioner (None)."""
         s, m = self.settings, self.material
         h = terms["h"]
         dev = self.device
-        wp.copy(self._scalars, self._scalars_init)
-        if order >= FORCE:
-            self._force.zero_()
         if order == HESSIAN:
             self._values.zero_()
+        else:
+            wp.copy(self._scalars, self._scalars_init)
+        if order == FORCE:
+            self._force.zero_()
         lam_snh = m.lam + m.mu
         damp = s.damping / h
         wp.launch(
@@ -571,6 +575,8 @@ class Simulator:
             ],
             device=dev,
         )
+        if order == HESSIAN:
+            return None
         energy, min_det, force_sq = self._scalars.numpy()
         return float(energy), float(min_det), math.sqrt(float(force_sq))
 

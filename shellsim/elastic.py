@@ -208,6 +208,19 @@ def deformation_gradient(x: wp.array(dtype=vec3), tet: wp.array2d(dtype=wp.int32
 
 
 @wp.func
+def damping_terms(F: mat33, Fp: mat33, damp_mu: f64, damp_lam: f64):
+    """Kelvin-Voigt damping per unit volume (``Fp`` = F at the substep start): D(A) and dD/dF = Fp S,
+    ``A = Fp^T (F - Fp)``, ``S = 2 damp_mu sym A + damp_lam tr(A) I``; zeros without damping."""
+    if damp_mu == f64(0.0) and damp_lam == f64(0.0):
+        return f64(0.0), mat33()
+    A = wp.transpose(Fp) * (F - Fp)
+    symA = f64(0.5) * (A + wp.transpose(A))
+    trA = wp.trace(A)
+    S = f64(2.0) * damp_mu * symA + damp_lam * trA * wp.identity(n=3, dtype=f64)
+    return damp_mu * wp.ddot(symA, symA) + f64(0.5) * damp_lam * trA * trA, Fp * S
+
+
+@wp.func
 def damping_block(Fp: mat33, damp_mu: f64, damp_lam: f64, ga: vec3, gb: vec3) -> mat33:
     """Block (a, b) of the Kelvin-Voigt damping Hessian per unit volume (``Fp`` = F at the substep start)."""
     if damp_mu == f64(0.0) and damp_lam == f64(0.0):
@@ -338,16 +351,12 @@ def tet_terms(
             F, Fp, G, vol, mu, lam, damp_mu, damp_lam, shift_limit, pinned, tets, block_index, t, values
         )
         return
-    A = wp.transpose(Fp) * (F - Fp)
-    symA = f64(0.5) * (A + wp.transpose(A))
-    trA = wp.trace(A)
-    e = snh_energy(F, mu, lam) + damp_mu * wp.ddot(symA, symA) + f64(0.5) * damp_lam * trA * trA
-    wp.atomic_add(energy, 0, vol * e)
+    damp_energy, damp_stress = damping_terms(F, Fp, damp_mu, damp_lam)
+    wp.atomic_add(energy, 0, vol * (snh_energy(F, mu, lam) + damp_energy))
     wp.atomic_min(min_det, 0, wp.determinant(F))
     if order == ENERGY:
         return
-    S = f64(2.0) * damp_mu * symA + damp_lam * trA * wp.identity(n=3, dtype=f64)
-    P = vol * (snh_stress(F, mu, lam) + Fp * S)
+    P = vol * (snh_stress(F, mu, lam) + damp_stress)
     for a in range(4):
         ia = tets[t, a]
         if pinned[ia] == 0:

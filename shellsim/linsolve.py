@@ -69,14 +69,21 @@ def upper_solve(
     diag_index: wp.array(dtype=wp.int32),
     inv_diag: wp.array(dtype=mat33),
     omega: f64,
+    z: wp.array(dtype=vec3),
+    beta: f64,
     p: wp.array(dtype=vec3),
     t: wp.array(dtype=vec3),
+    u: wp.array(dtype=vec3),
 ):
-    """t = (D / omega + U)^-1 p (backward substitution over the upper blocks)."""
+    """p = z + beta p, then t = (D / omega + U)^-1 p (backward substitution over the upper blocks), keeping
+    u = p - U t (= D t / omega)."""
     n = p.shape[0]
     for j in range(n):
         i = n - 1 - j
-        acc = p[i] - row_product(values, columns, t, diag_index[i] + 1, offsets[i + 1])
+        pi = z[i] + beta * p[i]
+        p[i] = pi
+        acc = pi - row_product(values, columns, t, diag_index[i] + 1, offsets[i + 1])
+        u[i] = acc
         t[i] = omega * (inv_diag[i] * acc)
     return 0
 
@@ -94,16 +101,11 @@ def lower_solve(
     s: wp.array(dtype=vec3),
     q: wp.array(dtype=vec3),
 ) -> f64:
-    """s = (D / omega + L)^-1 (p - (2 / omega - 1) D t) (forward substitution over the lower blocks) and
-    q = t + s; returns p . q."""
+    """s = (D / omega + L)^-1 (p - (2 / omega - 1) D t) (forward substitution over the lower blocks), with
+    ``D t / omega`` read from ``q`` (:func:`upper_solve`'s u), then q = t + s; returns p . q."""
     pq = f64(0.0)
     for i in range(p.shape[0]):
-        d = diag_index[i]
-        acc = (
-            p[i]
-            - (f64(2.0) / omega - f64(1.0)) * (values[d] * t[i])
-            - row_product(values, columns, s, offsets[i], d)
-        )
+        acc = p[i] - (f64(2.0) - omega) * q[i] - row_product(values, columns, s, offsets[i], diag_index[i])
         si = omega * (inv_diag[i] * acc)
         s[i] = si
         qi = t[i] + si
@@ -146,22 +148,32 @@ def pcg_serial(
     ``result`` = (iterations, |b - A x| / |b|)."""
     n = b.shape[0]
     bb = f64(0.0)
+    xx = f64(0.0)
+    zero = vec3(f64(0.0), f64(0.0), f64(0.0))
     for i in range(n):
         bb += wp.dot(b[i], b[i])
-        t[i] = vec3(f64(0.0), f64(0.0), f64(0.0))
-    rr = residual(offsets, columns, values, b, x, q)
+        xx += wp.dot(x[i], x[i])
+        t[i] = zero
+        z[i] = zero
+        p[i] = zero
+    rr = bb  # the residual of a zero guess, without the product with A
+    if xx > f64(0.0):
+        rr = residual(offsets, columns, values, b, x, q)
+    else:
+        for i in range(n):
+            q[i] = b[i]
     lower_solve(offsets, columns, values, diag_index, inv_diag, omega, q, t, r, z)
     rz = f64(0.0)
     for i in range(n):
         zi = values[diag_index[i]] * r[i]
         z[i] = zi
-        p[i] = zi
         rz += wp.dot(r[i], zi)
     ratio = rr / wp.max(rz, f64(1.0e-300))
     threshold = wp.max(tol * tol * bb, atol * atol)
+    beta = f64(0.0)  # p = z first
     it = int(0)  # noqa: UP018 (a mutable Warp variable, not a constant)
     while it < max_iter and rr > threshold:
-        upper_solve(offsets, columns, values, diag_index, inv_diag, omega, p, t)
+        upper_solve(offsets, columns, values, diag_index, inv_diag, omega, z, beta, p, t, q)
         pq = lower_solve(offsets, columns, values, diag_index, inv_diag, omega, p, t, z, q)
         if pq <= f64(0.0):
             break
@@ -181,8 +193,6 @@ def pcg_serial(
             ratio = rr / wp.max(rz_new, f64(1.0e-300))
         beta = rz_new / rz
         rz = rz_new
-        for i in range(n):
-            p[i] = z[i] + beta * p[i]
     result[0] = f64(it)
     result[1] = wp.sqrt(rr / wp.max(bb, f64(1.0e-300)))
 

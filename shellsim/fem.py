@@ -38,9 +38,10 @@ overhead would dominate and a serial preconditioner costs nothing in parallelism
 block-Jacobi, a quarter fewer than symmetric Gauss-Seidel);
 on CUDA :func:`warp.optim.linear.cg` with block-Jacobi. A backtracking line search on ``E`` keeps the energy
 decreasing and the tets uninverted; its passes also compute the force, so the accepted point's energy, det F
-and force serve the next iteration's test, and the Hessian pass computes only the Hessian. A frame whose state squeezes a tet below ``min_volume_ratio``
-(:data:`shellsim.geometry.MIN_VOLUME_RATIO`: inverted or near-degenerate), turns non-finite or exceeds
-``max_speed`` is redone with more substeps, then raises :class:`SimulationError`.
+and force serve the next iteration's test, and the Hessian pass computes only the Hessian. A frame whose
+state squeezes a tet below ``min_volume_ratio`` (:data:`shellsim.geometry.MIN_VOLUME_RATIO`: inverted or
+near-degenerate), turns non-finite or exceeds ``max_speed`` is redone with more substeps, then raises
+:class:`SimulationError`.
 """
 
 from __future__ import annotations

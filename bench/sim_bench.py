@@ -8,6 +8,13 @@ resident memory, then (unless ``--no-vbd``) the same scene with the ``newton`` p
 VBD runs a fixed number of local iterations per step and does not converge the step, so the ratio compares
 cost, not accuracy.
 
+Measured 2026-12-02 on the shared 2-core CPU under load average 4-6 (the lower of two runs, rubber, newton 1.8
+VBD): FEM 7.9 / 35.2 / 254.6 ms per step at 2k / 10k / 41k tets (2.9-3.2 Newton iterations per step,
+17.5 / 26.3 / 40.7 CG steps per Newton step), 0.42 / 0.45 / 0.80 of VBD's time; the code before SSOR and the
+leaner evaluation passes, run just before in the same conditions: 11.0 / 58.6 / 373.4 ms (21.4 / 35.7 / 57.5
+CG steps), 0.49-0.58 / 0.80-0.92 / 1.12-1.28 of VBD's. Absolute figures on this machine swing by 1.5-3x
+with its load; the FEM/VBD ratio, measured side by side, is the steadier figure.
+
     python bench/sim_bench.py                       # ~2k, 10k, 40k tets, rubber, CPU
     python bench/sim_bench.py --cells 12 --device cuda --material jelly
 """

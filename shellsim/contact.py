@@ -202,14 +202,14 @@ def vertex_terms(
     diag_index: wp.array(dtype=wp.int32),
     inv_diag: wp.array(dtype=mat33),
 ):
-    """Energy of vertex ``i`` (module docstring); for ``order`` >= 1 also its force ``-dE/dx_i`` (added to
-    ``force``, whose squared norm is summed in ``force_sq``); for ``order`` 2 also its Hessian block (added
-    to the diagonal block ``values[diag_index[i]]``) and the inverse of that completed diagonal block
+    """For ``order`` 0 and 1 the energy of vertex ``i`` (module docstring), for 1 also its force ``-dE/dx_i``
+    (added to ``force``, whose squared norm is summed in ``force_sq``); for ``order`` 2 only its Hessian block
+    (added to the diagonal block ``values[diag_index[i]]``) and the inverse of that completed diagonal block
     (block-Jacobi preconditioner). Pinned vertices get an identity row and no force."""
     i = wp.tid()
     zero3 = vec3(f64(0.0), f64(0.0), f64(0.0))
     if pinned[i] != 0:
-        if order >= 1:
+        if order == 1:
             force[i] = zero3
         if order == 2:
             values[diag_index[i]] = wp.identity(n=3, dtype=f64)
@@ -252,12 +252,13 @@ def vertex_terms(
             f -= lam * uhat
             h += lam / y * (tangent - wp.outer(uhat, uhat))
 
-    wp.atomic_add(energy, 0, e)
-    if order >= 1:
-        total = force[i] + f
-        force[i] = total
-        wp.atomic_add(force_sq, 0, wp.dot(total, total))
     if order == 2:
         block = values[diag_index[i]] + h
         values[diag_index[i]] = block
         inv_diag[i] = wp.inverse(block)
+        return
+    wp.atomic_add(energy, 0, e)
+    if order == 1:
+        total = force[i] + f
+        force[i] = total
+        wp.atomic_add(force_sq, 0, wp.dot(total, total))

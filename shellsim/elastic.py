@@ -148,6 +148,16 @@ def sym_eigenvalues(A: mat33) -> vec3:
 
 
 @wp.func
+def positive_definite(A: mat33) -> bool:
+    """Whether a symmetric 3x3 matrix is positive definite (Sylvester: its leading minors are positive)."""
+    return (
+        A[0, 0] > f64(0.0)
+        and A[0, 0] * A[1, 1] - A[0, 1] * A[0, 1] > f64(0.0)
+        and wp.determinant(A) > f64(0.0)
+    )
+
+
+@wp.func
 def snh_min_eigenvalue(F: mat33, mu: f64, lam: f64) -> f64:
     """Smallest eigenvalue of d2Psi/dF2 from the singular values alone (Smith et al. 2019 eigenvalues)."""
     e = sym_eigenvalues(wp.transpose(F) * F)
@@ -161,19 +171,9 @@ def snh_min_eigenvalue(F: mat33, mu: f64, lam: f64) -> f64:
     k = phi[1] - mu
     twist_flip = mu - wp.abs(k) * s[0]
     A = scaling_modes(s, mu, phi[2], k)
+    if positive_definite(A - twist_flip * wp.identity(n=3, dtype=f64)):
+        return twist_flip  # every scaling eigenvalue lies above it: no eigen-solve (the common case)
     return wp.min(twist_flip, sym_eigenvalues(A)[2])
-
-
-@wp.func
-def snh_block(F: mat33, cof: mat33, mu: f64, lam: f64, k: f64, ga: vec3, gb: vec3) -> mat33:
-    """Exact Hessian block d2Psi/dx_a dx_b = mu (ga.gb) I + lam (cof ga)(cof gb)^T + k d2J/dx_a dx_b
-    (``lam = phi''(J)``, ``k = phi'(J) - mu``),
-    with d2J/dx_a dx_b [i, k] = eps_ikm (F (ga x gb))_m."""
-    return (
-        mu * wp.dot(ga, gb) * wp.identity(n=3, dtype=f64)
-        + lam * wp.outer(cof * ga, cof * gb)
-        - k * wp.skew(F * wp.cross(ga, gb))
-    )
 
 
 @wp.func
@@ -190,12 +190,14 @@ def contract(H: mat99, ga: vec3, gb: vec3) -> mat33:
     return out
 
 
+mat43 = wp.types.matrix(shape=(4, 3), dtype=f64)
+
+
 @wp.func
-def shape_gradient(dm_inv: mat33, a: int) -> vec3:
-    """Gradient of linear shape function ``a`` in rest space: F = sum_a x_a g_a^T."""
-    if a == 0:
-        return -(dm_inv[0] + dm_inv[1] + dm_inv[2])
-    return dm_inv[a - 1]
+def shape_gradients(dm_inv: mat33) -> mat43:
+    """Rows g_a (4, 3): the rest-space gradients of the linear shape functions, F = sum_a x_a g_a^T."""
+    g = -(dm_inv[0] + dm_inv[1] + dm_inv[2])
+    return wp.matrix_from_rows(g, dm_inv[0], dm_inv[1], dm_inv[2])
 
 
 @wp.func
@@ -203,6 +205,19 @@ def deformation_gradient(x: wp.array(dtype=vec3), tet: wp.array2d(dtype=wp.int32
     x0 = x[tet[t, 0]]
     Ds = wp.matrix_from_cols(x[tet[t, 1]] - x0, x[tet[t, 2]] - x0, x[tet[t, 3]] - x0)
     return Ds * dm_inv
+
+
+@wp.func
+def damping_terms(F: mat33, Fp: mat33, damp_mu: f64, damp_lam: f64):
+    """Kelvin-Voigt damping per unit volume (``Fp`` = F at the substep start): D(A) and dD/dF = Fp S,
+    ``A = Fp^T (F - Fp)``, ``S = 2 damp_mu sym A + damp_lam tr(A) I``; zeros without damping."""
+    if damp_mu == f64(0.0) and damp_lam == f64(0.0):
+        return f64(0.0), mat33()
+    A = wp.transpose(Fp) * (F - Fp)
+    symA = f64(0.5) * (A + wp.transpose(A))
+    trA = wp.trace(A)
+    S = f64(2.0) * damp_mu * symA + damp_lam * trA * wp.identity(n=3, dtype=f64)
+    return damp_mu * wp.ddot(symA, symA) + f64(0.5) * damp_lam * trA * trA, Fp * S
 
 
 @wp.func
@@ -231,6 +246,77 @@ def add_block(
         wp.atomic_add(values, block_index[t, 4 * b + a], wp.transpose(block))
 
 
+@wp.func
+def projected_blocks(
+    F: mat33,
+    Fp: mat33,
+    G: mat43,
+    vol: f64,
+    mu: f64,
+    lam: f64,
+    damp_mu: f64,
+    damp_lam: f64,
+    pinned: wp.array(dtype=wp.int32),
+    tets: wp.array2d(dtype=wp.int32),
+    block_index: wp.array2d(dtype=wp.int32),
+    t: int,
+    values: wp.array(dtype=mat33),
+):
+    """Add tet ``t``'s Hessian blocks from the eigen-projected d2Psi/dF2 (:func:`snh_hessian_psd`)."""
+    H = snh_hessian_psd(F, mu, lam)
+    for a in range(4):
+        if pinned[tets[t, a]] == 0:
+            for b in range(4):
+                if b >= a and pinned[tets[t, b]] == 0:
+                    block = contract(H, G[a], G[b]) + damping_block(Fp, damp_mu, damp_lam, G[a], G[b])
+                    add_block(values, block_index, t, a, b, vol * block)
+
+
+@wp.func
+def add_hessian_blocks(
+    F: mat33,
+    Fp: mat33,
+    G: mat43,
+    vol: f64,
+    mu: f64,
+    lam: f64,
+    damp_mu: f64,
+    damp_lam: f64,
+    shift_limit: f64,
+    pinned: wp.array(dtype=wp.int32),
+    tets: wp.array2d(dtype=wp.int32),
+    block_index: wp.array2d(dtype=wp.int32),
+    t: int,
+    values: wp.array(dtype=mat33),
+):
+    """Add tet ``t``'s Hessian blocks ``V g_a^T H g_b`` (+ damping blocks) of its free vertices (10 computed,
+    6 their transposes). Definiteness: where the smallest eigenvalue of d2Psi/dF2 is >= -shift_limit mu,
+    the exact blocks plus a shift of (-eigenvalue) mu-like identity (PSD, cheap); beyond, the
+    eigen-projected Hessian (SVD)."""
+    shift = wp.max(-snh_min_eigenvalue(F, mu, lam), f64(0.0))
+    if shift > shift_limit * mu:
+        projected_blocks(F, Fp, G, vol, mu, lam, damp_mu, damp_lam, pinned, tets, block_index, t, values)
+        return
+    # exact block d2Psi/dx_a dx_b = mu (g_a.g_b) I + phi'' (cof g_a)(cof g_b)^T + k d2J/dx_a dx_b,
+    # k = phi' - mu, d2J/dx_a dx_b [i, k] = eps_ikm (F (g_a x g_b))_m
+    phi = volume_terms(wp.determinant(F), lam)
+    k = phi[1] - mu
+    C = G * wp.transpose(det_gradient(F))  # rows cof g_a
+    for a in range(4):
+        if pinned[tets[t, a]] == 0:
+            for b in range(4):
+                if b >= a and pinned[tets[t, b]] == 0:
+                    ga = G[a]
+                    gb = G[b]
+                    block = (
+                        (mu + shift) * wp.dot(ga, gb) * wp.identity(n=3, dtype=f64)
+                        + phi[2] * wp.outer(C[a], C[b])
+                        - k * wp.skew(F * wp.cross(ga, gb))
+                    )
+                    block += damping_block(Fp, damp_mu, damp_lam, ga, gb)
+                    add_block(values, block_index, t, a, b, vol * block)
+
+
 @wp.kernel
 def tet_terms(
     x: wp.array(dtype=vec3),
@@ -251,54 +337,30 @@ def tet_terms(
     force: wp.array(dtype=vec3),
     values: wp.array(dtype=mat33),
 ):
-    """Tet ``t``: V (Psi(F) + D(A)) (``damp_* = beta/h * Lamé``) and min det F; from ``order`` FORCE on the
-    forces ``-V P g_a`` and from HESSIAN on the 16 Hessian blocks ``V g_a^T H g_b`` (+ damping blocks) of
-    its free vertices (10 computed, 6 their transposes)."""
+    """Tet ``t``: for ``order`` ENERGY and FORCE, V (Psi(F) + D(A)) (``damp_* = beta/h * Lamé``) and min
+    det F, for FORCE also the forces ``-V P g_a`` of its free vertices; for HESSIAN only its Hessian blocks
+    (:func:`add_hessian_blocks`)."""
     t = wp.tid()
     Dinv = dm_inv[t]
     F = deformation_gradient(x, tets, t, Dinv)
     vol = rest_volume[t]
     Fp = f_prev[t]
-    A = wp.transpose(Fp) * (F - Fp)
-    symA = f64(0.5) * (A + wp.transpose(A))
-    trA = wp.trace(A)
-    e = snh_energy(F, mu, lam) + damp_mu * wp.ddot(symA, symA) + f64(0.5) * damp_lam * trA * trA
-    wp.atomic_add(energy, 0, vol * e)
+    G = shape_gradients(Dinv)
+    if order == HESSIAN:
+        add_hessian_blocks(
+            F, Fp, G, vol, mu, lam, damp_mu, damp_lam, shift_limit, pinned, tets, block_index, t, values
+        )
+        return
+    damp_energy, damp_stress = damping_terms(F, Fp, damp_mu, damp_lam)
+    wp.atomic_add(energy, 0, vol * (snh_energy(F, mu, lam) + damp_energy))
     wp.atomic_min(min_det, 0, wp.determinant(F))
     if order == ENERGY:
         return
-    S = f64(2.0) * damp_mu * symA + damp_lam * trA * wp.identity(n=3, dtype=f64)
-    P = vol * (snh_stress(F, mu, lam) + Fp * S)
+    P = vol * (snh_stress(F, mu, lam) + damp_stress)
     for a in range(4):
         ia = tets[t, a]
         if pinned[ia] == 0:
-            wp.atomic_sub(force, ia, P * shape_gradient(Dinv, a))
-    if order != HESSIAN:
-        return
-    # Definiteness: where the smallest eigenvalue of d2Psi/dF2 is >= -shift_limit mu, the exact blocks plus
-    # a shift of (-eigenvalue) mu-like identity (PSD, cheap); beyond, the eigen-projected Hessian (SVD).
-    shift = wp.max(-snh_min_eigenvalue(F, mu, lam), f64(0.0))
-    exact = shift <= shift_limit * mu
-    H = mat99()
-    if not exact:
-        H = snh_hessian_psd(F, mu, lam)
-    cof = det_gradient(F)
-    phi = volume_terms(wp.determinant(F), lam)
-    k = phi[1] - mu
-    for a in range(4):
-        if pinned[tets[t, a]] != 0:
-            continue
-        ga = shape_gradient(Dinv, a)
-        for b in range(a, 4):
-            if pinned[tets[t, b]] == 0:
-                gb = shape_gradient(Dinv, b)
-                block = mat33()
-                if exact:
-                    block = snh_block(F, cof, mu + shift, phi[2], k, ga, gb)
-                else:
-                    block = contract(H, ga, gb)
-                block += damping_block(Fp, damp_mu, damp_lam, ga, gb)
-                add_block(values, block_index, t, a, b, vol * block)
+            wp.atomic_sub(force, ia, P * G[a])
 
 
 def snh_energy_reference(F: np.ndarray, mu: float, lam: float) -> np.ndarray:
@@ -337,29 +399,21 @@ def elastic_energy(
     scalars = wp.array([0.0, 1.0e300], dtype=f64, device=dev)
     force = wp.zeros(n, dtype=vec3, device=dev)
     values = wp.zeros(len(columns), dtype=mat33, device=dev)
-    wp.launch(
-        tet_terms,
-        len(tets),
-        [
-            wp.array(positions, dtype=vec3, device=dev),
-            wp.array(tets.astype(np.int32), dtype=wp.int32, device=dev),
-            wp.array(np.linalg.inv(dm), dtype=mat33, device=dev),
-            wp.array(tet_volumes(rest, tets), dtype=f64, device=dev),
-            wp.array(np.broadcast_to(np.eye(3), (len(tets), 3, 3)), dtype=mat33, device=dev),
-            material.mu,
-            material.lam + material.mu,
-            0.0,
-            0.0,
-            shift_limit,
-            wp.zeros(n, dtype=wp.int32, device=dev),
-            wp.array(block_index, dtype=wp.int32, device=dev),
-            HESSIAN,
-            scalars[0:1],
-            scalars[1:2],
-            force,
-            values,
-        ],
-        device=dev,
-    )
+    args = [
+        wp.array(positions, dtype=vec3, device=dev),
+        wp.array(tets.astype(np.int32), dtype=wp.int32, device=dev),
+        wp.array(np.linalg.inv(dm), dtype=mat33, device=dev),
+        wp.array(tet_volumes(rest, tets), dtype=f64, device=dev),
+        wp.array(np.broadcast_to(np.eye(3), (len(tets), 3, 3)), dtype=mat33, device=dev),
+        material.mu,
+        material.lam + material.mu,
+        0.0,
+        0.0,
+        shift_limit,
+        wp.zeros(n, dtype=wp.int32, device=dev),
+        wp.array(block_index, dtype=wp.int32, device=dev),
+    ]
+    for order in (FORCE, HESSIAN):
+        wp.launch(tet_terms, len(tets), [*args, order, scalars[0:1], scalars[1:2], force, values], device=dev)
     hessian = scipy.sparse.bsr_matrix((values.numpy(), columns, offsets), shape=(3 * n, 3 * n))
     return float(scalars.numpy()[0]), -force.numpy(), hessian

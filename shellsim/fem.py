@@ -32,13 +32,16 @@ rest volume ``V_t``, deformation gradient ``F = D_s D_m^-1`` and ``J = det F``:
 
 Newton's method solves each substep: the PSD Hessian is assembled into a block-sparse (3x3) matrix with a
 fixed sparsity pattern and the step solves ``H d = -grad E`` by preconditioned conjugate gradients, warm
-started from the previous substep's correction. On CPU one Warp kernel runs the whole PCG loop with a
-symmetric Gauss-Seidel preconditioner (Warp runs CPU kernels on one thread, so launch overhead would
-dominate and a serial preconditioner costs nothing in parallelism: 3x fewer iterations than block-Jacobi);
+started from the previous substep's correction. On CPU one Warp kernel runs the whole PCG loop with an
+SSOR preconditioner (:data:`shellsim.linsolve.SSOR_OMEGA`; Warp runs CPU kernels on one thread, so launch
+overhead would dominate and a serial preconditioner costs nothing in parallelism: 3x fewer iterations than
+block-Jacobi, a quarter fewer than symmetric Gauss-Seidel);
 on CUDA :func:`warp.optim.linear.cg` with block-Jacobi. A backtracking line search on ``E`` keeps the energy
-decreasing and the tets uninverted. A frame whose state squeezes a tet below ``min_volume_ratio``
-(:data:`shellsim.geometry.MIN_VOLUME_RATIO`: inverted or near-degenerate), turns non-finite or exceeds
-``max_speed`` is redone with more substeps, then raises :class:`SimulationError`.
+decreasing and the tets uninverted; its passes also compute the force, so the accepted point's energy, det F
+and force serve the next iteration's test, and the Hessian pass computes only the Hessian. A frame whose
+state squeezes a tet below ``min_volume_ratio`` (:data:`shellsim.geometry.MIN_VOLUME_RATIO`: inverted or
+near-degenerate), turns non-finite or exceeds ``max_speed`` is redone with more substeps, then raises
+:class:`SimulationError`.
 """
 
 from __future__ import annotations
@@ -435,14 +438,18 @@ class Simulator:
         terms = dict(h=h, contact=contact)
 
         # start from the inertial prediction plus the previous substep's correction, or from the prediction
-        # alone, whichever has the lower energy and inverts no tet (else from x^n)
-        start_energy = math.inf
-        for weight in (1.0, 0.0):
+        # alone, whichever has the lower energy and inverts no tet (else from x^n); the former, most often
+        # chosen, is evaluated with its force, which Newton's first iteration then needs
+        start_energy, start_weight = math.inf, None
+        for weight in (0.0, 1.0):
             wp.launch(step_positions, n, [self._x_tilde, self._correction, weight, self._x_trial], device=dev)
-            energy, min_det, _ = self._evaluate(self._x_trial, terms, ENERGY)
-            if min_det > 0 and energy < start_energy:
+            energy, min_det, force_norm = self._evaluate(self._x_trial, terms, FORCE if weight else ENERGY)
+            if min_det > 0 and energy < math.inf and energy <= start_energy:
                 wp.copy(self._x, self._x_trial)
-                start_energy = energy
+                start_energy, start_weight = energy, weight
+        if start_weight != 1.0:
+            energy, min_det, force_norm = self._evaluate(self._x, terms, FORCE)
+        # energy, min_det, force_norm stay those of x from here on
         # Newton stops once the step is below tol; H >= M / h^2 bounds |d| <= |force| h^2 / m_min
         tol = s.newton_tol * self.size * h
         force_tol = tol * self._min_free_mass / (h * h)
@@ -450,7 +457,6 @@ class Simulator:
         iterations = 0
         while iterations < s.newton_iterations:
             iterations += 1
-            energy, min_det, force_norm = self._evaluate(self._x, terms, FORCE)
             if not math.isfinite(energy):
                 return ("nonfinite", math.nan, math.nan)
             if force_norm <= force_tol:
@@ -464,8 +470,10 @@ class Simulator:
             if float(self._scalars.numpy()[0]) <= tol:
                 converged = True
                 break
-            if not self._line_search(energy, min_det, terms):
+            evaluation = self._line_search(energy, min_det, terms)
+            if evaluation is None:
                 break
+            energy, min_det, force_norm = evaluation
         stats.newton_iterations += iterations
         stats.max_newton_iterations = max(stats.max_newton_iterations, iterations)
         stats.unconverged_substeps += not converged
@@ -479,7 +487,6 @@ class Simulator:
             device=dev,
         )
         speed = float(self._scalars.numpy()[0])
-        energy, min_det, _ = self._evaluate(self._x, terms, ENERGY)
         stats.min_volume_ratio, stats.max_speed = min_det, speed
         if not (math.isfinite(energy) and math.isfinite(speed)):
             return ("nonfinite", math.nan, math.nan)
@@ -489,31 +496,34 @@ class Simulator:
             return ("speed", speed, s.max_speed)
         return None
 
-    def _line_search(self, energy: float, min_det: float, terms: dict) -> bool:
-        """Backtrack x + alpha d until E decreases (and no tet inverts that was not); False if none does."""
+    def _line_search(self, energy: float, min_det: float, terms: dict) -> tuple[float, float, float] | None:
+        """Backtrack x + alpha d until E decreases (and no tet inverts that was not); move x there and return
+        :meth:`_evaluate` (FORCE) of the new x, or None if no alpha does."""
         alpha = 1.0
         for _ in range(12):
             wp.launch(
                 step_positions, self.n_vertices, [self._x, self._d, alpha, self._x_trial], device=self.device
             )
-            trial, trial_det, _ = self._evaluate(self._x_trial, terms, ENERGY)
+            evaluation = self._evaluate(self._x_trial, terms, FORCE)
+            trial, trial_det, _ = evaluation
             if trial <= energy and (trial_det > 0 or min_det <= 0):
                 wp.copy(self._x, self._x_trial)
-                return True
+                return evaluation
             alpha *= 0.5
-        return False
+        return None
 
-    def _evaluate(self, x: wp.array, terms: dict, order: int) -> tuple[float, float, float]:
-        """Incremental potential at ``x``, min det F and |force| (0 for ENERGY); fills the force (FORCE),
-        and the Hessian blocks and the block-Jacobi preconditioner (HESSIAN)."""
+    def _evaluate(self, x: wp.array, terms: dict, order: int) -> tuple[float, float, float] | None:
+        """ENERGY, FORCE: the incremental potential at ``x``, min det F and |force| (0 for ENERGY); FORCE
+        fills the force. HESSIAN: only the Hessian blocks and the block-Jacobi preconditioner (None)."""
         s, m = self.settings, self.material
         h = terms["h"]
         dev = self.device
-        wp.copy(self._scalars, self._scalars_init)
-        if order >= FORCE:
-            self._force.zero_()
         if order == HESSIAN:
             self._values.zero_()
+        else:
+            wp.copy(self._scalars, self._scalars_init)
+        if order == FORCE:
+            self._force.zero_()
         lam_snh = m.lam + m.mu
         damp = s.damping / h
         wp.launch(
@@ -567,6 +577,8 @@ class Simulator:
             ],
             device=dev,
         )
+        if order == HESSIAN:
+            return None
         energy, min_det, force_sq = self._scalars.numpy()
         return float(energy), float(min_det), math.sqrt(float(force_sq))
 

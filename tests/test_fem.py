@@ -2,10 +2,11 @@
 
 import numpy as np
 import pytest
+import warp as wp
 from meshes import kuhn_grid
 
 from shellsim.contact import Box, Sphere
-from shellsim.elastic import elastic_energy, snh_energy_reference
+from shellsim.elastic import elastic_energy, snh_energy_reference, snh_min_eigenvalue
 from shellsim.fem import SimSettings, SimulationError, Simulator, simulate
 from shellsim.geometry import MIN_VOLUME_RATIO, tet_volumes
 from shellsim.materials import Material, get_material
@@ -65,6 +66,41 @@ def test_energy_gradient_hessian_match_finite_differences(rng, shift_limit):
         fd_hess[:, k] = (gp - gm).ravel() / (2 * eps)
     np.testing.assert_allclose(grad.ravel(), fd_grad, atol=1e-7 * np.abs(fd_grad).max())
     np.testing.assert_allclose(hess.toarray(), fd_hess, atol=1e-6 * np.abs(fd_hess).max())
+
+
+@wp.kernel
+def _min_eigenvalues(
+    F: wp.array(dtype=wp.mat33d), mu: wp.float64, lam: wp.float64, out: wp.array(dtype=wp.float64)
+):
+    i = wp.tid()
+    out[i] = snh_min_eigenvalue(F[i], mu, lam)
+
+
+def test_smallest_stress_derivative_eigenvalue_matches_a_dense_eigensolve(rng):
+    """snh_min_eigenvalue (closed form from the singular values; the scaling modes' eigen-solve skipped where
+    they lie above the twist/flip minimum) against numpy's eigenvalues of the 9x9 d2Psi/dF2
+    = mu I + lam vec(cof F) vec(cof F)^T + (lam (J - 1) - mu) d2J/dF2, d2J/dF_ij dF_kl = eps_ikm eps_jln F_mn,
+    at rest and over random deformations (J > 0.55, no barrier), both kinds of minimum among them."""
+    F = np.eye(3) + rng.normal(size=(300, 3, 3)) * np.repeat([0.05, 0.2, 0.5], 100)[:, None, None]
+    F = np.concatenate([np.eye(3)[None], np.diag([1.3, 1.0, 0.8])[None], F[np.linalg.det(F) > 0.55]])
+    mu, lam = 1.0, 5.0
+    out = wp.zeros(len(F), dtype=wp.float64, device="cpu")
+    wp.launch(
+        _min_eigenvalues, len(F), [wp.array(F, dtype=wp.mat33d, device="cpu"), mu, lam, out], device="cpu"
+    )
+    eps = np.zeros((3, 3, 3))
+    eps[0, 1, 2] = eps[1, 2, 0] = eps[2, 0, 1] = 1.0
+    eps[0, 2, 1] = eps[2, 1, 0] = eps[1, 0, 2] = -1.0
+    J = np.linalg.det(F)
+    cof = (J[:, None, None] * np.linalg.inv(F).transpose(0, 2, 1)).reshape(-1, 9)
+    d2J = np.einsum("ikm,jln,tmn->tijkl", eps, eps, F).reshape(-1, 9, 9)
+    hess = (
+        mu * np.eye(9) + lam * cof[:, :, None] * cof[:, None, :] + (lam * (J - 1) - mu)[:, None, None] * d2J
+    )
+    smallest = np.linalg.eigvalsh(hess)[:, 0]
+    twist_flip = mu - np.abs(lam * (J - 1) - mu) * np.linalg.svd(F, compute_uv=False)[:, 0]
+    assert 0 < (smallest < twist_flip - 1e-9).sum() < len(F)  # scaling and twist/flip minima both occur
+    np.testing.assert_allclose(out.numpy(), smallest, rtol=0, atol=1e-11)
 
 
 @pytest.mark.parametrize("shift_limit", [0.1, 0.0])

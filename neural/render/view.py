@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from ..data import Cameras, camera_rays
-from .fullray import ray_aabb, ray_background, render_samples, stepped_samples
+from .fullray import ray_aabb, ray_background, shade_samples, stepped_samples
 from .occupancy import OccupancyConfig, OccupancyGrid
 
 #: Rays rendered at once (bounds the memory of one pass).
@@ -167,7 +167,7 @@ def render_pixels(
             now = time.perf_counter()
             times["map"] += now - tick
             tick = now
-        out = render_samples(
+        color = shade_samples(
             field,
             points,
             unit,
@@ -176,7 +176,7 @@ def render_pixels(
             samples,
             ray_background(field, d, background),
         )
-        colors.append(out["color"])
+        colors.append(color)
         times["shade"] += time.perf_counter() - tick
     colors = torch.cat(colors) if colors else origins.new_zeros(0, 3)
     counts = torch.cat(counts).cpu().numpy() if counts else np.zeros(0, np.int64)

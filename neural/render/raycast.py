@@ -196,8 +196,13 @@ class ShellCaster(ABC):
 
 class EmbreeCaster(ShellCaster):
     """:class:`ShellCaster` on Embree scenes, built once. Building costs 1-3 us of CPU per face (embreex
-    copies buffers element by element), Embree's BVH build a third of that on the first cast; the binding
-    has no vertex update: for shells that move, :class:`WarpCaster` refits."""
+    copies buffers element by element) plus Embree's BVH build, a third of that; the binding has no vertex
+    update: for shells that move, :class:`WarpCaster` refits. A cast is split over ``cpu_threads`` threads
+    (None: :func:`neural.device.cpu_threads`; embreex releases the GIL while it casts)."""
+
+    def __init__(self, outer: trimesh.Trimesh, inner: trimesh.Trimesh, cpu_threads: int | None = None):
+        self.cpu_threads = cpu_threads or default_cpu_threads()
+        super().__init__(outer, inner)
 
     def _build(self, vertices: np.ndarray, faces: np.ndarray):
         from embreex import rtcore_scene
@@ -205,18 +210,27 @@ class EmbreeCaster(ShellCaster):
 
         scene = rtcore_scene.EmbreeScene(robust=True)
         TriangleMesh(scene=scene, vertices=vertices, indices=faces)
+        one = np.zeros((1, 3), dtype=np.float32)
+        scene.run(one, one + np.float32([0, 0, 1]), output=1)  # commits (builds the BVH) before threads cast
         return scene
 
     def _cast(
         self, scene, starts: np.ndarray, units: np.ndarray, reach: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        out = scene.run(
-            np.ascontiguousarray(starts - self.center, dtype=np.float32),
-            np.ascontiguousarray(units, dtype=np.float32),
-            dists=None if reach is None else np.ascontiguousarray(reach, dtype=np.float32),
-            output=1,
-        )
-        return out["primID"].astype(np.int64), out["tfar"].astype(np.float64)
+        starts = np.ascontiguousarray(starts - self.center, dtype=np.float32)
+        units = np.ascontiguousarray(units, dtype=np.float32)
+        reach = None if reach is None else np.ascontiguousarray(reach, dtype=np.float32)
+        prim = np.empty(len(starts), dtype=np.int64)
+        dist = np.empty(len(starts), dtype=np.float64)
+
+        def cast(lo: int, hi: int) -> None:
+            out = scene.run(
+                starts[lo:hi], units[lo:hi], dists=None if reach is None else reach[lo:hi], output=1
+            )
+            prim[lo:hi], dist[lo:hi] = out["primID"], out["tfar"]
+
+        run_in_chunks(len(starts), cast, self.cpu_threads, _MIN_CAST_CHUNK)
+        return prim, dist
 
 
 @wp.kernel

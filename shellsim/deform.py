@@ -163,7 +163,13 @@ def _map_kernel(
         # R_t D_t^-1 d (the eps -> 0 limit of both) where the cage is thinner than eps around x
         # (diff is the rest-space image of the step eps d, or of d itself for the Jacobian)
         step = eps
-        t1, m1, b1 = _locate(tets, p + eps * d)
+        # x + eps d is nearly always in x's own tet: then no search (a point on a face shared with another
+        # tet maps to the same rest point through either)
+        b0 = tets.to_bary[t] * (p + eps * d - tets.origin[t])
+        m0 = wp.min(wp.min(b0[0], b0[1]), wp.min(b0[2], wp.float64(1.0) - b0[0] - b0[1] - b0[2]))
+        t1, m1, b1 = t, m0, b0
+        if m0 < wp.float64(0.0):
+            t1, m1, b1 = _locate(tets, p + eps * d)
         if t1 >= 0 and m1 >= -tol:
             diff = _to_rest(tets, t1, b1) - x_rest
         else:

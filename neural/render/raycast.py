@@ -153,7 +153,17 @@ class ShellCaster(ABC):
             if t_stop.shape != (n_rays,):
                 raise ValueError(f"t_stop must have shape ({n_rays},), got {t_stop.shape}")
             stop = t_stop * norms  # world units
+        ray_idx, t, prim = self._peel(scene, origins, units, stop, int(max_hits))
+        normals = _facet_normals(self._vertices[mesh_which], self._faces[mesh_which][prim])
+        entering = np.einsum("ij,ij->i", units[ray_idx], normals) < 0
+        return ray_idx, t / norms[ray_idx], entering
 
+    def _peel(
+        self, scene, origins: np.ndarray, units: np.ndarray, stop: np.ndarray, max_hits: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rounds of :meth:`all_hits` from world ``origins`` along ``units`` (R, 3), ``stop`` (R,) world:
+        ``ray_idx`` (H,) sorted, world ``t`` (H,) increasing per ray and faces ``prim`` (H,) of the hits."""
+        n_rays = len(origins)
         t_next = np.zeros(n_rays)  # where each ray's next cast starts (world)
         step = np.full(n_rays, self.step)
         last = np.full(n_rays, -1, dtype=np.int64)
@@ -188,10 +198,7 @@ class ShellCaster(ABC):
         t = np.concatenate(found_t) if found_t else np.zeros(0)
         prim = np.concatenate(found_prim) if found_prim else np.zeros(0, dtype=np.int64)
         order = np.argsort(ray_idx, kind="stable")  # rounds are in t order along each ray
-        ray_idx, t, prim = ray_idx[order], t[order], prim[order]
-        normals = _facet_normals(self._vertices[mesh_which], self._faces[mesh_which][prim])
-        entering = np.einsum("ij,ij->i", units[ray_idx], normals) < 0
-        return ray_idx, t / norms[ray_idx], entering
+        return ray_idx[order], t[order], prim[order]
 
 
 class EmbreeCaster(ShellCaster):
@@ -253,6 +260,57 @@ def _cast_kernel(
         dist[i] = wp.inf
 
 
+@wp.kernel
+def _peel_kernel(
+    mesh: wp.uint64,
+    origins: wp.array(dtype=wp.vec3d),
+    units: wp.array(dtype=wp.vec3d),
+    stop: wp.array(dtype=wp.float64),
+    center: wp.vec3d,
+    step0: wp.float64,
+    max_hits: int,
+    rounds: int,
+    t_out: wp.array2d(dtype=wp.float64),
+    prim_out: wp.array2d(dtype=wp.int64),
+    count: wp.array(dtype=wp.int32),
+):
+    """:meth:`ShellCaster._peel`'s rounds for one ray in one thread: the same casts in the same order."""
+    i = wp.tid()
+    o = origins[i]
+    u = units[i]
+    unit = wp.vec3(wp.float32(u[0]), wp.float32(u[1]), wp.float32(u[2]))
+    t_next = wp.float64(0.0)
+    step = step0
+    last = wp.int64(-1)
+    n = int(0)  # noqa: UP018 (a Warp dynamic variable, not a constant)
+    for _ in range(rounds):
+        reach = wp.float64(wp.inf)
+        if n > 0:
+            reach = stop[i] - t_next
+        if reach <= wp.float64(0.0):
+            break
+        s = (o + t_next * u) - center
+        start = wp.vec3(wp.float32(s[0]), wp.float32(s[1]), wp.float32(s[2]))
+        query = wp.mesh_query_ray(mesh, start, unit, wp.float32(reach))
+        if not query.result:
+            break
+        t_hit = t_next + wp.float64(query.t)
+        face = wp.int64(query.face)
+        fresh = face != last
+        if fresh:
+            t_out[i, n] = t_hit
+            prim_out[i, n] = face
+            n += 1
+            step = step0
+        else:
+            step = wp.float64(2.0) * step
+        last = face
+        t_next = t_hit + step
+        if n >= max_hits or (fresh and t_hit > stop[i]):
+            break
+    count[i] = n
+
+
 class WarpCaster(ShellCaster):
     """:class:`ShellCaster` on Warp meshes whose vertices can move: :meth:`refit` takes new vertex
     positions (same faces) and refits the BVHs in linear time, so deformed shells (paper Sec. 5) are cast
@@ -294,6 +352,38 @@ class WarpCaster(ShellCaster):
             mesh = self._scenes[which]
             mesh.points.assign(wp.array(vertices - self.center, dtype=wp.vec3, device=self.device))
             mesh.refit()
+
+    def _peel(
+        self, scene: wp.Mesh, origins: np.ndarray, units: np.ndarray, stop: np.ndarray, max_hits: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """All rounds of every ray in one kernel launch (per thread chunk) instead of a cast per round."""
+        n, dev = len(origins), self.device
+        arrays = [
+            wp.array(np.ascontiguousarray(origins), dtype=wp.vec3d, device=dev),
+            wp.array(np.ascontiguousarray(units), dtype=wp.vec3d, device=dev),
+            wp.array(np.ascontiguousarray(stop, dtype=np.float64), dtype=wp.float64, device=dev),
+        ]
+        outputs = [
+            wp.empty((n, max_hits), dtype=wp.float64, device=dev),
+            wp.empty((n, max_hits), dtype=wp.int64, device=dev),
+            wp.empty(n, dtype=wp.int32, device=dev),
+        ]
+        center, rounds = wp.vec3d(*self.center), 2 * max_hits + 8
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(
+                _peel_kernel,
+                dim=hi - lo,
+                inputs=[scene.id, *(a[lo:hi] for a in arrays), center, self.step, max_hits, rounds],
+                outputs=[a[lo:hi] for a in outputs],
+                device=dev,
+            )
+
+        wp.load_module(_peel_kernel.module, device=dev)
+        run_in_chunks(n, launch, self.cpu_threads, _MIN_CAST_CHUNK)
+        t, prim, count = (a.numpy() for a in outputs)
+        found = np.arange(max_hits)[None, :] < count[:, None]  # (R, max_hits), row-major: by ray, then t
+        return np.nonzero(found)[0], t[found], prim[found]
 
     def _cast(
         self, scene: wp.Mesh, starts: np.ndarray, units: np.ndarray, reach: np.ndarray | None = None

@@ -340,7 +340,8 @@ class WarpCaster(ShellCaster):
     def refit(self, outer_vertices, inner_vertices) -> None:
         """Move the shells' vertices to ``outer_vertices`` (V+, 3) and ``inner_vertices`` (V-, 3) (world, in
         the order of the meshes given at construction) and refit both BVHs."""
-        for which, vertices in (("outer", outer_vertices), ("inner", inner_vertices)):
+        moved = {"outer": outer_vertices, "inner": inner_vertices}
+        for which, vertices in moved.items():
             vertices = np.asarray(vertices, dtype=np.float64)
             if vertices.shape != self._vertices[which].shape:
                 raise ValueError(
@@ -348,10 +349,16 @@ class WarpCaster(ShellCaster):
                 )
             if not np.isfinite(vertices).all():
                 raise ValueError(f"{which}_vertices: contain NaN or infinity")
-            self._vertices[which] = vertices
-            mesh = self._scenes[which]
-            mesh.points.assign(wp.array(vertices - self.center, dtype=wp.vec3, device=self.device))
-            mesh.refit()
+            moved[which] = vertices
+
+        def refit(lo: int, hi: int) -> None:  # both meshes at once on the CPU (Warp releases the GIL)
+            for which in list(moved)[lo:hi]:
+                self._vertices[which] = moved[which]
+                mesh = self._scenes[which]
+                mesh.points.assign(wp.array(moved[which] - self.center, dtype=wp.vec3, device=self.device))
+                mesh.refit()
+
+        run_in_chunks(len(moved), refit, self.cpu_threads, 1)
 
     def _peel(
         self, scene: wp.Mesh, origins: np.ndarray, units: np.ndarray, stop: np.ndarray, max_hits: int

@@ -154,9 +154,13 @@ class ShellCaster(ABC):
                 raise ValueError(f"t_stop must have shape ({n_rays},), got {t_stop.shape}")
             stop = t_stop * norms  # world units
         ray_idx, t, prim = self._peel(scene, origins, units, stop, int(max_hits))
-        normals = _facet_normals(self._vertices[mesh_which], self._faces[mesh_which][prim])
+        normals = self._normals(mesh_which, prim)
         entering = np.einsum("ij,ij->i", units[ray_idx], normals) < 0
         return ray_idx, t / norms[ray_idx], entering
+
+    def _normals(self, mesh_which: str, faces: np.ndarray) -> np.ndarray:
+        """Unnormalised facet normals (K, 3) of ``faces`` (K,) of one mesh."""
+        return _facet_normals(self._vertices[mesh_which], self._faces[mesh_which][faces])
 
     def _peel(
         self, scene, origins: np.ndarray, units: np.ndarray, stop: np.ndarray, max_hits: int
@@ -210,6 +214,11 @@ class EmbreeCaster(ShellCaster):
     def __init__(self, outer: trimesh.Trimesh, inner: trimesh.Trimesh, cpu_threads: int | None = None):
         self.cpu_threads = cpu_threads or default_cpu_threads()
         super().__init__(outer, inner)
+        # the shells never move: every facet normal once, instead of those of the hits at every cast
+        self._facet_normals = {w: _facet_normals(self._vertices[w], self._faces[w]) for w in self._scenes}
+
+    def _normals(self, mesh_which: str, faces: np.ndarray) -> np.ndarray:
+        return self._facet_normals[mesh_which][faces]
 
     def _build(self, vertices: np.ndarray, faces: np.ndarray):
         from embreex import rtcore_scene

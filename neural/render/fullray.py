@@ -253,6 +253,8 @@ def shade_samples(
     shown = torch.nonzero(weights * per_ray > tolerance).squeeze(1)
     rgb = points.new_zeros(len(points), 3)
     rgb[shown] = field.radiance(
-        points[shown], unit_dirs[shown], type(geometry)(*(g[shown] for g in geometry))
+        points.index_select(0, shown),
+        unit_dirs.index_select(0, shown),
+        type(geometry)(*(g.index_select(0, shown) for g in geometry)),
     )
     return _finish(weights, rgb, ray_indices, n_rays, None, background)["color"]

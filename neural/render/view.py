@@ -153,8 +153,8 @@ def render_pixels(
         samples = sampler(o, d)
         counts.append(samples.counts())
         rays = samples.ray_indices
-        norm = d.norm(dim=1)[rays]
-        unit = d[rays] / norm[:, None].clamp_min(1e-12)
+        norm = d.norm(dim=1).index_select(0, rays)
+        unit = d.index_select(0, rays) / norm[:, None].clamp_min(1e-12)
         points, scale = samples.points(o, d), norm  # scale: field-space length per unit of t
         now = time.perf_counter()
         times["sample"] += now - tick

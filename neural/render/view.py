@@ -8,7 +8,9 @@ held-out views) is made by :func:`render_camera` / :func:`render_pixels`, chunk 
    stretch (S,), inside (S,) bool)`` takes each sample to the space where the field lives (deformed
    rendering, paper Sec. 5: ``shellsim.deform.InverseMap``); samples outside are dropped and every section
    length is multiplied by ``stretch``; without it the samples are already there;
-3. **shade**: the field at the samples, composited along the rays (Eq. 2-3).
+3. **shade**: the field at the samples, composited along the rays (Eq. 2-3) by
+   :func:`~neural.render.fullray.shade_samples`: the radiance network only where a sample's weight can
+   change its pixel, each channel within ``WEIGHT_TOLERANCE`` (1e-3) of the full composite.
 
 Samplers:
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 from .errors import InputError
 
 DEVICES = ("auto", "cpu", "cuda")
@@ -49,24 +51,33 @@ def cpu_threads() -> int:
     return max(1, torch.get_num_threads())
 
 
-def run_in_chunks(n: int, launch, threads: int, min_chunk: int) -> None:
-    """Call ``launch(lo, hi)`` over ``[0, n)`` cut into contiguous chunks, one per Python thread: at most
-    ``threads`` chunks of at least ``min_chunk`` items (one chunk, on this thread, when ``n`` is small).
+@functools.cache
+def _chunk_pool(workers: int):
+    """A thread pool of ``workers`` threads kept for the process (a new pool per call costs ~0.2 ms)."""
+    from concurrent.futures import ThreadPoolExecutor
 
-    Warp runs a CPU launch on one core and releases the GIL meanwhile, so chunked launches writing disjoint
-    outputs use every core. Compile the kernel first (``wp.load_module``) so the threads do not race to."""
+    return ThreadPoolExecutor(workers, thread_name_prefix="warp-chunks")
+
+
+def run_in_chunks(n: int, launch, threads: int, min_chunk: int) -> None:
+    """Call ``launch(lo, hi)`` over ``[0, n)`` cut into contiguous chunks, one per thread: at most ``threads``
+    chunks of at least ``min_chunk`` items (one chunk, on this thread, when ``n`` is small); this thread
+    runs the first chunk, a kept pool the others.
+
+    Warp (and Embree) run a CPU cast or launch on one core and release the GIL meanwhile, so chunked
+    launches writing disjoint outputs use every core. Compile the kernel first (``wp.load_module``) so the
+    threads do not race to."""
     if n <= 0:
         return
     threads = max(1, min(threads, n // max(min_chunk, 1)))
     if threads == 1:
         launch(0, n)
         return
-    from concurrent.futures import ThreadPoolExecutor
-
     import numpy as np
 
     bounds = np.linspace(0, n, threads + 1).astype(np.int64)
-    with ThreadPoolExecutor(threads, thread_name_prefix="warp-chunks") as pool:
-        futures = [pool.submit(launch, int(bounds[k]), int(bounds[k + 1])) for k in range(threads)]
-        for future in futures:
-            future.result()
+    pool = _chunk_pool(threads - 1)
+    futures = [pool.submit(launch, int(bounds[k]), int(bounds[k + 1])) for k in range(1, threads)]
+    launch(int(bounds[0]), int(bounds[1]))
+    for future in futures:
+        future.result()

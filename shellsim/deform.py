@@ -37,6 +37,9 @@ BARY_TOL = 1e-6
 EPS_REL = 1e-4
 #: Fewest points per CPU thread of a query.
 _MIN_CHUNK = 16384
+#: Consecutive points a CPU kernel thread maps, each first tried in its predecessor's tet (one per thread
+#: on CUDA).
+_CPU_SPAN = 256
 
 
 def deform_points(cage_positions, tets, tet_index, bary) -> np.ndarray:
@@ -125,6 +128,24 @@ def _locate(tets: _Tets, p: wp.vec3d):
 
 
 @wp.func
+def _locate_near(tets: _Tets, p: wp.vec3d, hint: int):
+    """:func:`_locate`, trying tet ``hint`` (-1: none) first: when it contains ``p`` (smallest barycentric
+    coordinate >= 0) it is taken without a search (where tets share a face, a point on it maps to the same
+    rest point through either)."""
+    t = int(-1)  # noqa: UP018 (a Warp dynamic variable, not a constant)
+    m = wp.float64(-1.0e300)
+    b = wp.vec3d()
+    if hint >= 0:
+        if tets.valid[hint] == 1:
+            b = tets.to_bary[hint] * (p - tets.origin[hint])
+            m = wp.min(wp.min(b[0], b[1]), wp.min(b[2], wp.float64(1.0) - b[0] - b[1] - b[2]))
+            t = hint
+    if m < wp.float64(0.0):
+        t, m, b = _locate(tets, p)
+    return t, m, b
+
+
+@wp.func
 def _to_rest(tets: _Tets, t: int, b: wp.vec3d):
     """``Phi^-1`` inside tet ``t`` of the point with barycentric coordinates ``b`` (b1, b2, b3)."""
     return tets.rest_origin[t] + tets.rest_edges[t] * b
@@ -138,43 +159,50 @@ def _map_kernel(
     with_dirs: int,
     eps: wp.float64,
     tol: wp.float64,
+    span: int,
     out_points: wp.array(dtype=wp.vec3d),
     out_dirs: wp.array(dtype=wp.vec3d),
     out_stretch: wp.array(dtype=wp.float64),
     out_inside: wp.array(dtype=wp.bool),
 ):
+    # thread i maps points [i span, (i + 1) span) in order, each first tried in its predecessor's tet (the
+    # samples of a ray come one after the other, mostly a few in a tet)
     i = wp.tid()
     nan = wp.float64(wp.nan)
-    p = points[i]
-    t, m, b = _locate(tets, p)
-    if t < 0 or m < -tol:
-        out_inside[i] = False
-        out_points[i] = wp.vec3d(nan, nan, nan)
+    hint = int(-1)  # noqa: UP018 (a Warp dynamic variable, not a constant)
+    for j in range(i * span, wp.min((i + 1) * span, points.shape[0])):
+        p = points[j]
+        t, m, b = _locate_near(tets, p, hint)
+        if t < 0 or m < -tol:
+            out_inside[j] = False
+            out_points[j] = wp.vec3d(nan, nan, nan)
+            if with_dirs == 1:
+                out_dirs[j] = wp.vec3d(nan, nan, nan)
+                out_stretch[j] = nan
+            continue
+        hint = t
+        x_rest = _to_rest(tets, t, b)
+        out_inside[j] = True
+        out_points[j] = x_rest
         if with_dirs == 1:
-            out_dirs[i] = wp.vec3d(nan, nan, nan)
-            out_stretch[i] = nan
-        return
-    x_rest = _to_rest(tets, t, b)
-    out_inside[i] = True
-    out_points[i] = x_rest
-    if with_dirs == 1:
-        d = dirs[i]
-        # forward difference; backward where x + eps d leaves the cage; the containing tet's Jacobian
-        # R_t D_t^-1 d (the eps -> 0 limit of both) where the cage is thinner than eps around x
-        # (diff is the rest-space image of the step eps d, or of d itself for the Jacobian)
-        step = eps
-        t1, m1, b1 = _locate(tets, p + eps * d)
-        if t1 >= 0 and m1 >= -tol:
-            diff = _to_rest(tets, t1, b1) - x_rest
-        else:
-            t2, m2, b2 = _locate(tets, p - eps * d)
-            if t2 >= 0 and m2 >= -tol:
-                diff = x_rest - _to_rest(tets, t2, b2)
+            d = dirs[j]
+            # forward difference; backward where x + eps d leaves the cage; the containing tet's Jacobian
+            # R_t D_t^-1 d (the eps -> 0 limit of both) where the cage is thinner than eps around x
+            # (diff is the rest-space image of the step eps d, or of d itself for the Jacobian); x +- eps d
+            # is nearly always in x's own tet
+            step = eps
+            t1, m1, b1 = _locate_near(tets, p + eps * d, t)
+            if t1 >= 0 and m1 >= -tol:
+                diff = _to_rest(tets, t1, b1) - x_rest
             else:
-                diff = tets.rest_edges[t] * (tets.to_bary[t] * d)
-                step = wp.float64(1.0)
-        out_dirs[i] = wp.normalize(diff)
-        out_stretch[i] = wp.length(diff) / (step * wp.length(d))
+                t2, m2, b2 = _locate_near(tets, p - eps * d, t)
+                if t2 >= 0 and m2 >= -tol:
+                    diff = x_rest - _to_rest(tets, t2, b2)
+                else:
+                    diff = tets.rest_edges[t] * (tets.to_bary[t] * d)
+                    step = wp.float64(1.0)
+            out_dirs[j] = wp.normalize(diff)
+            out_stretch[j] = wp.length(diff) / (step * wp.length(d))
 
 
 # --------------------------------------------------------------------------- the inverse map
@@ -346,12 +374,14 @@ class InverseMap:
         CPU launch; the chunks write disjoint outputs)."""
         n = arrays[0].shape[0]
 
+        span = 1 if self.device.is_cuda else _CPU_SPAN
+
         def launch(lo: int, hi: int) -> None:
             x, d, out_x, out_d, out_s, out_in = (a[lo:hi] for a in arrays)
-            inputs = [self._tets, x, d, with_dirs, eps, self.tol]
+            inputs = [self._tets, x, d, with_dirs, eps, self.tol, span]
             wp.launch(
                 _map_kernel,
-                dim=hi - lo,
+                dim=(hi - lo + span - 1) // span,
                 inputs=inputs,
                 outputs=[out_x, out_d, out_s, out_in],
                 device=self.device,

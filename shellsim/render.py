@@ -91,16 +91,23 @@ class DeformedRenderer:
         self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
         self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
         self._deformed = None  # WarpCaster, built for the first deformed frame
+        self._interpolation = None  # sparse (V+, V) and (V-, V) barycentric weights, built with it
 
     def deformed_vertices(self, positions) -> tuple[np.ndarray, np.ndarray]:
-        """Deformed ``M+``, ``M-`` vertices (V+, 3), (V-, 3) float64 of cage vertices ``positions`` (V, 3)."""
-        from .deform import deform_points
+        """Deformed ``M+``, ``M-`` vertices (V+, 3), (V-, 3) float64 of cage vertices ``positions`` (V, 3):
+        :func:`shellsim.deform.deform_points` as one sparse (V+-, V) product per shell, built on first use."""
+        from .geometry import check_points
 
-        c = self.cage
-        return (
-            deform_points(positions, c.tets, c.outer_tet, c.outer_bary),
-            deform_points(positions, c.tets, c.inner_tet, c.inner_bary),
-        )
+        positions = check_points("positions", positions)
+        if self._interpolation is None:
+            self._interpolation = tuple(
+                _interpolation_matrix(self.cage.tets, tet, bary, len(self.cage.vertices))
+                for tet, bary in (
+                    (self.cage.outer_tet, self.cage.outer_bary),
+                    (self.cage.inner_tet, self.cage.inner_bary),
+                )
+            )
+        return tuple(weights @ positions for weights in self._interpolation)
 
     def _frame(self, positions):
         """The sampler and the map to rest space (None at rest) of cage vertices ``positions`` (V, 3)."""
@@ -138,6 +145,23 @@ class DeformedRenderer:
         stats["build_ms"] = 1000.0 * build
         stats["ms"] = 1000.0 * (time.perf_counter() - start)
         return image, stats
+
+
+def _interpolation_matrix(tets: np.ndarray, tet_index: np.ndarray, bary: np.ndarray, n_vertices: int):
+    """Sparse (P, V) CSR matrix of the barycentric weights ``bary`` (P, 4) of points in tets ``tet_index``
+    (P,) of ``tets`` (T, 4): times cage positions (V, 3) it gives the points moved with the cage."""
+    import scipy.sparse
+
+    from .embed import check_embedding
+    from .geometry import check_tets
+
+    tets = check_tets(tets, n_vertices)
+    tet_index, bary = check_embedding(tet_index, bary, len(tets))
+    rows = np.repeat(np.arange(len(tet_index)), 4)
+    return scipy.sparse.csr_matrix(
+        (np.asarray(bary, dtype=np.float64).ravel(), (rows, tets[tet_index].ravel())),
+        shape=(len(tet_index), n_vertices),
+    )
 
 
 # --------------------------------------------------------------------------- cameras and frames

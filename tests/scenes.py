@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -125,8 +125,7 @@ def write_fuzzy_scene(root: Path, n_views: int = 24, size: int = 32, steps: int 
     return _write(Path(root), images, c2ws, angle_x)
 
 
-@dataclass
-class Geometry:
+class Geometry(NamedTuple):
     """What the renderers read of a field's geometry at N points."""
 
     sdf: torch.Tensor  # (N,)

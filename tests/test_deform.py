@@ -96,6 +96,25 @@ def test_matches_brute_force_twin(grid, rng):
     np.testing.assert_allclose(inverse.map_directions(x, d, eps=0.02), d_rest, atol=0, equal_nan=True)
 
 
+def test_points_along_rays_match_brute_force_twin(grid, rng):
+    """Samples along rays, in order (as a renderer queries them: each mostly in its predecessor's tet, some
+    leaving the cage and coming back), map like the brute-force twin."""
+    verts, tets, _ = grid
+    deformed_cage = smooth_warp(verts)
+    lo, hi = deformed_cage.min(0), deformed_cage.max(0)
+    starts = lo - 0.2 + (hi - lo + 0.4) * rng.random((40, 3))
+    ends = lo - 0.2 + (hi - lo + 0.4) * rng.random((40, 3))
+    x = (starts[:, None] + np.linspace(0, 1, 100)[None, :, None] * (ends - starts)[:, None]).reshape(-1, 3)
+    d = np.repeat((ends - starts) / np.linalg.norm(ends - starts, axis=1, keepdims=True), 100, axis=0)
+    x_rest, d_rest, inside = InverseMap(deformed_cage, tets, verts).map_samples(x, d, eps=0.01)
+    ref_rest, ref_inside = map_points_reference(deformed_cage, tets, verts, x)
+    assert 0.2 < inside.mean() < 0.9
+    np.testing.assert_array_equal(inside, ref_inside)
+    np.testing.assert_allclose(x_rest[inside], ref_rest[inside], atol=1e-9)
+    ref_dirs = map_directions_reference(deformed_cage, tets, verts, x, d, eps=0.01)
+    np.testing.assert_allclose(d_rest[inside], ref_dirs[inside], atol=1e-7)
+
+
 def test_outside_points_are_flagged_nan(grid):
     verts, tets, _ = grid
     inverse = InverseMap(smooth_warp(verts), tets, verts)

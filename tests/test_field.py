@@ -10,7 +10,7 @@ from scipy.special import sph_harm_y
 
 from neural.errors import InputError
 from neural.field import FieldConfig, HashGridConfig, ShellField, spherical_harmonics
-from neural.field.network import SoftplusBeta
+from neural.field.network import SoftplusBeta, softplus_beta_
 
 SMALL_GRID = HashGridConfig(log2_table_size=12, base_resolution=4, max_resolution=128)
 
@@ -198,6 +198,28 @@ def test_fast_softplus_matches_torch_softplus():
     torch.testing.assert_close(g_ours, g_ref, rtol=0, atol=1e-6)
     inner = (torch.rand(20, dtype=torch.float64) - 0.5) * 0.2  # |beta z| < 15: exact, so gradcheck applies
     assert torch.autograd.gradcheck(lambda t: SoftplusBeta.apply(t, 100.0), (inner.requires_grad_(),))
+
+
+def test_inference_softplus_equals_the_training_one():
+    """The in-place activation of rendering gives torch's softplus and the training Function's
+    numbers, and a field under no_grad the same geometry as with autograd."""
+    z = torch.cat([torch.linspace(-3, 3, 2001), torch.tensor([-1e4, -0.15, -0.0, 0.0, 0.15, 1e4])])
+    z = z.reshape(-1, 9)
+    ref = torch.nn.functional.softplus(z.double(), beta=100.0)
+    ours = softplus_beta_(z.clone(), 100.0)
+    torch.testing.assert_close(ours.double(), ref, rtol=0, atol=1e-6)
+    torch.testing.assert_close(ours, SoftplusBeta.apply(z, 100.0), rtol=0, atol=1e-7)
+    field = ShellField(small_config(kernel_grid=4))
+    with torch.no_grad():
+        for p in field.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    x = torch.rand(500, 3) * 2 - 1
+    trained = field.geometry(x)
+    assert trained.sdf.requires_grad
+    with torch.no_grad():
+        rendered = field.geometry(x)
+    for a, b in zip(trained, rendered, strict=True):
+        torch.testing.assert_close(a.detach(), b, rtol=0, atol=1e-6)
 
 
 def test_files_without_the_newer_settings_mean_the_papers_field():

@@ -6,7 +6,7 @@ import torch
 from scenes import SphereField
 
 from neural.render.composite import composite, composite_reference, transmittance
-from neural.render.fullray import render_rays
+from neural.render.fullray import render_rays, render_samples, shade_samples, stepped_samples
 from neural.render.neus import annealed_cos, neus_alpha, neus_density
 from neural.render.samples import RaySamples
 
@@ -121,6 +121,40 @@ def test_sphere_accumulated_opacity_telescopes(device):
     f_edges = (3.0 - edges) - radius
     expected = 1 - phi(f_edges[1:], inv_s) / phi(f_edges[0], inv_s)
     assert torch.allclose(torch.cumsum(out["weights"], 0).cpu(), expected, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("tolerance", [0.0, 1e-3, 0.05])
+def test_shading_leaves_out_light_samples_within_its_bound(tolerance):
+    """shade_samples evaluates the radiance only where a sample's weight matters and stays within its
+    stated bound of the full composite: 0 <= full - fast <= tolerance in every channel; with tolerance 0
+    the same colours."""
+
+    class Counting(SphereField):
+        rows = 0
+
+        def radiance(self, x, d, geo):
+            Counting.rows += len(x)
+            return super().radiance(x, d, geo)
+
+    field = Counting(radius=1.0, inv_s=40.0)
+    grid = torch.linspace(-1.2, 1.2, 24)
+    xy = torch.stack(torch.meshgrid(grid, grid, indexing="ij"), -1)
+    origins = torch.cat([xy.reshape(-1, 2), torch.full((576, 1), -3.0)], 1).double()
+    dirs = torch.tensor([[0.1, 0.0, 1.0]], dtype=torch.float64).expand(576, 3)
+    samples = stepped_samples(torch.full((576,), 1.0), torch.full((576,), 5.0), 0.05, 100)
+    norm = dirs.norm(dim=1)[samples.ray_indices]
+    points, unit = samples.points(origins, dirs), dirs[samples.ray_indices] / norm[:, None]
+    args = (points, unit, samples.deltas * norm, (samples.t_mid - samples.t_starts) * norm, samples)
+    bg = torch.tensor([0.2, 0.9, 0.5], dtype=torch.float64)
+    full = render_samples(field, *args, bg)["color"]
+    Counting.rows = 0
+    fast = shade_samples(field, *args, bg, tolerance=tolerance)
+    assert (full - fast).min() >= -1e-12 and (full - fast).max() <= tolerance + 1e-12
+    if tolerance == 0:
+        torch.testing.assert_close(fast, full, rtol=0, atol=1e-12)
+    else:
+        assert Counting.rows < 0.5 * len(points)  # most samples lie before the sphere or behind it
+        assert (full - fast).max() > 0  # weights above 0 were left out
 
 
 def _to(samples, device):

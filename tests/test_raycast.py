@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from neural.render.raycast import EmbreeCaster, WarpCaster, ray_triangle_hits
+from neural.render.raycast import EmbreeCaster, ShellCaster, WarpCaster, ray_triangle_hits
 
 BACKENDS = {
     "embree": EmbreeCaster,
@@ -108,6 +108,30 @@ def test_backends_agree_after_a_refit(rng):
         np.testing.assert_array_equal(w[0][w_ok], e[0][e_ok])
         np.testing.assert_allclose(w[1][w_ok], e[1][e_ok], atol=1e-5, rtol=1e-5)  # float32 casts
         np.testing.assert_array_equal(w[2][w_ok], e[2][e_ok])
+
+
+def test_warp_peels_every_ray_in_one_kernel_like_the_shared_rounds(rng):
+    """WarpCaster's one-launch depth peeling finds the hits that the shared round-by-round loop finds with the
+    same casts, also for rays through a torus's vertices and edges (repeated faces, stepping off them) and
+    under a cap and a stop distance."""
+    outer, inner = tori()
+    caster = WarpCaster(outer, inner, device="cpu", cpu_threads=2)
+    origins, dirs = rays(rng, 1500, 3.0, (1.4, 1.4, 0.6))
+    corners = np.asarray(outer.vertices)[rng.choice(len(outer.vertices), 300)]
+    edges = np.asarray(outer.vertices)[outer.edges_unique[rng.choice(len(outer.edges_unique), 300)]].mean(1)
+    targets = np.concatenate([corners, edges])
+    starts = targets + rng.normal(size=targets.shape) * 2.0
+    origins, dirs = np.concatenate([origins, starts]), np.concatenate([dirs, targets - starts])
+    units = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    stop = np.where(rng.uniform(size=len(units)) < 0.5, rng.uniform(1.0, 4.0, len(units)), np.inf)
+    scene = caster._scene("outer")
+    for max_hits in (16, 3):
+        ours = caster._peel(scene, origins, units, stop, max_hits)
+        rounds = ShellCaster._peel(caster, scene, origins, units, stop, max_hits)
+        np.testing.assert_array_equal(ours[0], rounds[0])
+        np.testing.assert_array_equal(ours[2], rounds[2])
+        np.testing.assert_allclose(ours[1], rounds[1], rtol=0, atol=1e-12)
+    assert len(ours[0]) > len(units)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

@@ -32,7 +32,7 @@ from neural.field import FieldConfig, ShellField
 from neural.field.hashgrid import HashGridConfig
 from neural.metrics import psnr
 from shellsim.cage import Cage, load_or_build_cage, shell_digest
-from shellsim.deform import InverseMap, map_points_reference
+from shellsim.deform import InverseMap, deform_points, map_points_reference
 from shellsim.embed import embed_points
 from shellsim.motion import parse_frames
 from shellsim.render import DeformedRenderer, orbit_camera
@@ -175,6 +175,17 @@ def test_a_bend_moves_only_what_it_moves(renderer):
     centre = slice(SIZE // 2 - 5, SIZE // 2 + 5)
     assert rest[centre, centre].std() > 0.01
     np.testing.assert_allclose(bent[centre, centre], rest[centre, centre], atol=2e-3)
+
+
+def test_deformed_shells_are_the_barycentric_interpolation(renderer):
+    """The renderer's sparse interpolation moves every shell vertex as deform_points does."""
+    c = renderer.cage
+    positions = c.vertices + 0.05 * np.sin(4 * c.vertices[:, [2, 0, 1]])
+    outer, inner = renderer.deformed_vertices(positions)
+    np.testing.assert_allclose(outer, deform_points(positions, c.tets, c.outer_tet, c.outer_bary), atol=1e-12)
+    np.testing.assert_allclose(inner, deform_points(positions, c.tets, c.inner_tet, c.inner_bary), atol=1e-12)
+    with pytest.raises(ValueError, match="positions"):
+        renderer.deformed_vertices(positions[:, :2])
 
 
 def test_samples_outside_the_cage_are_dropped(asset, renderer):

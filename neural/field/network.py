@@ -45,6 +45,10 @@ from .sh import N_COEFFS, spherical_harmonics
 
 SOFTPLUS_BETA = 100.0  # NeuS's geometry activation: a smooth ReLU, so finite-difference normals are smooth
 SOFTPLUS_CUTOFF = 15.0  # |beta z| beyond which softplus is taken as relu: value error < 3e-7 / beta
+#: Rows the networks take at once when evaluated without autograd on a CPU (rendering): one chunk's
+#: activations (a few MB) stay in the cache between the passes over them. The hash encoding still runs on
+#: all rows at once (each of its launches costs a fixed overhead).
+INFERENCE_CHUNK = 8192
 
 
 class Geometry(NamedTuple):
@@ -74,6 +78,14 @@ class SoftplusBeta(torch.autograd.Function):
     def backward(ctx, grad):
         (z,) = ctx.saved_tensors
         return grad * torch.sigmoid((z * ctx.beta).clamp_(-SOFTPLUS_CUTOFF, SOFTPLUS_CUTOFF)), None
+
+
+def softplus_beta_(z: torch.Tensor, beta: float) -> torch.Tensor:
+    """:class:`SoftplusBeta`'s value of (N, H) ``z`` computed in place, without autograd (rendering): the same
+    operations in the same order, so the same numbers, with one temporary instead of six; ``z`` is
+    overwritten and returned."""
+    correction = z.abs().mul_(-beta).clamp_(min=-SOFTPLUS_CUTOFF).exp_().log1p_().div_(beta)
+    return z.clamp_min_(0.0).add_(correction)
 
 
 def fibonacci_sphere(n: int) -> torch.Tensor:
@@ -156,15 +168,49 @@ class ShellField(nn.Module):
         _check_points(x)
         return (x.to(torch.float32) - self.center) * self.scale
 
+    def _geometry_input(self, u: torch.Tensor) -> torch.Tensor:
+        """(N, L*F + 3) input ``[Psi(u), u]`` of the geometry network at unit points u (N, 3)."""
+        return torch.cat([self.encoding(((u + 1.0) * 0.5).contiguous()), u], dim=1)
+
+    def _activation(self, z: torch.Tensor) -> torch.Tensor:
+        """The geometry network's softplus of hidden pre-activations z (N, H) (in place without autograd)."""
+        if z.requires_grad:
+            return SoftplusBeta.apply(z, SOFTPLUS_BETA)
+        return softplus_beta_(z, SOFTPLUS_BETA)
+
     def _hidden(self, u: torch.Tensor) -> torch.Tensor:
         """(N, geo_hidden) activations of the geometry network at unit points u (N, 3)."""
-        psi = self.encoding(((u + 1.0) * 0.5).contiguous())
-        return SoftplusBeta.apply(self.geo_hidden(torch.cat([psi, u], dim=1)), SOFTPLUS_BETA)
+        return self._activation(self.geo_hidden(self._geometry_input(u)))
+
+    def _inference_rows(self, inp: torch.Tensor, layers) -> torch.Tensor:
+        """``layers(inp)`` (N, W) for the rows of ``inp`` (N, K): :data:`INFERENCE_CHUNK` rows at a time on a
+        CPU without autograd, all at once otherwise."""
+        if torch.is_grad_enabled() or inp.is_cuda or len(inp) <= INFERENCE_CHUNK:
+            return layers(inp)
+        first = layers(inp[:INFERENCE_CHUNK])
+        out = inp.new_empty(len(inp), first.shape[1])
+        out[:INFERENCE_CHUNK] = first
+        for i in range(INFERENCE_CHUNK, len(inp), INFERENCE_CHUNK):
+            out[i : i + INFERENCE_CHUNK] = layers(inp[i : i + INFERENCE_CHUNK])
+        return out
+
+    def _geo_out(self, h: torch.Tensor) -> torch.Tensor:
+        """The geometry network's output layer on hidden activations h (N, H) -> (N, 2 + geo_feature_dim + 3).
+        Without autograd on a CPU its rows are padded with zeros to a multiple of 8 (MKL's product into 31
+        columns takes twice as long as into 32; the columns kept are the same numbers)."""
+        weight, bias = self.geo_out.weight, self.geo_out.bias
+        pad = -len(weight) % 8
+        if torch.is_grad_enabled() or h.is_cuda or pad == 0:
+            return self.geo_out(h)
+        weight = torch.cat([weight, weight.new_zeros(pad, weight.shape[1])])
+        return torch.addmm(torch.cat([bias, bias.new_zeros(pad)]), h, weight.t())[:, : len(bias)]
 
     def geometry(self, x: torch.Tensor) -> Geometry:
         """Geometry network at world points x (N, 3) -> :class:`Geometry` in world units."""
         u = self.to_unit(x)
-        out = self.geo_out(self._hidden(u))
+        out = self._inference_rows(
+            self._geometry_input(u), lambda inp: self._geo_out(self._activation(self.geo_hidden(inp)))
+        )
         n_feat = self.config.geo_feature_dim
         cfg = self.config
         raw = out[:, 1]
@@ -198,7 +244,8 @@ class ShellField(nn.Module):
         if self.config.view_encoding == "reflected":
             d = d - 2.0 * (d * geo.normal).sum(1, keepdim=True) * geo.normal
         sh = spherical_harmonics(d)
-        return torch.sigmoid(self.rad(torch.cat([sh, geo.feature, geo.normal, u], dim=1)))
+        inp = torch.cat([sh, geo.feature, geo.normal, u], dim=1)
+        return torch.sigmoid(self._inference_rows(inp, self.rad))
 
     def environment(self, d: torch.Tensor) -> torch.Tensor | None:
         """Colour (R, 3) in [0, 1] of what lies beyond the box along directions d (R, 3) (any length), from

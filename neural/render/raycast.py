@@ -153,7 +153,21 @@ class ShellCaster(ABC):
             if t_stop.shape != (n_rays,):
                 raise ValueError(f"t_stop must have shape ({n_rays},), got {t_stop.shape}")
             stop = t_stop * norms  # world units
+        ray_idx, t, prim = self._peel(scene, origins, units, stop, int(max_hits))
+        normals = self._normals(mesh_which, prim)
+        entering = np.einsum("ij,ij->i", units[ray_idx], normals) < 0
+        return ray_idx, t / norms[ray_idx], entering
 
+    def _normals(self, mesh_which: str, faces: np.ndarray) -> np.ndarray:
+        """Unnormalised facet normals (K, 3) of ``faces`` (K,) of one mesh."""
+        return _facet_normals(self._vertices[mesh_which], self._faces[mesh_which][faces])
+
+    def _peel(
+        self, scene, origins: np.ndarray, units: np.ndarray, stop: np.ndarray, max_hits: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rounds of :meth:`all_hits` from world ``origins`` along ``units`` (R, 3), ``stop`` (R,) world:
+        ``ray_idx`` (H,) sorted, world ``t`` (H,) increasing per ray and faces ``prim`` (H,) of the hits."""
+        n_rays = len(origins)
         t_next = np.zeros(n_rays)  # where each ray's next cast starts (world)
         step = np.full(n_rays, self.step)
         last = np.full(n_rays, -1, dtype=np.int64)
@@ -188,16 +202,23 @@ class ShellCaster(ABC):
         t = np.concatenate(found_t) if found_t else np.zeros(0)
         prim = np.concatenate(found_prim) if found_prim else np.zeros(0, dtype=np.int64)
         order = np.argsort(ray_idx, kind="stable")  # rounds are in t order along each ray
-        ray_idx, t, prim = ray_idx[order], t[order], prim[order]
-        normals = _facet_normals(self._vertices[mesh_which], self._faces[mesh_which][prim])
-        entering = np.einsum("ij,ij->i", units[ray_idx], normals) < 0
-        return ray_idx, t / norms[ray_idx], entering
+        return ray_idx[order], t[order], prim[order]
 
 
 class EmbreeCaster(ShellCaster):
     """:class:`ShellCaster` on Embree scenes, built once. Building costs 1-3 us of CPU per face (embreex
-    copies buffers element by element), Embree's BVH build a third of that on the first cast; the binding
-    has no vertex update: for shells that move, :class:`WarpCaster` refits."""
+    copies buffers element by element) plus Embree's BVH build, a third of that; the binding has no vertex
+    update: for shells that move, :class:`WarpCaster` refits. A cast is split over ``cpu_threads`` threads
+    (None: :func:`neural.device.cpu_threads`; embreex releases the GIL while it casts)."""
+
+    def __init__(self, outer: trimesh.Trimesh, inner: trimesh.Trimesh, cpu_threads: int | None = None):
+        self.cpu_threads = cpu_threads or default_cpu_threads()
+        super().__init__(outer, inner)
+        # the shells never move: every facet normal once, instead of those of the hits at every cast
+        self._facet_normals = {w: _facet_normals(self._vertices[w], self._faces[w]) for w in self._scenes}
+
+    def _normals(self, mesh_which: str, faces: np.ndarray) -> np.ndarray:
+        return self._facet_normals[mesh_which][faces]
 
     def _build(self, vertices: np.ndarray, faces: np.ndarray):
         from embreex import rtcore_scene
@@ -205,18 +226,27 @@ class EmbreeCaster(ShellCaster):
 
         scene = rtcore_scene.EmbreeScene(robust=True)
         TriangleMesh(scene=scene, vertices=vertices, indices=faces)
+        one = np.zeros((1, 3), dtype=np.float32)
+        scene.run(one, one + np.float32([0, 0, 1]), output=1)  # commits (builds the BVH) before threads cast
         return scene
 
     def _cast(
         self, scene, starts: np.ndarray, units: np.ndarray, reach: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        out = scene.run(
-            np.ascontiguousarray(starts - self.center, dtype=np.float32),
-            np.ascontiguousarray(units, dtype=np.float32),
-            dists=None if reach is None else np.ascontiguousarray(reach, dtype=np.float32),
-            output=1,
-        )
-        return out["primID"].astype(np.int64), out["tfar"].astype(np.float64)
+        starts = np.ascontiguousarray(starts - self.center, dtype=np.float32)
+        units = np.ascontiguousarray(units, dtype=np.float32)
+        reach = None if reach is None else np.ascontiguousarray(reach, dtype=np.float32)
+        prim = np.empty(len(starts), dtype=np.int64)
+        dist = np.empty(len(starts), dtype=np.float64)
+
+        def cast(lo: int, hi: int) -> None:
+            out = scene.run(
+                starts[lo:hi], units[lo:hi], dists=None if reach is None else reach[lo:hi], output=1
+            )
+            prim[lo:hi], dist[lo:hi] = out["primID"], out["tfar"]
+
+        run_in_chunks(len(starts), cast, self.cpu_threads, _MIN_CAST_CHUNK)
+        return prim, dist
 
 
 @wp.kernel
@@ -237,6 +267,57 @@ def _cast_kernel(
     else:
         prim[i] = wp.int64(-1)
         dist[i] = wp.inf
+
+
+@wp.kernel
+def _peel_kernel(
+    mesh: wp.uint64,
+    origins: wp.array(dtype=wp.vec3d),
+    units: wp.array(dtype=wp.vec3d),
+    stop: wp.array(dtype=wp.float64),
+    center: wp.vec3d,
+    step0: wp.float64,
+    max_hits: int,
+    rounds: int,
+    t_out: wp.array2d(dtype=wp.float64),
+    prim_out: wp.array2d(dtype=wp.int64),
+    count: wp.array(dtype=wp.int32),
+):
+    """:meth:`ShellCaster._peel`'s rounds for one ray in one thread: the same casts in the same order."""
+    i = wp.tid()
+    o = origins[i]
+    u = units[i]
+    unit = wp.vec3(wp.float32(u[0]), wp.float32(u[1]), wp.float32(u[2]))
+    t_next = wp.float64(0.0)
+    step = step0
+    last = wp.int64(-1)
+    n = int(0)  # noqa: UP018 (a Warp dynamic variable, not a constant)
+    for _ in range(rounds):
+        reach = wp.float64(wp.inf)
+        if n > 0:
+            reach = stop[i] - t_next
+        if reach <= wp.float64(0.0):
+            break
+        s = (o + t_next * u) - center
+        start = wp.vec3(wp.float32(s[0]), wp.float32(s[1]), wp.float32(s[2]))
+        query = wp.mesh_query_ray(mesh, start, unit, wp.float32(reach))
+        if not query.result:
+            break
+        t_hit = t_next + wp.float64(query.t)
+        face = wp.int64(query.face)
+        fresh = face != last
+        if fresh:
+            t_out[i, n] = t_hit
+            prim_out[i, n] = face
+            n += 1
+            step = step0
+        else:
+            step = wp.float64(2.0) * step
+        last = face
+        t_next = t_hit + step
+        if n >= max_hits or (fresh and t_hit > stop[i]):
+            break
+    count[i] = n
 
 
 class WarpCaster(ShellCaster):
@@ -268,7 +349,8 @@ class WarpCaster(ShellCaster):
     def refit(self, outer_vertices, inner_vertices) -> None:
         """Move the shells' vertices to ``outer_vertices`` (V+, 3) and ``inner_vertices`` (V-, 3) (world, in
         the order of the meshes given at construction) and refit both BVHs."""
-        for which, vertices in (("outer", outer_vertices), ("inner", inner_vertices)):
+        moved = {"outer": outer_vertices, "inner": inner_vertices}
+        for which, vertices in moved.items():
             vertices = np.asarray(vertices, dtype=np.float64)
             if vertices.shape != self._vertices[which].shape:
                 raise ValueError(
@@ -276,10 +358,48 @@ class WarpCaster(ShellCaster):
                 )
             if not np.isfinite(vertices).all():
                 raise ValueError(f"{which}_vertices: contain NaN or infinity")
-            self._vertices[which] = vertices
-            mesh = self._scenes[which]
-            mesh.points.assign(wp.array(vertices - self.center, dtype=wp.vec3, device=self.device))
-            mesh.refit()
+            moved[which] = vertices
+
+        def refit(lo: int, hi: int) -> None:  # both meshes at once on the CPU (Warp releases the GIL)
+            for which in list(moved)[lo:hi]:
+                self._vertices[which] = moved[which]
+                mesh = self._scenes[which]
+                mesh.points.assign(wp.array(moved[which] - self.center, dtype=wp.vec3, device=self.device))
+                mesh.refit()
+
+        run_in_chunks(len(moved), refit, self.cpu_threads, 1)
+
+    def _peel(
+        self, scene: wp.Mesh, origins: np.ndarray, units: np.ndarray, stop: np.ndarray, max_hits: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """All rounds of every ray in one kernel launch (per thread chunk) instead of a cast per round."""
+        n, dev = len(origins), self.device
+        arrays = [
+            wp.array(np.ascontiguousarray(origins), dtype=wp.vec3d, device=dev),
+            wp.array(np.ascontiguousarray(units), dtype=wp.vec3d, device=dev),
+            wp.array(np.ascontiguousarray(stop, dtype=np.float64), dtype=wp.float64, device=dev),
+        ]
+        outputs = [
+            wp.empty((n, max_hits), dtype=wp.float64, device=dev),
+            wp.empty((n, max_hits), dtype=wp.int64, device=dev),
+            wp.empty(n, dtype=wp.int32, device=dev),
+        ]
+        center, rounds = wp.vec3d(*self.center), 2 * max_hits + 8
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(
+                _peel_kernel,
+                dim=hi - lo,
+                inputs=[scene.id, *(a[lo:hi] for a in arrays), center, self.step, max_hits, rounds],
+                outputs=[a[lo:hi] for a in outputs],
+                device=dev,
+            )
+
+        wp.load_module(_peel_kernel.module, device=dev)
+        run_in_chunks(n, launch, self.cpu_threads, _MIN_CAST_CHUNK)
+        t, prim, count = (a.numpy() for a in outputs)
+        found = np.arange(max_hits)[None, :] < count[:, None]  # (R, max_hits), row-major: by ray, then t
+        return np.nonzero(found)[0], t[found], prim[found]
 
     def _cast(
         self, scene: wp.Mesh, starts: np.ndarray, units: np.ndarray, reach: np.ndarray | None = None

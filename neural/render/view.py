@@ -8,7 +8,9 @@ held-out views) is made by :func:`render_camera` / :func:`render_pixels`, chunk 
    stretch (S,), inside (S,) bool)`` takes each sample to the space where the field lives (deformed
    rendering, paper Sec. 5: ``shellsim.deform.InverseMap``); samples outside are dropped and every section
    length is multiplied by ``stretch``; without it the samples are already there;
-3. **shade**: the field at the samples, composited along the rays (Eq. 2-3).
+3. **shade**: the field at the samples, composited along the rays (Eq. 2-3) by
+   :func:`~neural.render.fullray.shade_samples`: the radiance network only where a sample's weight can
+   change its pixel, each channel within ``WEIGHT_TOLERANCE`` (1e-3) of the full composite.
 
 Samplers:
 
@@ -27,7 +29,7 @@ import numpy as np
 import torch
 
 from ..data import Cameras, camera_rays
-from .fullray import ray_aabb, ray_background, render_samples, stepped_samples
+from .fullray import ray_aabb, ray_background, shade_samples, stepped_samples
 from .occupancy import OccupancyConfig, OccupancyGrid
 
 #: Rays rendered at once (bounds the memory of one pass).
@@ -153,8 +155,8 @@ def render_pixels(
         samples = sampler(o, d)
         counts.append(samples.counts())
         rays = samples.ray_indices
-        norm = d.norm(dim=1)[rays]
-        unit = d[rays] / norm[:, None].clamp_min(1e-12)
+        norm = d.norm(dim=1).index_select(0, rays)
+        unit = d.index_select(0, rays) / norm[:, None].clamp_min(1e-12)
         points, scale = samples.points(o, d), norm  # scale: field-space length per unit of t
         now = time.perf_counter()
         times["sample"] += now - tick
@@ -167,7 +169,7 @@ def render_pixels(
             now = time.perf_counter()
             times["map"] += now - tick
             tick = now
-        out = render_samples(
+        color = shade_samples(
             field,
             points,
             unit,
@@ -176,7 +178,7 @@ def render_pixels(
             samples,
             ray_background(field, d, background),
         )
-        colors.append(out["color"])
+        colors.append(color)
         times["shade"] += time.perf_counter() - tick
     colors = torch.cat(colors) if colors else origins.new_zeros(0, 3)
     counts = torch.cat(counts).cpu().numpy() if counts else np.zeros(0, np.int64)

@@ -223,8 +223,8 @@ def test_inference_softplus_equals_the_training_one():
 
 
 def test_files_without_the_newer_settings_mean_the_papers_field():
-    """A field config written before kernel_grid and view_encoding existed (the shipped lego) loads as the
-    paper's field: no kernel grid, SH of the view direction."""
+    """A field config written before kernel_grid and view_encoding existed (lego as shipped until 2026-12-02)
+    loads as the paper's field: no kernel grid, SH of the view direction."""
     old = {k: v for k, v in small_config().to_dict().items() if k not in ("kernel_grid", "view_encoding")}
     config = FieldConfig.from_dict(old)
     assert (config.kernel_grid, config.view_encoding) == (0, "direction")

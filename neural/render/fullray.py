@@ -155,19 +155,25 @@ def render_rays(
     background = ray_background(field, dirs, background)
     if samples.n_rays != origins.shape[0]:
         raise ValueError(f"samples are for {samples.n_rays} rays but {origins.shape[0]} rays were given")
-    ray_indices = samples.ray_indices
-    norm = dirs.norm(dim=1)[ray_indices]
-    unit_dirs = dirs[ray_indices] / norm[:, None].clamp_min(1e-12)
     return render_samples(
-        field,
-        samples.points(origins, dirs),
-        unit_dirs,
-        samples.deltas * norm,
-        (samples.t_mid - samples.t_starts) * norm,
-        samples,
-        background,
-        cos_anneal,
+        field, samples.points(origins, dirs), *_sections(dirs, samples), samples, background, cos_anneal
     )
+
+
+def _sections(dirs: torch.Tensor, samples: RaySamples) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per sample: unit ray direction (S, 3), section length and section-start-to-sample distance (S,) in
+    world units, for rays along ``dirs`` (R, 3) (any length)."""
+    norm = dirs.norm(dim=1)[samples.ray_indices]
+    unit_dirs = dirs[samples.ray_indices] / norm[:, None].clamp_min(1e-12)
+    return unit_dirs, samples.deltas * norm, (samples.t_mid - samples.t_starts) * norm
+
+
+def _opacity(field: Any, points, unit_dirs, deltas, fronts, cos_anneal: float):
+    """The field's geometry at ``points`` (S, 3) and each section's NeuS opacity alpha (S,) (Eq. 3) with
+    ``cos = dot(unit_dirs, normal)``; arguments as :func:`render_samples`'s."""
+    geometry = field.geometry(points)
+    cos = (unit_dirs * geometry.normal).sum(dim=1)
+    return geometry, neus_alpha(geometry.sdf, geometry.inv_s, cos, deltas, cos_anneal, fronts)
 
 
 def render_samples(
@@ -202,11 +208,9 @@ def render_samples(
         geometry = None
         rgb, sdf, inv_s, normal, alpha = points, empty, empty, points, empty
     else:
-        geometry = field.geometry(points)
+        geometry, alpha = _opacity(field, points, unit_dirs, deltas, fronts, cos_anneal)
         rgb = field.radiance(points, unit_dirs, geometry)
         sdf, inv_s, normal = geometry.sdf, geometry.inv_s, geometry.normal
-        cos = (unit_dirs * normal).sum(dim=1)
-        alpha = neus_alpha(sdf, inv_s, cos, deltas, cos_anneal, fronts)
         out = composite(alpha, rgb, ray_indices, samples.n_rays, samples.t_mid, background)
     out.update(
         alpha=alpha,
@@ -241,12 +245,7 @@ def visible_samples(
     rays = samples.ray_indices
     if min_transmittance <= 0 or rays.numel() == 0:
         return samples
-    norm = dirs.norm(dim=1)[rays]
-    unit_dirs = dirs[rays] / norm[:, None].clamp_min(1e-12)
-    geometry = field.geometry(samples.points(origins, dirs))
-    cos = (unit_dirs * geometry.normal).sum(dim=1)
-    fronts = (samples.t_mid - samples.t_starts) * norm
-    alpha = neus_alpha(geometry.sdf, geometry.inv_s, cos, samples.deltas * norm, cos_anneal, fronts)
+    _, alpha = _opacity(field, samples.points(origins, dirs), *_sections(dirs, samples), cos_anneal)
     return samples.select(transmittance(alpha, rays, samples.n_rays) > min_transmittance)
 
 
@@ -275,9 +274,7 @@ def shade_samples(
     ray_indices, n_rays = samples.ray_indices, samples.n_rays
     if ray_indices.numel() == 0:
         return composite(points.new_zeros(0), points, ray_indices, n_rays, None, background)["color"]
-    geometry = field.geometry(points)
-    cos = (unit_dirs * geometry.normal).sum(dim=1)
-    alpha = neus_alpha(geometry.sdf, geometry.inv_s, cos, deltas, 1.0, fronts)
+    geometry, alpha = _opacity(field, points, unit_dirs, deltas, fronts, 1.0)
     weights = transmittance(alpha, ray_indices, n_rays) * alpha
     per_ray = torch.bincount(ray_indices, minlength=n_rays)[ray_indices]
     shown = torch.nonzero(weights * per_ray > tolerance).squeeze(1)

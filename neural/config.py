@@ -148,7 +148,7 @@ class Stage1Config:
     """Stage-1 settings. Loss weights are the paper's (Sec. 3.5); lengths are in the field's unit space."""
 
     steps: int = 6000
-    target_samples: int = 65536  # samples per batch; the ray count adapts to it (Instant-NGP)
+    target_samples: int = 65536  # gradient samples per batch (visible ones); the ray count adapts to it
     min_transmittance: float = 1e-4  # samples behind this transmittance are dropped before the gradient pass
     max_candidates: int = 196608  # samples per batch of that geometry-only pass; the ray count obeys both
     initial_rays: int = 2048

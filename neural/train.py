@@ -218,8 +218,9 @@ class _Checkpointer:
 def train_stage1(
     field: ShellField, data: SceneData, out_dir: Path, config: Stage1Config, device: str
 ) -> dict:
-    """Stage 1 (Procedure 4 lines 1-5): full-ray volume rendering with Eq. 8. Resumes from
-    ``out_dir/checkpoints/stage1.safetensors``; returns the final held-out evaluation."""
+    """Stage 1 (Procedure 4 lines 1-5): full-ray volume rendering with Eq. 8, on the occupancy grid's samples
+    that light reaches (:func:`~neural.render.fullray.visible_samples`, ``config.min_transmittance``). Resumes
+    from ``out_dir/checkpoints/stage1.safetensors``; returns the final held-out evaluation."""
     torch.manual_seed(config.seed)
     ckpt = Path(out_dir) / "checkpoints" / "stage1.safetensors"
     optimizer = make_optimizer(field, config.lr_encoding, config.lr_network)

@@ -125,15 +125,19 @@ def test_sphere_accumulated_opacity_telescopes(device):
 
 @pytest.mark.parametrize("tolerance", [0.0, 1e-3, 0.05])
 def test_shading_leaves_out_light_samples_within_its_bound(tolerance):
-    """shade_samples evaluates the radiance only where a sample's weight matters and stays within its
-    stated bound of the full composite: 0 <= full - fast <= tolerance in every channel; with tolerance 0
-    the same colours."""
+    """shade_samples evaluates the geometry only until a ray's transmittance falls to tolerance / 2 and the
+    radiance only where a sample's weight matters, and stays within its stated bound of the full composite
+    of every sample: |full - fast| <= tolerance in every channel; with tolerance 0 the same colours."""
 
     class Counting(SphereField):
-        rows = 0
+        geometry_rows = radiance_rows = 0
+
+        def geometry(self, x):
+            Counting.geometry_rows += len(x)
+            return super().geometry(x)
 
         def radiance(self, x, d, geo):
-            Counting.rows += len(x)
+            Counting.radiance_rows += len(x)
             return super().radiance(x, d, geo)
 
     field = Counting(radius=1.0, inv_s=40.0)
@@ -144,17 +148,30 @@ def test_shading_leaves_out_light_samples_within_its_bound(tolerance):
     samples = stepped_samples(torch.full((576,), 1.0), torch.full((576,), 5.0), 0.05, 100)
     norm = dirs.norm(dim=1)[samples.ray_indices]
     points, unit = samples.points(origins, dirs), dirs[samples.ray_indices] / norm[:, None]
-    args = (points, unit, samples.deltas * norm, (samples.t_mid - samples.t_starts) * norm, samples)
+    deltas, fronts = samples.deltas * norm, (samples.t_mid - samples.t_starts) * norm
     bg = torch.tensor([0.2, 0.9, 0.5], dtype=torch.float64)
-    full = render_samples(field, *args, bg)["color"]
-    Counting.rows = 0
-    fast = shade_samples(field, *args, bg, tolerance=tolerance)
-    assert (full - fast).min() >= -1e-12 and (full - fast).max() <= tolerance + 1e-12
+    full_out = render_samples(field, points, unit, deltas, fronts, samples, bg)
+    full = full_out["color"]
+    Counting.geometry_rows = Counting.radiance_rows = 0
+
+    def locate(index):
+        return index, points[index], unit[index], deltas[index], fronts[index]
+
+    fast, located = shade_samples(field, samples, locate, bg, tolerance=tolerance)
+    assert (full - fast).abs().max() <= tolerance + 1e-12
+    assert Counting.geometry_rows == int(located.sum())
     if tolerance == 0:
         torch.testing.assert_close(fast, full, rtol=0, atol=1e-12)
+        assert torch.equal(located, samples.counts())
     else:
-        assert Counting.rows < 0.5 * len(points)  # most samples lie before the sphere or behind it
-        assert (full - fast).max() > 0  # weights above 0 were left out
+        # rays through the sphere stop inside it: their samples behind it are never evaluated
+        core = xy.reshape(-1, 2).norm(dim=1) < 0.5
+        miss = full_out["opacity"] < 1 - tolerance / 2  # light still reaches the last sample
+        assert bool((located[core] < samples.counts()[core]).all())
+        assert float(located[core].double().mean()) < 0.5 * float(samples.counts()[core].double().mean())
+        assert torch.equal(located[miss], samples.counts()[miss])
+        assert Counting.radiance_rows < 0.5 * len(points)  # most samples lie before the sphere or behind it
+        assert (full - fast).abs().max() > 0  # weights above 0 were left out
 
 
 def _to(samples, device):

@@ -13,6 +13,8 @@ and composites (Eq. 2-3). :func:`visible_samples` drops, before that, the sample
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -24,6 +26,8 @@ from .samples import RaySamples
 #: :func:`shade_samples`'s default bound on how much leaving out nearly invisible samples may change a
 #: pixel (each channel, colours in [0, 1]): a quarter of an 8-bit step.
 WEIGHT_TOLERANCE = 1e-3
+#: Samples per ray in :func:`shade_samples`'s first round; each later round is as long as all before it.
+FIRST_ROUND = 2
 
 
 def _check_rays(origins: torch.Tensor, dirs: torch.Tensor) -> None:
@@ -252,36 +256,72 @@ def visible_samples(
 @torch.no_grad()
 def shade_samples(
     field: Any,
-    points: torch.Tensor,
-    unit_dirs: torch.Tensor,
-    deltas: torch.Tensor,
-    fronts: torch.Tensor,
     samples: RaySamples,
+    locate: Callable[[torch.Tensor], tuple[torch.Tensor, ...]],
     background: torch.Tensor | None = None,
     tolerance: float = WEIGHT_TOLERANCE,
-) -> torch.Tensor:
-    """Colours (R, 3) of :func:`render_samples` (same arguments) for rendering, without autograd, with the
-    radiance network evaluated only at samples whose weight ``w_i = T_i alpha_i`` exceeds ``tolerance / n``
-    (``n`` the samples of its ray): the samples a ray leaves out weigh at most ``tolerance`` together and
-    their colours lie in [0, 1], so every channel of every pixel is within ``tolerance`` of
-    :func:`render_samples`'s, and never above it (early ray termination is the case of a small ``T_i``;
-    ``tolerance = 0`` leaves out only weights of exactly 0). Opacities, hence the background's share, are
-    those of every sample. ``field.geometry`` returns a NamedTuple of per-sample tensors with ``sdf``,
-    ``inv_s`` and ``normal`` (as :class:`~neural.field.network.Geometry`).
+    first_round: int = FIRST_ROUND,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Colours (R, 3) of :func:`render_samples` for rendering, without autograd, front to back with early ray
+    termination, and the number of samples (R,) int64 each ray had located.
+
+    The samples are taken in rounds by their rank along their ray: ``[0, first_round)``, then each round as
+    long as all before it (``[r, 2 r)``). A round locates and evaluates the geometry only for rays whose
+    transmittance is still above ``tolerance / 2``, and the radiance network only runs where a weight
+    ``w_i = T_i alpha_i`` exceeds ``tolerance / (2 n)`` (``n`` the samples of its ray). What is left out
+    weighs at most ``tolerance / 2`` per kind, and the colours and the background lie in [0, 1], so every
+    channel of every pixel is within ``tolerance`` of :func:`render_samples`'s; ``tolerance = 0`` gives the
+    same colours.
+
+    locate(index (K,) int64 of samples, increasing) -> ``(index (K',), points (K', 3), unit_dirs (K', 3),
+    deltas (K',), fronts (K',))``: where the field is evaluated for those samples (as :func:`render_samples`'s
+    arguments), leaving out samples it cannot place (a deformed frame's samples outside the cage).
+    ``field.geometry`` returns a NamedTuple of per-sample tensors with ``sdf``, ``inv_s`` and ``normal``.
     """
     if not tolerance >= 0:
         raise ValueError(f"tolerance: expected >= 0, got {tolerance}")
     ray_indices, n_rays = samples.ray_indices, samples.n_rays
-    if ray_indices.numel() == 0:
-        return composite(points.new_zeros(0), points, ray_indices, n_rays, None, background)["color"]
-    geometry, alpha = _opacity(field, points, unit_dirs, deltas, fronts, 1.0)
-    weights = transmittance(alpha, ray_indices, n_rays) * alpha
-    per_ray = torch.bincount(ray_indices, minlength=n_rays)[ray_indices]
-    shown = torch.nonzero(weights * per_ray > tolerance).squeeze(1)
-    rgb = points.new_zeros(len(points), 3)
-    rgb[shown] = field.radiance(
-        points.index_select(0, shown),
-        unit_dirs.index_select(0, shown),
-        type(geometry)(*(g.index_select(0, shown) for g in geometry)),
-    )
-    return _finish(weights, rgb, ray_indices, n_rays, None, background)["color"]
+    per_ray = samples.counts()
+    first = (per_ray.cumsum(0) - per_ray).index_select(0, ray_indices)
+    rank = torch.arange(len(ray_indices), device=ray_indices.device) - first
+    log_t = torch.zeros(n_rays, dtype=torch.float64, device=ray_indices.device)  # log T after each round
+    located = torch.zeros_like(per_ray)
+    color = opacity = None
+    if first_round < 1:
+        raise ValueError(f"first_round: expected >= 1, got {first_round}")
+    lo, hi = 0, first_round
+    alive = torch.ones_like(per_ray, dtype=torch.bool)
+    while bool(alive.any()) and bool((rank >= lo).any()):
+        member = (rank >= lo) & (rank < hi)
+        if lo > 0:
+            member &= alive.index_select(0, ray_indices)
+        index = torch.nonzero(member).squeeze(1)
+        lo, hi = hi, 2 * hi
+        if index.numel() == 0:
+            continue
+        located += torch.bincount(ray_indices.index_select(0, index), minlength=n_rays)
+        index, points, unit_dirs, deltas, fronts = locate(index)
+        rays = ray_indices.index_select(0, index)
+        geometry, alpha = _opacity(field, points, unit_dirs, deltas, fronts, 1.0)
+        before = log_t.index_select(0, rays).exp().to(alpha.dtype)
+        weights = transmittance(alpha, rays, n_rays) * before * alpha
+        log_t.index_add_(0, rays, torch.log(torch.clamp(1.0 - alpha.double(), min=1e-30)))
+        if tolerance > 0:
+            alive = log_t > math.log(tolerance / 2)
+        shown = torch.nonzero(weights * per_ray.index_select(0, rays) > tolerance / 2).squeeze(1)
+        rgb = points.new_zeros(len(points), 3)
+        rgb[shown] = field.radiance(
+            points.index_select(0, shown),
+            unit_dirs.index_select(0, shown),
+            type(geometry)(*(g.index_select(0, shown) for g in geometry)),
+        )
+        part = _finish(weights, rgb, rays, n_rays, None, None)
+        color = part["color"] if color is None else color + part["color"]
+        opacity = part["opacity"] if opacity is None else opacity + part["opacity"]
+    if color is None:  # nothing located: every ray shows the background
+        dtype = torch.float32 if background is None else background.dtype
+        color = torch.zeros(n_rays, 3, dtype=dtype, device=ray_indices.device)
+        opacity = torch.zeros(n_rays, dtype=dtype, device=ray_indices.device)
+    if background is not None:
+        color = color + (1.0 - opacity)[:, None] * background.to(color.dtype).expand(n_rays, 3)
+    return color, located

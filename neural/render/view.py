@@ -9,8 +9,10 @@ held-out views) is made by :func:`render_camera` / :func:`render_pixels`, chunk 
    rendering, paper Sec. 5: ``shellsim.deform.InverseMap``); samples outside are dropped and every section
    length is multiplied by ``stretch``; without it the samples are already there;
 3. **shade**: the field at the samples, composited along the rays (Eq. 2-3) by
-   :func:`~neural.render.fullray.shade_samples`: the radiance network only where a sample's weight can
-   change its pixel, each channel within ``WEIGHT_TOLERANCE`` (1e-3) of the full composite.
+   :func:`~neural.render.fullray.shade_samples`, front to back: rays that light no longer reaches stop
+   (their remaining samples are neither mapped nor evaluated) and the radiance network runs only where a
+   sample's weight can change its pixel, each channel within ``WEIGHT_TOLERANCE`` (1e-3) of the full
+   composite of every sample.
 
 Samplers:
 
@@ -145,7 +147,8 @@ def render_pixels(
     """Colours (R, 3) (unclamped) of rays ``origins``, ``dirs`` (R, 3) on the field's device: sample, map to
     rest space with ``to_rest`` (None: no map), shade over ``background`` (3,). Stats: ``ms``, per stage
     ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside ``to_rest``) and
-    ``counts`` (R,) int64 samples per ray (dropped ones included)."""
+    ``counts`` (R,) int64 samples per ray that were mapped and evaluated (dropped ones included, those after
+    a ray's termination not)."""
     times = dict.fromkeys(STAGES, 0.0)
     start = time.perf_counter()
     colors, counts, dropped = [], [], 0
@@ -153,33 +156,33 @@ def render_pixels(
         o, d = origins[i : i + chunk], dirs[i : i + chunk]
         tick = time.perf_counter()
         samples = sampler(o, d)
-        counts.append(samples.counts())
-        rays = samples.ray_indices
-        norm = d.norm(dim=1).index_select(0, rays)
-        unit = d.index_select(0, rays) / norm[:, None].clamp_min(1e-12)
-        points, scale = samples.points(o, d), norm  # scale: field-space length per unit of t
-        now = time.perf_counter()
-        times["sample"] += now - tick
-        tick = now
-        if to_rest is not None:
-            points, unit, stretch, inside = to_rest.map_rays(points, unit)
-            samples, points, unit = samples.select(inside), points[inside], unit[inside]
-            scale = (norm * stretch)[inside]
-            dropped += int((~inside).sum())
-            now = time.perf_counter()
-            times["map"] += now - tick
-            tick = now
-        color = shade_samples(
-            field,
-            points,
-            unit,
-            samples.deltas * scale,
-            (samples.t_mid - samples.t_starts) * scale,
-            samples,
-            ray_background(field, d, background),
-        )
+        norm = d.norm(dim=1)  # field-space length per unit of t
+        unit = d / norm[:, None].clamp_min(1e-12)
+        deltas, fronts = samples.deltas, samples.t_mid - samples.t_starts
+        times["sample"] += time.perf_counter() - tick
+
+        def locate(index, o=o, d=d, samples=samples, norm=norm, unit=unit, deltas=deltas, fronts=fronts):
+            nonlocal dropped
+            rays = samples.ray_indices.index_select(0, index)
+            t = samples.t_mid.index_select(0, index)
+            points = o.index_select(0, rays) + t[:, None] * d.index_select(0, rays)
+            scale, unit_dirs = norm.index_select(0, rays), unit.index_select(0, rays)
+            if to_rest is not None:
+                tick = time.perf_counter()
+                points, unit_dirs, stretch, inside = to_rest.map_rays(points, unit_dirs)
+                keep = torch.nonzero(inside).squeeze(1)
+                index, points, unit_dirs = index[keep], points[keep], unit_dirs[keep]
+                scale = (scale * stretch)[keep]
+                dropped += len(inside) - len(keep)
+                times["map"] += time.perf_counter() - tick
+            return index, points, unit_dirs, deltas[index] * scale, fronts[index] * scale
+
+        tick = time.perf_counter()
+        color, located = shade_samples(field, samples, locate, ray_background(field, d, background))
         colors.append(color)
+        counts.append(located)
         times["shade"] += time.perf_counter() - tick
+    times["shade"] -= times["map"]
     colors = torch.cat(colors) if colors else origins.new_zeros(0, 3)
     counts = torch.cat(counts).cpu().numpy() if counts else np.zeros(0, np.int64)
     stats = {f"{k}_ms": 1000.0 * v for k, v in times.items()}

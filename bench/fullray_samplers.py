@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 import torch
 
-from neural.render.fullray import _check_near_far, _check_rays, _offsets, pack_dense
+from neural.render.fullray import _check_near_far, _check_rays, pack_dense, step_offsets
 from neural.render.neus import neus_alpha
 from neural.render.samples import RaySamples
 
@@ -38,7 +38,9 @@ def uniform_samples(
         raise ValueError(f"n_samples must be >= 1, got {n_samples}")
     step = (far - near) / n_samples
     k = torch.arange(n_samples, dtype=near.dtype, device=near.device)
-    starts = near[:, None] + (k + _offsets(near.shape[0], near, perturb, generator)[:, None]) * step[:, None]
+    starts = (
+        near[:, None] + (k + step_offsets(near.shape[0], near, perturb, generator)[:, None]) * step[:, None]
+    )
     valid = (far > near)[:, None].expand(-1, n_samples)
     return pack_dense(starts, starts + step[:, None], valid)
 
@@ -116,7 +118,7 @@ def importance_samples(
     o, d, lo, hi = origins[rays], dirs[rays], near[rays], far[rays]
     frac = torch.linspace(0.0, 1.0, n_coarse, dtype=near.dtype, device=near.device).expand(rays.shape[0], -1)
     if perturb:
-        frac = frac + (_offsets(rays.shape[0], near, perturb, generator)[:, None] - 0.5) / (n_coarse - 1)
+        frac = frac + (step_offsets(rays.shape[0], near, perturb, generator)[:, None] - 0.5) / (n_coarse - 1)
     z = lo[:, None] + (hi - lo)[:, None] * frac
 
     def sdf_at(t: torch.Tensor) -> torch.Tensor:

@@ -73,7 +73,7 @@ def ray_aabb(
     return near, far
 
 
-def _offsets(
+def step_offsets(
     n_rays: int, like: torch.Tensor, perturb: bool, generator: torch.Generator | None
 ) -> torch.Tensor:
     """(R,) per-ray shift in [0, 1) of the section grid, in units of the step (0 without perturbation)."""
@@ -88,6 +88,26 @@ def pack_dense(t_starts: torch.Tensor, t_ends: torch.Tensor, valid: torch.Tensor
     return RaySamples(rays, t_starts[rays, cols], t_ends[rays, cols], valid.shape[0])
 
 
+def step_range(
+    near: torch.Tensor,
+    far: torch.Tensor,
+    step_size: float,
+    max_samples: int,
+    shift: torch.Tensor,
+    window: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The steps ``first <= k < end`` (R,) each, float, of the sections ``t_start = near + (k + u) step_size``
+    (``u`` = ``shift`` (R,)) of :func:`stepped_candidates` whose centre can lie in ``window = (lo, hi)``
+    (default ``(near, far)``), with one step of slack on each side, within ``[0, max_samples)``."""
+    _check_near_far(near, far)
+    if step_size <= 0 or max_samples < 1:
+        raise ValueError(f"need step_size > 0 and max_samples >= 1, got {step_size} and {max_samples}")
+    lo, hi = window if window is not None else (near, far)
+    first = torch.floor((lo - near) / step_size - shift - 1.5).clamp(0, max_samples)  # centre <= lo - step
+    end = torch.ceil((hi - near) / step_size - shift + 0.5).clamp(0, max_samples)  # centre >= hi + step
+    return first, torch.maximum(end, first)
+
+
 def stepped_candidates(
     near: torch.Tensor,
     far: torch.Tensor,
@@ -95,24 +115,15 @@ def stepped_candidates(
     max_samples: int,
     perturb: bool = False,
     generator: torch.Generator | None = None,
-    window: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Dense fixed-length sections: ``t_start = near + (k + u) step_size`` for ``0 <= k < max_samples``.
 
     A section is valid while ``t_start < far`` (so the last one may reach past ``far`` by less than a step);
-    ``u`` is 0, or ``u ~ U[0, 1)`` per ray when ``perturb``. Only the columns needed are built: those of
-    sections whose centre can lie in ``window = (lo, hi)`` (R,) each (default ``(near, far)``), with one step
-    of slack on each side; a caller that keeps only sections centred in the window loses nothing.
-    near, far : (R,). Returns ``t_starts, t_ends, valid``, each (R, M) with M <= ``max_samples``.
+    ``u`` is 0, or ``u ~ U[0, 1)`` per ray when ``perturb``. near, far : (R,). Returns ``t_starts, t_ends,
+    valid``, each (R, M) with M <= ``max_samples``.
     """
-    _check_near_far(near, far)
-    if step_size <= 0 or max_samples < 1:
-        raise ValueError(f"need step_size > 0 and max_samples >= 1, got {step_size} and {max_samples}")
-    u = _offsets(near.shape[0], near, perturb, generator)
-    lo, hi = window if window is not None else (near, far)
-    first = torch.floor((lo - near) / step_size - u - 1.5).clamp(0, max_samples)  # k of centre <= lo - step
-    end = torch.ceil((hi - near) / step_size - u + 0.5).clamp(0, max_samples)  # k of centre >= hi + step
-    end = torch.maximum(end, first)
+    u = step_offsets(near.shape[0], near, perturb, generator)
+    first, end = step_range(near, far, step_size, max_samples, u)
     n_cols = int((end - first).max()) if near.numel() > 0 else 0
     k = first[:, None] + torch.arange(n_cols, dtype=near.dtype, device=near.device)
     starts = near[:, None] + (k + u[:, None]) * step_size

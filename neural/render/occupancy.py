@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import torch
 
-from .fullray import pack_dense, ray_aabb, stepped_candidates
+from .fullray import ray_aabb, step_offsets, step_range
+from .occupancy_warp import march_occupied
 from .samples import RaySamples
 
 SdfKernelFn = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -181,22 +182,32 @@ class OccupancyGrid:
     ) -> RaySamples:
         """Fixed-step sections inside the box whose centre lies in an occupied cell.
 
-        The candidates are :func:`~neural.render.fullray.stepped_candidates` between the rays' box entry and
-        exit (so the result is a subset of :func:`~neural.render.fullray.stepped_samples` with the same
-        arguments), built only where the ray crosses the box around the occupied cells.
+        The candidates are :func:`~neural.render.fullray.stepped_candidates`' sections between the rays' box
+        entry and exit (so the result is a subset of :func:`~neural.render.fullray.stepped_samples` with the
+        same arguments), marched by a Warp kernel (:mod:`neural.render.occupancy_warp`) only where the ray
+        crosses the box around the occupied cells.
         origins, dirs : (R, 3) ; step_size : section length in t units.
         """
         near, far = self._near_far(origins, dirs, near_plane)
         margin = 0.01 * self.cell_size  # against rounding on rays that graze the box
         box_min, box_max = (self.box_min - margin).to(origins), (self.box_max + margin).to(origins)
         window = ray_aabb(origins, dirs, box_min, box_max, near_plane)
-        starts, ends, valid = stepped_candidates(
-            near, far, step_size, max_samples_per_ray, perturb, generator, window
+        shift = step_offsets(near.shape[0], near, perturb, generator)
+        first, end = step_range(near, far, step_size, max_samples_per_ray, shift, window)
+        return march_occupied(
+            origins,
+            dirs,
+            near,
+            far,
+            shift,
+            first,
+            end,
+            step_size,
+            self.aabb_min,
+            self.cell_size,
+            self.occupied,
+            self.resolution,
         )
-        mids = 0.5 * (starts + ends)
-        points = origins[:, None, :] + mids[..., None] * dirs[:, None, :]
-        valid = valid & self.query(points.reshape(-1, 3)).reshape(valid.shape)
-        return pack_dense(starts, ends, valid)
 
     @torch.no_grad()
     def sample_reference(

@@ -194,7 +194,10 @@ def main() -> None:
     )
     if "full_ray" in r:
         fr = r["full_ray"]
-        print(f"  full ray    PSNR {fr['psnr']:.2f} dB ({nb['psnr'] - fr['psnr']:+.2f} dB narrow band)")
+        print(
+            f"  full ray    PSNR {fr['psnr']:.2f} dB ({nb['psnr'] - fr['psnr']:+.2f} dB narrow band), "
+            f"{fr['samples_per_pixel']:.1f} samples/pixel"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps(r, indent=1))
 

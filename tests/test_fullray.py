@@ -7,8 +7,17 @@ import pytest
 import torch
 from scenes import SphereField
 
-from neural.render.fullray import ray_aabb, render_rays, stepped_samples, visible_samples
+from neural.render.fullray import (
+    pack_dense,
+    ray_aabb,
+    render_rays,
+    step_offsets,
+    step_range,
+    stepped_samples,
+    visible_samples,
+)
 from neural.render.occupancy import OccupancyConfig, OccupancyGrid
+from neural.render.occupancy_warp import march_occupied
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 LO, HI = torch.tensor([-1.0, -1.2, -0.9]), torch.tensor([1.1, 0.8, 1.3])
@@ -224,6 +233,31 @@ def test_visible_samples_drop_a_tail_that_changes_colours_by_at_most_the_thresho
         hit = full["opacity"] > 0.99
         assert hit.sum() > 50 and kept.counts()[hit].sum() < left * counts[hit].sum()
     assert visible_samples(field, origins, dirs, samples, 0.0) is samples
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_occupancy_march_equals_the_dense_formulation(threads):
+    """The Warp march keeps exactly the sections that the dense (rays x steps) torch formulation keeps:
+    same rays, same starts, bit for bit, with perturbed offsets and however the rays are split over
+    threads (an odd count included)."""
+    grid = sphere_grid(0.6, 100.0, res=24)
+    origins, dirs = random_rays(301, 11, spread=1.1)
+    step, max_samples = 0.013, 512
+    near, far = ray_aabb(origins, dirs, LO, HI)
+    shift = step_offsets(len(near), near, True, torch.Generator().manual_seed(4))
+    first, end = step_range(near, far, step, max_samples, shift)
+    k = first[:, None] + torch.arange(int((end - first).max()), dtype=near.dtype)
+    starts = near[:, None] + (k + shift[:, None]) * step
+    ends = starts + step
+    valid = (starts < far[:, None]) & (k < end[:, None])
+    centres = origins[:, None, :] + (0.5 * (starts + ends))[..., None] * dirs[:, None, :]
+    valid &= grid.query(centres.reshape(-1, 3)).reshape(valid.shape)
+    dense = pack_dense(starts, ends, valid)
+    args = (origins, dirs, near, far, shift, first, end, step, grid.aabb_min, grid.cell_size, grid.occupied)
+    marched = march_occupied(*args, grid.resolution, cpu_threads=threads)
+    assert dense.ray_indices.numel() > 1000
+    assert torch.equal(marched.ray_indices, dense.ray_indices)
+    assert torch.equal(marched.t_starts, dense.t_starts) and torch.equal(marched.t_ends, dense.t_ends)
 
 
 def test_occupancy_perturbed_samples_lie_in_occupied_cells():

@@ -291,6 +291,8 @@ def shade_samples(
     """
     if not tolerance >= 0:
         raise ValueError(f"tolerance: expected >= 0, got {tolerance}")
+    if first_round < 1:
+        raise ValueError(f"first_round: expected >= 1, got {first_round}")
     ray_indices, n_rays = samples.ray_indices, samples.n_rays
     per_ray = samples.counts()
     first = (per_ray.cumsum(0) - per_ray).index_select(0, ray_indices)
@@ -298,8 +300,6 @@ def shade_samples(
     log_t = torch.zeros(n_rays, dtype=torch.float64, device=ray_indices.device)  # log T after each round
     located = torch.zeros_like(per_ray)
     color = opacity = None
-    if first_round < 1:
-        raise ValueError(f"first_round: expected >= 1, got {first_round}")
     lo, hi = 0, first_round
     alive = torch.ones_like(per_ray, dtype=torch.bool)
     while bool(alive.any()) and bool((rank >= lo).any()):

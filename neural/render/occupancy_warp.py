@@ -6,16 +6,19 @@ Not re-exported. One kernel thread marches one ray over its candidate steps ``k`
 in an occupied cell: a counting pass, a prefix sum in torch, then a writing pass into the packed layout. The
 dense (rays x steps) tensors of a torch formulation are never built. Tensors are shared with Warp without
 copies and the kernels run on their device (cpu or cuda, on the current torch stream); on the CPU the rays
-are split over ``cpu_threads`` Python threads (Warp releases the GIL during a CPU launch).
+are split over threads by :func:`neural.device.run_in_chunks` (Warp releases the GIL during a CPU launch).
 """
 
 # no ``from __future__ import annotations``: Warp reads the kernels' annotations
 import functools
-from concurrent.futures import ThreadPoolExecutor
 
 import torch
 
+from ..device import cpu_threads as default_cpu_threads
+from ..device import run_in_chunks
 from .samples import RaySamples
+
+_MIN_RAYS_PER_THREAD = 64  # a ray marches hundreds of steps: small chunks still pay for their thread
 
 
 def _warp():
@@ -91,11 +94,6 @@ def _kernels():
     return march
 
 
-@functools.cache
-def _pool(n_threads: int) -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="occupancy")
-
-
 def march_occupied(
     origins: torch.Tensor,
     dirs: torch.Tensor,
@@ -109,13 +107,14 @@ def march_occupied(
     cell_size: torch.Tensor,
     occupied: torch.Tensor,
     resolution: int,
-    cpu_threads: int = 2,
+    cpu_threads: int | None = None,
 ) -> RaySamples:
     """Packed sections ``[t, t + step]``, ``t = near + (k + shift) step`` for ``first <= k < end`` and
     ``t < far``, whose centre lies in an occupied cell of the grid at ``aabb_min`` (3,) with cells of
     ``cell_size`` (3,) and flat mask ``occupied`` (resolution^3,) bool.
 
     origins, dirs : (R, 3) float32 ; near, far, shift : (R,) float32 ; first, end : (R,) int.
+    cpu_threads : threads sharing the rays of a CPU launch (None: :func:`neural.device.cpu_threads`).
     """
     wp = _warp()
     march = _kernels()
@@ -138,24 +137,18 @@ def march_occupied(
         *(wp.from_torch(t) for t in f32[2:]),
         *(wp.from_torch(t) for t in i32),
     ]
-    occ_wp = wp.from_torch(occ)
+    grid_args = [float(step), lo, cell, int(resolution), wp.from_torch(occ)]
+    offsets_wp, counts_wp = wp.from_torch(offsets), wp.from_torch(counts)
+    threads = 1 if device.type == "cuda" else (cpu_threads or default_cpu_threads())
+    if threads > 1:
+        wp.load_module(march.module, device="cpu")  # compile once, before the threads race to do it
 
     def launch(write: int, rays_out, starts_out) -> None:
         def part(a: int, b: int) -> None:
-            inputs = [*arrays, float(step), lo, cell, int(resolution), occ_wp, a, write]
-            inputs += [wp.from_torch(offsets), wp.from_torch(counts), rays_out, starts_out]
+            inputs = [*arrays, *grid_args, a, write, offsets_wp, counts_wp, rays_out, starts_out]
             wp.launch(march, dim=b - a, inputs=inputs, device=str(device), stream=stream)
 
-        if device.type == "cuda" or cpu_threads == 1 or n_rays < 2 * cpu_threads:
-            part(0, n_rays)
-            return
-        wp.load_module(march.module, device="cpu")
-        bounds = [n_rays * k // cpu_threads for k in range(cpu_threads + 1)]
-        futures = [
-            _pool(cpu_threads).submit(part, a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)
-        ]
-        for future in futures:
-            future.result()
+        run_in_chunks(n_rays, part, threads, _MIN_RAYS_PER_THREAD)
 
     none_rays = wp.empty(0, dtype=wp.int64, device=str(device))
     none_starts = wp.empty(0, dtype=float, device=str(device))

@@ -90,6 +90,23 @@ def test_identity_motion_renders_the_rest_image_of_eval(scene):
     np.testing.assert_allclose(moved, rest, atol=1e-5)
 
 
+def test_chunks_of_rays_do_not_change_the_image(scene):
+    """An image rendered in chunks of 37 rays (shading rounds, early termination and the colour skip all
+    per chunk) equals the image the narrow band renders in one pass, sample counts included."""
+    asset_dir, data_dir = scene
+    asset = load_asset(asset_dir)
+    field = load_field(asset, "cpu")
+    data = load_dataset(data_dir, background=asset.background)
+    background = torch.as_tensor(asset.background, dtype=torch.float32)
+    sampler = asset_sampler(asset)
+    assert sampler.rays_per_chunk >= SIZE * SIZE  # the default: one pass
+    whole, stats = render_camera(field, data.cameras, 8, sampler, background)
+    chunked, chunked_stats = render_camera(field, data.cameras, 8, sampler, background, chunk=37)
+    assert stats["samples_per_pixel"] > 0.5
+    np.testing.assert_array_equal(chunked_stats["counts"], stats["counts"])
+    np.testing.assert_allclose(chunked, whole, atol=1e-5)
+
+
 class ScaleShift:
     """The map to rest space of the scene scaled by ``k`` about ``pivot`` (3,) and shifted by ``shift`` (3,),
     dropping rest points above the height ``top``: ``x_rest = pivot + (x - pivot - shift) / k``, directions

@@ -1,7 +1,8 @@
 """Whole images: the one rendering pipeline, and the samplers it takes.
 
 Every image (``shellsim eval``, ``shellsim render`` at rest and deformed, the benches, training's
-held-out views) is made by :func:`render_camera` / :func:`render_pixels`, chunk by chunk of rays:
+held-out views) is made by :func:`render_camera` / :func:`render_pixels`, chunk by chunk of rays (a
+sampler's ``rays_per_chunk`` rays, else :data:`RAY_CHUNK`):
 
 1. **sample**: ``sampler(origins (R, 3), dirs (R, 3)) -> RaySamples`` places samples along the rays;
 2. **map** (optional): ``to_rest.map_rays(points (S, 3), unit_dirs (S, 3)) -> (x_rest (S, 3), d_rest (S, 3),
@@ -34,8 +35,11 @@ from ..data import Cameras, camera_rays
 from .fullray import ray_aabb, ray_background, shade_samples, stepped_samples
 from .occupancy import OccupancyConfig, OccupancyGrid
 
-#: Rays rendered at once (bounds the memory of one pass).
+#: Rays rendered at once (bounds the memory of one pass) by samplers that may put hundreds of samples on a ray.
 RAY_CHUNK = 16384
+#: Rays rendered at once in the narrow band (a few samples per ray): a 200x200 image in one pass, so that
+#: the fixed costs of its rounds of shading (kernel launches, thread hand-offs) are paid once, not 3 times.
+NARROW_BAND_CHUNK = 65536
 #: Stages of the pipeline, timed in the stats of :func:`render_pixels` as ``<stage>_ms``.
 STAGES = ("sample", "map", "shade")
 
@@ -85,6 +89,7 @@ def narrow_band_sampler(caster, config):
         samples, _ = narrow_band_samples(caster, origins, dirs, config, device=origins.device)
         return samples
 
+    sample.rays_per_chunk = NARROW_BAND_CHUNK
     return sample
 
 
@@ -142,15 +147,17 @@ def render_pixels(
     sampler,
     background: torch.Tensor,
     to_rest: RestMap | None = None,
-    chunk: int = RAY_CHUNK,
+    chunk: int | None = None,
 ) -> tuple[torch.Tensor, dict]:
     """Colours (R, 3) (unclamped) of rays ``origins``, ``dirs`` (R, 3) on the field's device: sample, map to
-    rest space with ``to_rest`` (None: no map), shade over ``background`` (3,). Stats: ``ms``, per stage
+    rest space with ``to_rest`` (None: no map), shade over ``background`` (3,), ``chunk`` rays at a time
+    (None: the sampler's ``rays_per_chunk``, else :data:`RAY_CHUNK`). Stats: ``ms``, per stage
     ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside ``to_rest``) and
     ``counts`` (R,) int64 samples per ray that were mapped and evaluated (dropped ones included, those after
     a ray's termination not)."""
     times = dict.fromkeys(STAGES, 0.0)
     start = time.perf_counter()
+    chunk = chunk or getattr(sampler, "rays_per_chunk", RAY_CHUNK)
     colors, counts, dropped = [], [], 0
     for i in range(0, len(origins), chunk):
         o, d = origins[i : i + chunk], dirs[i : i + chunk]
@@ -203,7 +210,7 @@ def render_camera(
     sampler,
     background: torch.Tensor,
     to_rest: RestMap | None = None,
-    chunk: int = RAY_CHUNK,
+    chunk: int | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Render camera ``index`` through :func:`render_pixels`: image (H, W, 3) float32 in [0, 1] and its
     stats, with ``counts`` (H, W) and ``ms`` including the camera rays."""

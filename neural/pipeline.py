@@ -25,13 +25,18 @@ from .train import train_stage1, train_stage2
 log = logging.getLogger(__name__)
 
 
-def build_field(data: SceneData, config: FieldConfig, device: str) -> ShellField:
+def build_field(data: SceneData, config: FieldConfig, device: str, seed: int = 0) -> ShellField:
     """A freshly initialised field covering the dataset's normalised unit cube, with an environment map
-    (``FieldConfig.env_map``) when the images have no alpha: photos whose background lies beyond the box."""
+    (``FieldConfig.env_map``) when the images have no alpha: photos whose background lies beyond the box.
+    Its random initial weights are drawn from ``seed`` (torch's global generator is left as it was), so that
+    the same command trains the same asset."""
     norm = data.normalisation
     if data.alphas is None:
         config = dataclasses.replace(config, env_map=True)
-    return ShellField(config, center=tuple(float(c) for c in norm.center), scale=float(norm.scale)).to(device)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        field_ = ShellField(config, center=tuple(float(c) for c in norm.center), scale=float(norm.scale))
+    return field_.to(device)
 
 
 def train_asset(
@@ -70,7 +75,7 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
         int(data.cameras.width[0]),
         int(data.cameras.height[0]),
     )
-    field_ = build_field(data, config.field, device)
+    field_ = build_field(data, config.field, device, config.stage1.seed)
     stage1 = train_stage1(field_, data, out_dir, config.stage1, device)
     shells = _load_shells(out_dir / "checkpoints", config)
     extraction_seconds = 0.0

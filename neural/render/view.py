@@ -35,7 +35,8 @@ from ..data import Cameras, camera_rays
 from .fullray import ray_aabb, ray_background, shade_samples, stepped_samples
 from .occupancy import OccupancyConfig, OccupancyGrid
 
-#: Rays rendered at once (bounds the memory of one pass) by samplers that may put hundreds of samples on a ray.
+#: Rays rendered at once (bounds the memory of one pass) by samplers that may put hundreds of samples on
+#: a ray.
 RAY_CHUNK = 16384
 #: Rays rendered at once in the narrow band (a few samples per ray): a 200x200 image in one pass, so that
 #: the fixed costs of its rounds of shading (kernel launches, thread hand-offs) are paid once, not 3 times.

@@ -111,6 +111,11 @@ class TrainSettings:
     eval_views: int = option(
         Stage1Config.eval_views, help="held-out views of each evaluation but the last (0: all; the last: all)"
     )
+    seed: int = option(
+        Stage1Config.seed,
+        help="random seed of the initial weights and of the rays drawn: the same command trains the same "
+        "asset (on the CPU); another seed is another draw",
+    )
     name: str | None = option(help="asset name", shown_default="the output directory's name")
     keep_checkpoints: bool = option(False, help="keep OUT/checkpoints after success")
     device: str = option("auto", help="cpu, cuda or auto")
@@ -133,6 +138,7 @@ class TrainSettings:
             if value is not None and not 0 < value < math.inf:
                 raise SettingError(name, f"expected a positive number, got {value}")
         check_range("table_size", self.table_size, 1, 30, "an integer")
+        check_range("seed", self.seed, 0, 2**31 - 1, "an integer")
         check_choice("view_encoding", self.view_encoding, VIEW_ENCODINGS)
         check_choice("device", self.device, DEVICES)
 
@@ -151,10 +157,12 @@ class TrainSettings:
             checkpoint_seconds=seconds,
             eval_every=self.eval_every,
             eval_views=self.eval_views,
+            seed=self.seed,
         )
         config.stage2 = dataclasses.replace(
             config.stage2,
             steps=self.stage2_steps or scaled["stage2_steps"],
+            seed=self.seed + 1,
             random_background=self.random_background,
             checkpoint_seconds=seconds,
             eval_views=self.eval_views,

@@ -7,7 +7,7 @@ from meshes import kuhn_grid
 
 from shellsim.contact import Box, Sphere
 from shellsim.elastic import elastic_energy, snh_energy_reference, snh_min_eigenvalue
-from shellsim.fem import SimSettings, SimulationError, Simulator, simulate
+from shellsim.fem import SimSettings, SimulationError, Simulator, partition_tets, simulate
 from shellsim.geometry import MIN_VOLUME_RATIO, tet_volumes
 from shellsim.materials import Material, get_material
 from shellsim.motion import MotionWriter, load_motion
@@ -307,6 +307,44 @@ def test_serial_pcg_matches_warp_optim_cg():
         results.append(sim.positions)
     assert results[0][:, 2].min() < 0  # in contact with the ground
     np.testing.assert_allclose(results[0], results[1], atol=1e-8)
+
+
+def test_tet_slabs_share_no_vertex():
+    v, t = box_tets((5, 4, 3), (0.5, 0.4, 0.3))
+    order, ranges = partition_tets(v, t, 3)
+    assert np.array_equal(np.sort(order), np.arange(len(t)))
+    assert ranges[0][0] == 0 and ranges[-1][1] == len(t)
+    assert all(a[1] == b[0] for a, b in zip(ranges, ranges[1:], strict=False))
+    slab_vertices = [set(t[order[lo:hi]].ravel()) for lo, hi in ranges[:-1]]
+    assert all(len(s) > 0 for s in slab_vertices)
+    for i in range(3):
+        for j in range(i + 1, 3):
+            assert not slab_vertices[i] & slab_vertices[j]
+    # a straddling tet really touches two slabs: no tet is left out of a slab it could have joined
+    lo, hi = ranges[-1]
+    for tet in t[order[lo:hi]]:
+        assert sum(bool(set(tet) <= s) for s in slab_vertices) == 0
+    assert partition_tets(v, t, 1)[1] == [(0, len(t))]
+
+
+def test_hessian_assembled_on_threads_equals_one_thread(monkeypatch):
+    """Three threads each assembling the Hessian blocks of their slab of tets (then the tets between slabs)
+    give the same steps, with contact, as one thread over every tet."""
+    import shellsim.fem as fem
+
+    v, t = box_tets((6, 3, 3), (0.3, 0.15, 0.15), origin=(0.0, 0.0, 0.002))
+    monkeypatch.setattr(fem, "default_cpu_threads", lambda: 3)
+    results = []
+    for threshold in (10**9, 0):
+        monkeypatch.setattr(fem, "PARALLEL_HESSIAN_TETS", threshold)
+        sim = Simulator(v, t, RUBBER, SimSettings(ground=0.0, substeps=2, cg_tol=1e-10, newton_tol=1e-7))
+        assert len(sim._tet_ranges) == (1 if threshold else 4)
+        sim.set_rigid_velocity(linear=(0.2, 0.0, -0.1), angular=(0.0, 1.0, 2.0))
+        for _ in range(2):
+            sim.step()
+        results.append(sim.positions)
+    assert results[0][:, 2].min() < 0  # in contact with the ground
+    np.testing.assert_allclose(results[1], results[0], atol=1e-9)
 
 
 @pytest.fixture

@@ -75,8 +75,9 @@ from .linsolve import block_topology, bsr_cg_solver, serial_pcg_solver
 from .materials import Material
 
 log = logging.getLogger(__name__)
-#: Fewest tets for which the CPU assembles a Hessian on several threads: 2k-tet Hessians are too quick (about
-#: 0.5 ms) for a thread hand-off to pay (1.7 ms slower per step), 10k and 41k ones gain 6% and 5% of a step.
+#: Fewest tets for which the CPU assembles a Hessian on several threads: 2k-tet Hessians are too quick
+#: (about 0.5 ms) for a thread hand-off to pay (6.2-6.5 against 5.0 ms per step); 10k and 41k-tet ones gain
+#: 4-5% of a step.
 PARALLEL_HESSIAN_TETS = 8192
 wp.set_module_options({"enable_backward": False})  # no autodiff here; halves compile time
 
@@ -310,7 +311,6 @@ class Simulator:
         self.settings = settings or SimSettings()
         self.material = material
         self.device = wp.get_device(device)
-        dev_is_cpu = self.device.is_cpu
         self.n_vertices, self.n_tets = len(rest), len(tets)
         self.rest_vertices = rest
         self.tets = tets.astype(np.int64)
@@ -323,7 +323,7 @@ class Simulator:
         self.size = float(np.linalg.norm(rest.max(0) - rest.min(0)))
         self._min_free_mass = float(self.masses[~pinned].min()) if (~pinned).any() else 1.0
         # internal per-tet arrays in the order of the threads' slabs (Hessians assembled in parallel on a CPU)
-        parallel = dev_is_cpu and len(tets) >= PARALLEL_HESSIAN_TETS
+        parallel = self.device.is_cpu and len(tets) >= PARALLEL_HESSIAN_TETS
         order, self._tet_ranges = partition_tets(rest, tets, default_cpu_threads() if parallel else 1)
         tets, dm, volumes = tets[order], dm[order], volumes[order]
         offsets, columns, block_index, diag_index = block_topology(tets, len(rest))
@@ -372,8 +372,8 @@ class Simulator:
         self._scalars = wp.zeros(3, dtype=f64, device=dev)  # energy, min det F, |force|^2; or a max norm
         self._scalars_init = wp.array([0.0, 1.0e300, 0.0], dtype=f64, device=dev)
         self._cg_result = wp.zeros(2, dtype=f64, device=dev)
-        per_tet = (self._tets, self._dm_inv, self._volume, self._f_prev, self._block_index)
-        self._tet_parts = [tuple(a[lo:hi] for a in per_tet) for lo, hi in self._tet_ranges]
+        self._per_tet = (self._tets, self._dm_inv, self._volume, self._f_prev, self._block_index)
+        self._tet_parts = [tuple(a[lo:hi] for a in self._per_tet) for lo, hi in self._tet_ranges]
         self._solve = self._make_solver(offsets, columns)
 
     # -- state ---------------------------------------------------------------------------------------------
@@ -602,7 +602,7 @@ class Simulator:
             )
             tet_range(self._tet_parts[slabs])
         else:
-            tet_range((self._tets, self._dm_inv, self._volume, self._f_prev, self._block_index))
+            tet_range(self._per_tet)
         wp.launch(
             vertex_terms,
             self.n_vertices,

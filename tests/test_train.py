@@ -81,7 +81,7 @@ def test_the_same_command_trains_the_same_field(sphere_data, tmp_path):
     other = build_field(sphere_data, SMALL_FIELD, "cpu", seed=1)
     assert not torch.equal(other.encoding.table, first.encoding.table)
     for k, field in enumerate((first, second)):
-        torch.rand(7)  # whatever else drew from the global generator in between
+        torch.rand(7)  # training reseeds: what drew from the global generator before does not matter
         train_stage1(field, sphere_data, tmp_path / str(k), small_stage1(6), "cpu")
     trained = second.state_dict()
     for key, value in first.state_dict().items():

@@ -60,8 +60,9 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def bench_fem(vertices, tets, material, args) -> dict:
-    settings = SimSettings(dt=1.0 / args.fps, substeps=args.substeps, ground=0.0)
+def bench_fem(vertices, tets, material, args, **tolerances) -> dict:
+    """Times the default solver, or the one with ``tolerances`` (SimSettings fields) instead."""
+    settings = SimSettings(dt=1.0 / args.fps, substeps=args.substeps, ground=0.0, **tolerances)
     sim = Simulator(vertices, tets, material, settings, device=args.device)
     sim.set_rigid_velocity(linear=(0.3, 0.0, 0.0), angular=(0.0, 0.0, 4.0))
     sim.step()  # compile and warm up
@@ -79,6 +80,8 @@ def bench_fem(vertices, tets, material, args) -> dict:
         "newton_per_step": newton_its / steps,
         "cg_per_newton": cg_its / max(newton_its, 1),
         "z_min": float(sim.positions[:, 2].min()),
+        "positions": sim.positions,
+        "tol_mm": 1e3 * settings.newton_tol * sim.size * settings.dt / settings.substeps,
     }
 
 
@@ -150,6 +153,11 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--vbd-iterations", type=int, default=10)
     parser.add_argument("--no-vbd", action="store_true", help="skip the newton VBD comparison")
+    parser.add_argument(
+        "--accuracy",
+        action="store_true",
+        help="also print how far the positions end from a run converged to 1e-4 of the tolerances",
+    )
     args = parser.parse_args()
     wp.config.quiet = True
     wp.init()
@@ -171,6 +179,7 @@ def main() -> None:
     print(
         f"{'tets':>7} {'verts':>6} {'ms/step':>8} {'newton/step':>11} {'cg/newton':>9} {'peak MB':>8}"
         f"{'  VBD ms/step  FEM/VBD' if vbd_available else ''}"
+        f"{'  max|x - x_tight| mm (Newton tol mm)' if args.accuracy else ''}"
     )
     for cells in args.cells:
         vertices, tets = cube_tets(cells)
@@ -185,6 +194,19 @@ def main() -> None:
                 line += f"  {vbd['ms_per_step']:11.1f}  {fem['ms_per_step'] / vbd['ms_per_step']:7.2f}"
             except Exception as err:  # report, do not hide, a VBD failure: the FEM figures still stand
                 line += f"  VBD failed: {type(err).__name__}: {err}"
+        if args.accuracy:
+            defaults = SimSettings()
+            tight = bench_fem(
+                vertices,
+                tets,
+                material,
+                args,
+                newton_tol=1e-4 * defaults.newton_tol,
+                cg_tol=1e-4 * defaults.cg_tol,
+                newton_iterations=50,
+            )
+            error = 1e3 * np.abs(fem["positions"] - tight["positions"]).max()
+            line += f"  {error:.4f} ({fem['tol_mm']:.4f})"
         print(line, flush=True)
 
 

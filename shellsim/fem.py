@@ -38,9 +38,12 @@ overhead would dominate and a serial preconditioner costs nothing in parallelism
 block-Jacobi, a quarter fewer than symmetric Gauss-Seidel);
 on CUDA :func:`warp.optim.linear.cg` with block-Jacobi. A backtracking line search on ``E`` keeps the energy
 decreasing and the tets uninverted; its passes also compute the force, so the accepted point's energy, det F
-and force serve the next iteration's test, and the Hessian pass computes only the Hessian. A frame whose
-state squeezes a tet below ``min_volume_ratio`` (:data:`shellsim.geometry.MIN_VOLUME_RATIO`: inverted or
-near-degenerate), turns non-finite or exceeds ``max_speed`` is redone with more substeps, then raises
+and force serve the next iteration's test, and the Hessian pass computes only the Hessian. Newton stops when
+its step is below ``newton_tol``; that last step, already solved for, is taken too when it lowers E (one
+energy pass), which leaves x much closer to the substep's minimum than the tolerance (``bench/sim_bench.py
+--accuracy``) and the next substep a better start. A frame whose state squeezes a tet below
+``min_volume_ratio`` (:data:`shellsim.geometry.MIN_VOLUME_RATIO`: inverted or near-degenerate), turns
+non-finite or exceeds ``max_speed`` is redone with more substeps, then raises
 :class:`SimulationError`.
 """
 
@@ -504,6 +507,11 @@ class Simulator:
             self._scalars.zero_()
             wp.launch(max_length, n, [self._d, self._scalars], device=dev)
             if float(self._scalars.numpy()[0]) <= tol:
+                # the step that shows convergence is paid for: take it where it lowers E and inverts no
+                # tet, so x ends far closer to the minimum than tol (and the next substep starts there)
+                evaluation = self._line_search(energy, min_det, terms, tries=1, order=ENERGY)
+                if evaluation is not None:
+                    energy, min_det, _ = evaluation
                 converged = True
                 break
             evaluation = self._line_search(energy, min_det, terms)
@@ -532,15 +540,18 @@ class Simulator:
             return ("speed", speed, s.max_speed)
         return None
 
-    def _line_search(self, energy: float, min_det: float, terms: dict) -> tuple[float, float, float] | None:
-        """Backtrack x + alpha d until E decreases (and no tet inverts that was not); move x there and return
-        :meth:`_evaluate` (FORCE) of the new x, or None if no alpha does."""
+    def _line_search(
+        self, energy: float, min_det: float, terms: dict, tries: int = 12, order: int = FORCE
+    ) -> tuple[float, float, float] | None:
+        """Backtrack x + alpha d, alpha = 1, 1/2, ... (``tries`` values) until E decreases (and no tet inverts
+        that was not); move x there and return :meth:`_evaluate` (``order``) of the new x, or None if no
+        alpha does."""
         alpha = 1.0
-        for _ in range(12):
+        for _ in range(tries):
             wp.launch(
                 step_positions, self.n_vertices, [self._x, self._d, alpha, self._x_trial], device=self.device
             )
-            evaluation = self._evaluate(self._x_trial, terms, FORCE)
+            evaluation = self._evaluate(self._x_trial, terms, order)
             trial, trial_det, _ = evaluation
             if trial <= energy and (trial_det > 0 or min_det <= 0):
                 wp.copy(self._x, self._x_trial)

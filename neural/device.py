@@ -37,6 +37,15 @@ def pick_device(name: str | None = "auto", warp: bool = False) -> str:
     return "cuda:0" if warp else "cuda"
 
 
+def initialised_warp():
+    """The ``warp`` module, initialised: imported on first use, so that modules whose kernels are built on
+    demand stay cheap to import."""
+    import warp as wp
+
+    wp.init()
+    return wp
+
+
 def warp_device(torch_device: str) -> str:
     """The Warp device string matching a torch device (``"cpu"`` or ``"cuda:0"``)."""
     return "cpu" if str(torch_device).startswith("cpu") else "cuda:0"

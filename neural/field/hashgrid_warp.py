@@ -21,21 +21,14 @@ from concurrent.futures import ThreadPoolExecutor
 
 import torch
 
+from ..device import initialised_warp
 from .hashgrid import check_encode_inputs, is_dense
-
-
-def _warp():
-    """The initialised ``warp`` module (imported on first use, so importing this module stays cheap)."""
-    import warp as wp
-
-    wp.init()
-    return wp
 
 
 @functools.cache
 def _kernels(n_features: int):
     """Forward and backward kernels for ``n_features`` floats per level (compiled once per value)."""
-    wp = _warp()
+    wp = initialised_warp()
 
     vecf = wp.types.vector(length=n_features, dtype=wp.float32)
     prime_y = wp.constant(wp.uint32(2654435761))
@@ -143,7 +136,7 @@ def _launch(
     ``zero_out`` (CPU only) clears each level's rows of ``table_out`` (T entries) just before its launch, in
     the launching thread: the threads share the clearing (and its page faults) and find the rows in cache.
     """
-    wp = _warp()
+    wp = initialised_warp()
     n_levels = len(resolutions)
     stream = wp.stream_from_torch(wp.device_to_torch(x.device)) if x.device.is_cuda else None
 
@@ -171,7 +164,7 @@ def _launch(
 class _HashEncode(torch.autograd.Function):
     @staticmethod
     def forward(ctx, x, table, resolutions, cpu_threads):
-        wp = _warp()
+        wp = initialised_warp()
         n_levels, table_size, n_features = table.shape
         vecf, forward_kernel, _ = _kernels(n_features)
         x = x.detach().to(torch.float32).contiguous()
@@ -195,7 +188,7 @@ class _HashEncode(torch.autograd.Function):
     def backward(ctx, grad_out):
         if not ctx.needs_input_grad[1]:
             return None, None, None, None
-        wp = _warp()
+        wp = initialised_warp()
         (x,) = ctx.saved_tensors
         n_levels, table_size, n_features = ctx.table_shape
         vecf, _, backward_kernel = _kernels(n_features)

@@ -15,22 +15,15 @@ import functools
 import torch
 
 from ..device import cpu_threads as default_cpu_threads
-from ..device import run_in_chunks
+from ..device import initialised_warp, run_in_chunks
 from .samples import RaySamples
 
 _MIN_RAYS_PER_THREAD = 64  # a ray marches hundreds of steps: small chunks still pay for their thread
 
 
-def _warp():
-    import warp as wp
-
-    wp.init()
-    return wp
-
-
 @functools.cache
 def _kernels():
-    wp = _warp()
+    wp = initialised_warp()
 
     @wp.func
     def occupied_at(
@@ -116,7 +109,7 @@ def march_occupied(
     origins, dirs : (R, 3) float32 ; near, far, shift : (R,) float32 ; first, end : (R,) int.
     cpu_threads : threads sharing the rays of a CPU launch (None: :func:`neural.device.cpu_threads`).
     """
-    wp = _warp()
+    wp = initialised_warp()
     march = _kernels()
     device = origins.device
     n_rays = origins.shape[0]

@@ -38,7 +38,8 @@ overhead would dominate and a serial preconditioner costs nothing in parallelism
 block-Jacobi, a quarter fewer than symmetric Gauss-Seidel);
 on CUDA :func:`warp.optim.linear.cg` with block-Jacobi. A backtracking line search on ``E`` keeps the energy
 decreasing and the tets uninverted; its passes also compute the force, so the accepted point's energy, det F
-and force serve the next iteration's test, and the Hessian pass computes only the Hessian. Newton stops when
+and force serve the next iteration's test, and the Hessian pass computes only the Hessian. The first solves
+of a substep stop early (:class:`Forcing`, inexact Newton), the last ones reach ``cg_tol``. Newton stops when
 its step is below ``newton_tol``; that last step, already solved for, is taken too when it lowers E (one
 energy pass), which leaves x much closer to the substep's minimum than the tolerance (``bench/sim_bench.py
 --accuracy``) and the next substep a better start. A frame whose state squeezes a tet below
@@ -128,7 +129,8 @@ class SimSettings:
     drag: float = 0.0  # velocity drag alpha [1/s]
     newton_iterations: int = 10
     newton_tol: float = 1.0e-2  # stop when max |dx| / h < newton_tol * (rest bounding-box diagonal) per s
-    cg_tol: float = 1.0e-3  # relative residual of the Newton system
+    cg_tol: float = 1.0e-3  # relative residual of the Newton system (of the last solves: see Forcing)
+    cg_forcing: float = 0.05  # loosest relative residual of a Newton step's solve (Forcing); 0: cg_tol always
     cg_iterations: int = 500
     max_speed: float = 100.0  # [m/s]; faster means the simulation exploded
     retry_factors: tuple[int, ...] = (2, 4)  # substep multipliers tried after a failed frame
@@ -141,6 +143,8 @@ class SimSettings:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"SimSettings.{name} must be > 0, got {value}")
+        if not 0 <= self.cg_forcing < 1:
+            raise ValueError(f"SimSettings.cg_forcing must lie in [0, 1), got {self.cg_forcing}")
         for name in ("gravity", "friction", "damping", "drag"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -250,6 +254,31 @@ def max_length(d: wp.array(dtype=vec3), out: wp.array(dtype=f64)):
 # ----------------------------------------------------------------------------------------------------------
 # Simulator
 # ----------------------------------------------------------------------------------------------------------
+
+
+class Forcing:
+    """Relative tolerances of one substep's Newton-step solves (inexact Newton; Eisenstat & Walker 1996,
+    choice 2): ``loosest`` for the first solve, then ``0.9 (|F_k| / |F_k-1|)^2`` from the force norms of
+    consecutive iterates (no less than ``0.9 eta_k-1^2`` while that exceeds 0.1), within ``[tightest,
+    loosest]``. Far from the minimum, where the next step corrects this one anyway, a solve stops early; as
+    Newton converges the force ratio falls and the solves tighten to ``tightest``. ``loosest <= tightest``
+    gives ``tightest`` always."""
+
+    GAMMA = 0.9
+
+    def __init__(self, tightest: float, loosest: float):
+        self.tightest = tightest
+        self.loosest = self.eta = max(loosest, tightest)
+        self.previous: float | None = None
+
+    def next(self, force_norm: float) -> float:
+        """The relative tolerance of the solve at an iterate whose force norm is ``force_norm``."""
+        if self.previous is not None and self.previous > 0:
+            eta = self.GAMMA * (force_norm / self.previous) ** 2
+            safeguard = self.GAMMA * self.eta**2
+            self.eta = min(max(eta, safeguard) if safeguard > 0.1 else eta, self.loosest)
+        self.previous = force_norm
+        return max(self.eta, self.tightest)
 
 
 def partition_tets(
@@ -494,6 +523,7 @@ class Simulator:
         force_tol = tol * self._min_free_mass / (h * h)
         converged = False
         iterations = 0
+        forcing = Forcing(s.cg_tol, self._loosest_solve)
         while iterations < s.newton_iterations:
             iterations += 1
             if not math.isfinite(energy):
@@ -503,10 +533,15 @@ class Simulator:
                 break
             self._evaluate(self._x, terms, HESSIAN)
             self._d.zero_()
-            stats.cg_iterations += self._solve(0.1 * force_tol)
-            self._scalars.zero_()
-            wp.launch(max_length, n, [self._d, self._scalars], device=dev)
-            if float(self._scalars.numpy()[0]) <= tol:
+            rtol = forcing.next(force_norm)
+            stats.cg_iterations += self._solve(0.1 * force_tol, rtol)
+            step = self._max_step()
+            if step <= tol and rtol > s.cg_tol:
+                # a loose solve may stop short of a step that is not small: the test takes the solve
+                # finished to cg_tol (continued from where it stopped)
+                stats.cg_iterations += self._solve(0.1 * force_tol, s.cg_tol)
+                step = self._max_step()
+            if step <= tol:
                 # the step that shows convergence is paid for: take it where it lowers E and inverts no
                 # tet, so x ends far closer to the minimum than tol (and the next substep starts there)
                 evaluation = self._line_search(energy, min_det, terms, tries=1, order=ENERGY)
@@ -539,6 +574,12 @@ class Simulator:
         if speed > s.max_speed:
             return ("speed", speed, s.max_speed)
         return None
+
+    def _max_step(self) -> float:
+        """max_i |d_i| of the Newton step in ``d``."""
+        self._scalars.zero_()
+        wp.launch(max_length, self.n_vertices, [self._d, self._scalars], device=self.device)
+        return float(self._scalars.numpy()[0])
 
     def _line_search(
         self, energy: float, min_det: float, terms: dict, tries: int = 12, order: int = FORCE
@@ -647,11 +688,13 @@ class Simulator:
         return float(energy), float(min_det), math.sqrt(float(force_sq))
 
     def _make_solver(self, offsets: np.ndarray, columns: np.ndarray):
-        """The Newton-step solver ``H d = force`` from the guess in ``d``: ``solve(atol) -> CG steps``."""
+        """The Newton-step solver ``H d = force`` from the guess in ``d``: ``solve(atol, rtol) -> CG steps``;
+        sets ``_loosest_solve``, the loosest ``rtol`` it takes (the CUDA path's is fixed at ``cg_tol``)."""
         s = self.settings
         kind = s.linear_solver
         if kind == "auto":
             kind = "serial" if self.device.is_cpu else "cg"
+        self._loosest_solve = s.cg_forcing if kind == "serial" else s.cg_tol
         if kind == "serial":
             return serial_pcg_solver(
                 self._offsets,

@@ -2,8 +2,8 @@
 pattern (:func:`block_topology`), a serial SSOR-preconditioned CG that runs the whole loop
 in one Warp kernel (the CPU path, :func:`serial_pcg_solver`), and the CUDA path (:func:`bsr_cg_solver`):
 :func:`warp.optim.linear.cg` on a :mod:`warp.sparse` BSR matrix sharing that pattern, with a block-Jacobi
-preconditioner. Each factory returns ``solve(atol) -> CG iterations`` solving ``H d = b`` in place from
-the guess in ``d``.
+preconditioner. Each factory returns ``solve(atol, rtol) -> CG iterations`` solving ``H d = b`` in place
+from the guess in ``d`` to ``|b - H d| <= max(rtol |b|, atol)`` (the CUDA path fixes ``rtol`` at creation).
 """
 
 from __future__ import annotations
@@ -245,13 +245,13 @@ def serial_pcg_solver(
     device,
     omega=SSOR_OMEGA,
 ):
-    """``solve(atol) -> CG steps`` for ``H d = b`` by :func:`pcg_serial` (one thread, SSOR factor
+    """``solve(atol, rtol=tol) -> CG steps`` for ``H d = b`` by :func:`pcg_serial` (one thread, SSOR factor
     ``omega`` in (0, 2); 1 is symmetric Gauss-Seidel); ``offsets``, ``columns``, ``values``, ``diag_index``,
     ``inv_diag`` are the Warp arrays of the pattern and the blocks, ``work`` the five (V,) vec3 scratch arrays
     (r, z, p, q, t), ``result`` a (2,) f64 array."""
     r, z, p, q, t = work
 
-    def solve(atol: float) -> int:
+    def solve(atol: float, rtol: float = tol) -> int:
         wp.launch(
             pcg_serial,
             1,
@@ -262,7 +262,7 @@ def serial_pcg_solver(
                 diag_index,
                 inv_diag,
                 b,
-                f64(tol),
+                f64(rtol),
                 f64(atol),
                 max_iter,
                 f64(omega),
@@ -285,7 +285,7 @@ def bsr_cg_solver(
     offsets: np.ndarray, columns: np.ndarray, columns_wp, inv_diag, b, d, tol, max_iter, device
 ):
     """``(values, solve)``: a :mod:`warp.sparse` BSR matrix with the pattern ``offsets``/``columns`` (whose
-    ``values`` array the caller fills with the Hessian blocks) and ``solve(atol) -> CG steps`` for
+    ``values`` array the caller fills with the Hessian blocks) and ``solve(atol, rtol=tol) -> CG steps`` for
     ``H d = b`` by :func:`warp.optim.linear.cg` with block-Jacobi (``inv_diag``)."""
     import warp.optim.linear as wpl
     import warp.sparse as wps
@@ -312,7 +312,9 @@ def bsr_cg_solver(
     jacobi = wpl.LinearOperator((3 * n, 3 * n), mat33, device, precondition)
     state = wpl.cg(matrix, b, d, tol=tol, maxiter=max_iter, M=jacobi, use_cuda_graph=False, run=False)
 
-    def solve(atol: float) -> int:  # the tolerance is relative only: the state fixes atol at creation
+    def solve(atol: float, rtol: float = tol) -> int:  # the state fixes both tolerances at creation
+        if rtol != tol:
+            raise ValueError(f"bsr_cg_solver: the relative tolerance is fixed at {tol}, got {rtol}")
         iterations, _, _ = state()
         return int(iterations)
 

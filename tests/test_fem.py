@@ -7,7 +7,7 @@ from meshes import kuhn_grid
 
 from shellsim.contact import Box, Sphere
 from shellsim.elastic import elastic_energy, snh_energy_reference, snh_min_eigenvalue
-from shellsim.fem import SimSettings, SimulationError, Simulator, partition_tets, simulate
+from shellsim.fem import Forcing, SimSettings, SimulationError, Simulator, partition_tets, simulate
 from shellsim.geometry import MIN_VOLUME_RATIO, tet_volumes
 from shellsim.materials import Material, get_material
 from shellsim.motion import MotionWriter, load_motion
@@ -326,6 +326,36 @@ def test_the_step_that_shows_convergence_is_taken():
     assert np.abs(runs[0] - runs[1]).max() < 0.1 * tol
 
 
+def test_forcing_follows_eisenstat_walker():
+    """Choice 2 of Eisenstat & Walker (1996) with gamma 0.9, alpha 2, worked by hand."""
+    forcing = Forcing(tightest=1e-3, loosest=0.05)
+    assert forcing.next(100.0) == 0.05  # the first solve: the loosest
+    assert forcing.next(20.0) == pytest.approx(0.036)  # 0.9 (20 / 100)^2; the safeguard 0.9 0.05^2 < 0.1
+    assert forcing.next(1.0) == pytest.approx(0.00225)  # 0.9 (1 / 20)^2
+    assert forcing.next(0.01) == 1e-3  # 0.9 (0.01 / 1)^2 = 9e-5: no tighter than cg_tol
+    never_loose = Forcing(tightest=1e-3, loosest=0.0)
+    assert [never_loose.next(f) for f in (100.0, 90.0, 1.0)] == [1e-3, 1e-3, 1e-3]
+    growing = Forcing(tightest=1e-3, loosest=0.05)
+    assert [growing.next(f) for f in (1.0, 2.0)] == [0.05, 0.05]  # the force grew: capped at the loosest
+
+
+def test_loose_first_solves_save_cg_steps_and_keep_the_accuracy():
+    """Inexact Newton (Forcing) takes fewer CG steps than solving every Newton step to cg_tol, and its
+    positions end as close to a tightly converged run."""
+    v, t = box_tets((5, 5, 5), (0.2, 0.2, 0.2), origin=(0.0, 0.0, 0.005))
+    runs = {}
+    for name, extra in (("forcing", {}), ("tight cg", {"cg_forcing": 0.0}), ("reference", None)):
+        kw = {"newton_tol": 1e-7, "cg_tol": 1e-10} if extra is None else extra
+        sim = Simulator(v, t, RUBBER, SimSettings(ground=0.0, **kw))
+        sim.set_rigid_velocity(linear=(0.3, 0.0, -0.2), angular=(0.0, 0.0, 4.0))
+        cg = sum(sim.step().cg_iterations for _ in range(3))
+        runs[name] = (sim.positions, cg)
+    tol = 1e-2 * sim.size * sim.settings.dt / sim.settings.substeps
+    error = {name: np.abs(runs[name][0] - runs["reference"][0]).max() for name in ("forcing", "tight cg")}
+    assert runs["forcing"][1] < 0.85 * runs["tight cg"][1]
+    assert error["forcing"] < min(1.5 * error["tight cg"], 0.5 * tol)
+
+
 def test_tet_slabs_share_no_vertex():
     v, t = box_tets((5, 4, 3), (0.5, 0.4, 0.3))
     order, ranges = partition_tets(v, t, 3)
@@ -354,7 +384,8 @@ def test_hessian_assembled_on_threads_equals_one_thread(monkeypatch):
     results = []
     for threshold in (10**9, 0):
         monkeypatch.setattr(fem, "PARALLEL_HESSIAN_TETS", threshold)
-        sim = Simulator(v, t, RUBBER, SimSettings(ground=0.0, substeps=2, cg_tol=1e-10, newton_tol=1e-7))
+        settings = SimSettings(ground=0.0, substeps=2, cg_tol=1e-10, cg_forcing=0.0, newton_tol=1e-7)
+        sim = Simulator(v, t, RUBBER, settings)  # every solve exact: only the assembly differs
         assert len(sim._tet_ranges) == (1 if threshold else 4)
         sim.set_rigid_velocity(linear=(0.2, 0.0, -0.1), angular=(0.0, 1.0, 2.0))
         for _ in range(2):

@@ -13,7 +13,10 @@ VBD): FEM 7.9 / 35.2 / 254.6 ms per step at 2k / 10k / 41k tets (2.9-3.2 Newton 
 17.5 / 26.3 / 40.7 CG steps per Newton step), 0.42 / 0.45 / 0.80 of VBD's time; the code before SSOR and the
 leaner evaluation passes, run just before in the same conditions: 11.0 / 58.6 / 373.4 ms (21.4 / 35.7 / 57.5
 CG steps), 0.49-0.58 / 0.80-0.92 / 1.12-1.28 of VBD's. Absolute figures on this machine swing by 1.5-3x
-with its load; the FEM/VBD ratio, measured side by side, is the steadier figure.
+with its load; the FEM/VBD ratio, measured side by side, is the steadier figure. Night of 2026-12-02, with
+the last Newton step taken and inexact Newton (two runs): 6.9-8.3 / 26.2-29.5 / 107-133 ms, 11.9 / 16.9 /
+29.2 CG steps per Newton step, 0.34-0.36 / 0.44-0.48 / 0.40 of VBD's time; ``--accuracy``: positions 0.0074 /
+0.0032 / 0.0020 mm from a tightly converged run, where the code before ended 0.20 / 0.25 / 0.24 mm away.
 
     python bench/sim_bench.py                       # ~2k, 10k, 40k tets, rubber, CPU
     python bench/sim_bench.py --cells 12 --device cuda --material jelly

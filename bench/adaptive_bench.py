@@ -45,16 +45,23 @@ CONTACT = 0.15  # height above the pedestal of the cube's top and of the bunny's
 FUR_FROM, SKIN_BELOW, FUR_NORMAL_Z = 0.55, 0.33, 0.3
 
 
-def label_points(points: np.ndarray, normals: np.ndarray, z_range: tuple[float, float]) -> np.ndarray:
-    """Labels (N,) int8 of world points (N, 3) with outward unit normals (N, 3): 1 fur, 0 skin, -1 neither.
-
-    z_range : the bunny's height extent (z0, z1) from :func:`bunny_height`."""
+def height_parts(z, z_range: tuple[float, float]):
+    """(fur's, skin's) boolean masks (N,) of world heights z (N,) (numpy or torch): clear of the pedestal's
+    contacts, above ``FUR_FROM`` of the bunny's height extent ``z_range`` (z0, z1) from :func:`bunny_height`,
+    or below ``SKIN_BELOW`` of it."""
     z0, z1 = z_range
-    rel = (points[:, 2] - z0) / (z1 - z0)
-    bunny = points[:, 2] > PEDESTAL_TOP + CONTACT
+    rel = (z - z0) / (z1 - z0)
+    bunny = z > PEDESTAL_TOP + CONTACT
+    return bunny & (rel > FUR_FROM), bunny & (rel < SKIN_BELOW)
+
+
+def label_points(points: np.ndarray, normals: np.ndarray, z_range: tuple[float, float]) -> np.ndarray:
+    """Labels (N,) int8 of world points (N, 3) with outward unit normals (N, 3): 1 fur (the upward-facing
+    points of the fur's height), 0 skin, -1 neither (:func:`height_parts`)."""
+    fur_height, skin_height = height_parts(points[:, 2], z_range)
     labels = np.full(len(points), -1, dtype=np.int8)
-    labels[bunny & (rel > FUR_FROM) & (normals[:, 2] > FUR_NORMAL_Z)] = 1
-    labels[bunny & (rel < SKIN_BELOW)] = 0
+    labels[fur_height & (normals[:, 2] > FUR_NORMAL_Z)] = 1
+    labels[skin_height] = 0
     return labels
 
 
@@ -118,21 +125,17 @@ def pixel_labels(intersector, outer, cameras, index: int, z_range) -> np.ndarray
 
 def kernel_scan(field, data, views, background, z_range, pixel_labels_of, factors) -> dict:
     """``{"fur": [...], "skin": [...]}``: per factor K (``factors``), the PSNR over fur pixels and over skin
-    pixels of ``views`` with the kernel size s multiplied by K in that part of the volume (world z above
-    ``FUR_FROM`` of the bunny's height, or below ``SKIN_BELOW`` and clear of the pedestal's contacts);
-    ``pixel_labels_of[v]`` (H, W) labels each view's pixels."""
+    pixels of ``views`` with the kernel size s multiplied by K in that part of the volume (its height band,
+    :func:`height_parts`); ``pixel_labels_of[v]`` (H, W) labels each view's pixels."""
     import torch
 
     from neural.render.view import fitted_occupancy_grid, occupancy_sampler, render_camera
 
-    z0, z1 = z_range
     learned = field.geometry
 
     def part(x, name):
-        rel = (x[:, 2] - z0) / (z1 - z0)
-        if name == "fur":
-            return rel > FUR_FROM
-        return (rel < SKIN_BELOW) & (x[:, 2] > PEDESTAL_TOP + CONTACT)
+        fur_height, skin_height = height_parts(x[:, 2], z_range)
+        return fur_height if name == "fur" else skin_height
 
     scan = {}
     try:

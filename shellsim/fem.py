@@ -649,9 +649,11 @@ class Simulator:
         if order == HESSIAN and slabs > 0:
             # the slabs' tets on a thread each (they write disjoint blocks), then the tets between them;
             # energies and forces (cheap) go in one launch: threads would cost more than they save there
-            run_in_chunks(
-                slabs, lambda lo, hi: [tet_range(self._tet_parts[k]) for k in range(lo, hi)], slabs, 1
-            )
+            def slab_range(lo: int, hi: int) -> None:
+                for k in range(lo, hi):
+                    tet_range(self._tet_parts[k])
+
+            run_in_chunks(slabs, slab_range, slabs, 1)
             tet_range(self._tet_parts[slabs])
         else:
             tet_range(self._per_tet)

@@ -338,7 +338,7 @@ def train_stage2(
     checkpoints, done = _Checkpointer(config, save, start), start
     try:
         for step in range(start, config.steps):
-            set_learning_rate(optimizer, step, config.steps, 1, config.final_lr_factor)
+            set_learning_rate(optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor)
             origins, dirs, target, ray_background = pixels.sample(config.rays)
             samples = sampler(origins, dirs)
             out = render_rays(field, origins, dirs, samples, ray_background)

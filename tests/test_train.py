@@ -226,3 +226,24 @@ def test_sharpness_prior_is_the_log_kernel_excess_over_its_floor():
     assert float(reg["sharp"].detach()) == pytest.approx((np.log(4.0) + np.log(2.0)) / 3, rel=1e-5)
     (grad,) = torch.autograd.grad(reg["sharp"], s)
     np.testing.assert_allclose(grad.numpy(), [1 / (3 * floor * 4.0), 0.0, 1 / (3 * floor * 2.0)], rtol=1e-4)
+
+
+def test_stage2_ramps_its_rates_up_from_the_fresh_optimiser(sphere_data, tmp_path):
+    """Adam's first update of a parameter is ``lr * g / (|g| + eps)``, at most ``lr`` in size: with a warm-up
+    of W steps, stage 2's first step moves no weight by more than its group's base rate / W (at the full rate
+    it would throw the stage-1 field off), and each group's largest move reaches that bound."""
+    import trimesh
+
+    from neural.render.narrowband import NarrowBandConfig
+    from neural.train import Stage2Config, train_stage2
+
+    field = build_field(sphere_data, SMALL_FIELD, "cpu")
+    before = {k: v.clone() for k, v in field.state_dict().items()}
+    outer, inner = trimesh.creation.icosphere(3, 0.75), trimesh.creation.icosphere(3, 0.45)
+    config = Stage2Config(steps=1, rays=512, warmup_steps=8, eval_views=1, checkpoint_every=10**6)
+    train_stage2(field, sphere_data, outer, inner, tmp_path, config, NarrowBandConfig(), "cpu")
+    moves = {k: float((p.detach() - before[k]).abs().max()) for k, p in field.named_parameters()}
+    grids = max(v for k, v in moves.items() if k.startswith(("encoding", "kernel_grid")))
+    networks = max(v for k, v in moves.items() if not k.startswith(("encoding", "kernel_grid")))
+    for move, rate in ((grids, config.lr_encoding), (networks, config.lr_network)):
+        assert rate / 8 * 0.99 <= move <= rate / 8 + 1e-6, (moves, rate)  # 1e-6: float32 rounding near 1

@@ -1,4 +1,4 @@
-"""Stage-1 training on a scene the test renders itself, checkpoints/resume, and CLI errors."""
+"""Training stages 1 and 2 on a scene the test renders itself, checkpoints/resume, and CLI errors."""
 
 from __future__ import annotations
 
@@ -8,13 +8,23 @@ import json
 import numpy as np
 import pytest
 import torch
+import trimesh
 from scenes import write_sphere_scene
 
 from neural.data import load_dataset
 from neural.field import FieldConfig, HashGridConfig, ShellField
 from neural.pipeline import build_field
+from neural.render.narrowband import NarrowBandConfig
 from neural.render.view import field_occupancy_grid, occupancy_sampler
-from neural.train import PixelSampler, Stage1Config, evaluate, regularisers, train_stage1
+from neural.train import (
+    PixelSampler,
+    Stage1Config,
+    Stage2Config,
+    evaluate,
+    regularisers,
+    train_stage1,
+    train_stage2,
+)
 from shellsim.cli import main
 
 SMALL_FIELD = FieldConfig(hashgrid=HashGridConfig(log2_table_size=14, max_resolution=256))
@@ -232,11 +242,6 @@ def test_stage2_ramps_its_rates_up_from_the_fresh_optimiser(sphere_data, tmp_pat
     """Adam's first update of a parameter is ``lr * g / (|g| + eps)``, at most ``lr`` in size: with a warm-up
     of W steps, stage 2's first step moves no weight by more than its group's base rate / W (at the full rate
     it would throw the stage-1 field off), and each group's largest move reaches that bound."""
-    import trimesh
-
-    from neural.render.narrowband import NarrowBandConfig
-    from neural.train import Stage2Config, train_stage2
-
     field = build_field(sphere_data, SMALL_FIELD, "cpu")
     before = {k: v.clone() for k, v in field.state_dict().items()}
     outer, inner = trimesh.creation.icosphere(3, 0.75), trimesh.creation.icosphere(3, 0.45)

@@ -44,11 +44,13 @@ from .render.view import (
 log = logging.getLogger(__name__)
 
 
+GRID_PARAMETERS = ("encoding", "kernel_grid")  # name prefixes of the grid parameters (the encoding's rate)
+
+
 def make_optimizer(field: ShellField, lr_encoding: float, lr_network: float) -> torch.optim.Adam:
-    """Adam with Instant-NGP's settings: one group for the hash tables, one for the MLPs."""
-    grids = ("encoding", "kernel_grid")
-    enc = [p for n, p in field.named_parameters() if n.startswith(grids)]
-    net = [p for n, p in field.named_parameters() if not n.startswith(grids)]
+    """Adam with Instant-NGP's settings: one group for the grids (:data:`GRID_PARAMETERS`), one for MLPs."""
+    enc = [p for n, p in field.named_parameters() if n.startswith(GRID_PARAMETERS)]
+    net = [p for n, p in field.named_parameters() if not n.startswith(GRID_PARAMETERS)]
     return torch.optim.Adam(
         [
             {"params": enc, "lr": lr_encoding, "base_lr": lr_encoding},

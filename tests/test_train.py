@@ -17,6 +17,7 @@ from neural.pipeline import build_field
 from neural.render.narrowband import NarrowBandConfig
 from neural.render.view import field_occupancy_grid, occupancy_sampler
 from neural.train import (
+    GRID_PARAMETERS,
     PixelSampler,
     Stage1Config,
     Stage2Config,
@@ -243,12 +244,12 @@ def test_stage2_ramps_its_rates_up_from_the_fresh_optimiser(sphere_data, tmp_pat
     of W steps, stage 2's first step moves no weight by more than its group's base rate / W (at the full rate
     it would throw the stage-1 field off), and each group's largest move reaches that bound."""
     field = build_field(sphere_data, SMALL_FIELD, "cpu")
-    before = {k: v.clone() for k, v in field.state_dict().items()}
+    before = {k: p.detach().clone() for k, p in field.named_parameters()}
     outer, inner = trimesh.creation.icosphere(3, 0.75), trimesh.creation.icosphere(3, 0.45)
     config = Stage2Config(steps=1, rays=512, warmup_steps=8, eval_views=1, checkpoint_every=10**6)
     train_stage2(field, sphere_data, outer, inner, tmp_path, config, NarrowBandConfig(), "cpu")
     moves = {k: float((p.detach() - before[k]).abs().max()) for k, p in field.named_parameters()}
-    grids = max(v for k, v in moves.items() if k.startswith(("encoding", "kernel_grid")))
-    networks = max(v for k, v in moves.items() if not k.startswith(("encoding", "kernel_grid")))
+    grids = max(v for k, v in moves.items() if k.startswith(GRID_PARAMETERS))
+    networks = max(v for k, v in moves.items() if not k.startswith(GRID_PARAMETERS))
     for move, rate in ((grids, config.lr_encoding), (networks, config.lr_network)):
         assert rate / 8 * 0.99 <= move <= rate / 8 + 1e-6, (moves, rate)  # 1e-6: float32 rounding near 1

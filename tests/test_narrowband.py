@@ -13,7 +13,7 @@ from neural.render.narrowband import (
     samples_from_intervals,
     samples_per_interval,
 )
-from neural.render.raycast import EmbreeCaster, WarpCaster
+from neural.render.raycast import EmbreeCaster, WarpCaster, ray_triangle_hits
 
 
 def sphere(radius, center=(0.0, 0.0, 0.0), subdivisions=3):
@@ -234,6 +234,35 @@ def test_rays_that_miss_get_no_samples(rng):
     assert samples.ray_indices.numel() == 0 and samples.n_rays == 20
     np.testing.assert_array_equal(stats.counts, 0)
     assert np.isinf(stats.t_inner).all() and stats.mean_samples_per_ray == 0.0
+
+
+class RecordingCaster(EmbreeCaster):
+    """An Embree caster that records which mesh each cast goes to and how many rays it takes."""
+
+    def __init__(self, outer, inner):
+        super().__init__(outer, inner)
+        self.casts = []
+
+    def _cast(self, scene, starts, units, reach=None):
+        which = next(w for w, s in self._scenes.items() if s is scene)
+        self.casts.append((which, len(starts)))
+        return super()._cast(scene, starts, units, reach)
+
+
+def test_only_rays_that_meet_the_outer_shell_are_cast_further(rng):
+    """One M+ cast takes every ray; M- and the peeling rounds take only the rays whose brute-force float64
+    cast meets M+ (a ray that misses the closed M+ has no interval), and the samples stay the twin's."""
+    outer, inner = concentric()
+    origins, dirs = rays_at_scene(rng, 300, 3.0, (2.0, 2.0, 2.0))
+    triangles = np.asarray(outer.triangles, dtype=np.float64)
+    meets = sum(len(ray_triangle_hits(triangles, o, d)[0]) > 0 for o, d in zip(origins, dirs, strict=True))
+    assert 50 < meets < 250  # both kinds of rays are there
+    caster = RecordingCaster(outer, inner)
+    assert_matches_reference(outer, inner, origins, dirs, NarrowBandConfig(), intersector=caster)
+    assert caster.casts[0] == ("outer", 300)
+    assert caster.casts[1] == ("inner", meets)
+    assert caster.casts[2] == ("outer", meets)
+    assert all(which == "outer" and n <= meets for which, n in caster.casts[3:])
 
 
 def test_peeling_cap_through_row_of_shells():

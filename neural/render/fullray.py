@@ -297,12 +297,13 @@ def shade_samples(
     per_ray = samples.counts()
     first = (per_ray.cumsum(0) - per_ray).index_select(0, ray_indices)
     rank = torch.arange(len(ray_indices), device=ray_indices.device) - first
+    last_rank = int(rank.max()) if len(rank) else -1
     log_t = torch.zeros(n_rays, dtype=torch.float64, device=ray_indices.device)  # log T after each round
     located = torch.zeros_like(per_ray)
     color = opacity = None
     lo, hi = 0, first_round
     alive = torch.ones_like(per_ray, dtype=torch.bool)
-    while bool(alive.any()) and bool((rank >= lo).any()):
+    while lo <= last_rank and bool(alive.any()):
         member = (rank >= lo) & (rank < hi)
         if lo > 0:
             member &= alive.index_select(0, ray_indices)

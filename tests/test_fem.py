@@ -5,6 +5,7 @@ import pytest
 import warp as wp
 from meshes import kuhn_grid
 
+from shellsim import fem
 from shellsim.contact import Box, Sphere
 from shellsim.elastic import elastic_energy, snh_energy_reference, snh_min_eigenvalue
 from shellsim.fem import Forcing, SimSettings, SimulationError, Simulator, partition_tets, simulate
@@ -354,6 +355,29 @@ def test_loose_first_solves_save_cg_steps_and_keep_the_accuracy():
     error = {name: np.abs(runs[name][0] - runs["reference"][0]).max() for name in ("forcing", "tight cg")}
     assert runs["forcing"][1] < 0.85 * runs["tight cg"][1]
     assert error["forcing"] < min(1.5 * error["tight cg"], 0.5 * tol)
+
+
+def test_later_newton_iterations_reuse_the_tets_hessian_and_keep_the_accuracy(monkeypatch):
+    """Newton iterations close to their substep's first keep its tets' Hessian blocks (fem's
+    ELASTIC_HESSIAN_REUSE): fewer tet Hessians than Newton iterations, no more iterations than with a fresh
+    Hessian at each, and positions as close to a tightly converged run."""
+    v, t = box_tets((5, 5, 5), (0.2, 0.2, 0.2), origin=(0.0, 0.0, 0.005))
+    runs = {}
+    for name, reuse, kw in (
+        ("reuse", fem.ELASTIC_HESSIAN_REUSE, {}),
+        ("fresh", 0.0, {}),
+        ("reference", 0.0, {"newton_tol": 1e-7, "cg_tol": 1e-10}),
+    ):
+        monkeypatch.setattr(fem, "ELASTIC_HESSIAN_REUSE", reuse)
+        sim = Simulator(v, t, RUBBER, SimSettings(ground=0.0, **kw))
+        sim.set_rigid_velocity(linear=(0.3, 0.0, -0.2), angular=(0.0, 0.0, 4.0))
+        stats = [sim.step() for _ in range(3)]
+        runs[name] = (sim.positions, sum(s.newton_iterations for s in stats), sum(s.hessians for s in stats))
+    tol = 1e-2 * sim.size * sim.settings.dt / sim.settings.substeps
+    error = {name: np.abs(runs[name][0] - runs["reference"][0]).max() for name in ("reuse", "fresh")}
+    assert runs["reuse"][2] < 0.7 * runs["fresh"][2]
+    assert runs["reuse"][1] <= runs["fresh"][1]
+    assert error["reuse"] < min(1.5 * error["fresh"], 0.5 * tol)
 
 
 def test_tet_slabs_share_no_vertex():

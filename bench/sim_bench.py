@@ -2,9 +2,11 @@
 
 A 0.3 m cube of structured tets (6 per cell) falls 2 cm onto the ground while spinning, so the steps timed
 include contact and friction. For each size it prints the milliseconds per implicit step (one backward-Euler
-substep, Newton solve included), Newton iterations per step, CG iterations per Newton iteration and the peak
-resident memory, then (unless ``--no-vbd``) the same scene with the ``newton`` physics package's VBD solver
-(``newton.solvers.SolverVBD``, a benchmark-only dependency: ``pip install newton``) and the time ratio.
+substep, Newton solve included), Newton iterations per step, tet Hessians per step (the Newton iterations that
+evaluated the tets' blocks: the others of a substep reuse them, ``shellsim.fem.ELASTIC_HESSIAN_REUSE``), CG
+iterations per Newton iteration and the peak resident memory, then (unless ``--no-vbd``) the same scene with
+the ``newton`` physics package's VBD solver (``newton.solvers.SolverVBD``, a benchmark-only dependency:
+``pip install newton``) and the time ratio.
 VBD runs a fixed number of local iterations per step and does not converge the step, so the ratio compares
 cost, not accuracy.
 
@@ -17,6 +19,9 @@ with its load; the FEM/VBD ratio, measured side by side, is the steadier figure.
 the last Newton step taken and inexact Newton (two runs): 6.9-8.3 / 26.2-29.5 / 107-133 ms, 11.9 / 16.9 /
 29.2 CG steps per Newton step, 0.34-0.36 / 0.44-0.48 / 0.40 of VBD's time; ``--accuracy``: positions 0.0074 /
 0.0032 / 0.0020 mm from a tightly converged run, where the code before ended 0.20 / 0.25 / 0.24 mm away.
+Afternoon of 2026-12-03, with the tets' Hessian blocks reused within a substep (a machine about 1.7x slower
+than that night): 11.1 / 47.6 / 253.5 ms, 1.62 / 1.71 / 1.71 tet Hessians per step (2.92 / 3.08 / 2.71
+before), the same Newton and CG counts and accuracy, 0.37 / 0.54 / 1.00 of VBD's time.
 
     python bench/sim_bench.py                       # ~2k, 10k, 40k tets, rubber, CPU
     python bench/sim_bench.py --cells 12 --device cuda --material jelly
@@ -69,18 +74,20 @@ def bench_fem(vertices, tets, material, args, **tolerances) -> dict:
     sim = Simulator(vertices, tets, material, settings, device=args.device)
     sim.set_rigid_velocity(linear=(0.3, 0.0, 0.0), angular=(0.0, 0.0, 4.0))
     sim.step()  # compile and warm up
-    steps = newton_its = cg_its = 0
+    steps = newton_its = cg_its = hessians = 0
     start = time.perf_counter()
     for _ in range(args.frames):
         stats = sim.step()
         steps += stats.substeps
         newton_its += stats.newton_iterations
         cg_its += stats.cg_iterations
+        hessians += stats.hessians
     wp.synchronize_device(sim.device)
     seconds = time.perf_counter() - start
     return {
         "ms_per_step": 1e3 * seconds / steps,
         "newton_per_step": newton_its / steps,
+        "hessians_per_step": hessians / steps,
         "cg_per_newton": cg_its / max(newton_its, 1),
         "z_min": float(sim.positions[:, 2].min()),
         "positions": sim.positions,
@@ -180,7 +187,8 @@ def main() -> None:
             )
             vbd_available = False
     print(
-        f"{'tets':>7} {'verts':>6} {'ms/step':>8} {'newton/step':>11} {'cg/newton':>9} {'peak MB':>8}"
+        f"{'tets':>7} {'verts':>6} {'ms/step':>8} {'newton/step':>11} {'tet H/step':>10} {'cg/newton':>9} "
+        f"{'peak MB':>8}"
         f"{'  VBD ms/step  FEM/VBD' if vbd_available else ''}"
         f"{'  max|x - x_tight| mm (Newton tol mm)' if args.accuracy else ''}"
     )
@@ -189,7 +197,7 @@ def main() -> None:
         fem = bench_fem(vertices, tets, material, args)
         line = (
             f"{len(tets):7d} {len(vertices):6d} {fem['ms_per_step']:8.1f} {fem['newton_per_step']:11.2f} "
-            f"{fem['cg_per_newton']:9.1f} {peak_rss_mb():8.0f}"
+            f"{fem['hessians_per_step']:10.2f} {fem['cg_per_newton']:9.1f} {peak_rss_mb():8.0f}"
         )
         if vbd_available:
             try:

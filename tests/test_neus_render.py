@@ -180,9 +180,10 @@ def test_shading_leaves_out_light_samples_within_its_bound(tolerance):
     [(0, [60, 60, 120, 240, 480, 960, 1080]), (2100, [60, 60, 120, 240, 480, 2040]), (4096, [3000])],
 )
 def test_shading_takes_a_small_remainder_in_one_round(monkeypatch, last_round, rounds):
-    """Rounds double (2, 2, 4, 8, ... samples per ray) until at most LAST_ROUND_SAMPLES samples of live rays
-    are left, which one round takes; every sample is still taken once, and the colours are the composite's.
-    30 rays of 100 samples pass far from the sphere, so light reaches all their samples."""
+    """Rounds double (2, 2, 4, 8, ... samples per ray from a first round of 2) until at most
+    LAST_ROUND_SAMPLES samples of live rays are left, which one round takes; every sample is still taken
+    once, and the colours are the composite's. 30 rays of 100 samples pass far from the sphere, so light
+    reaches all their samples."""
     monkeypatch.setattr(fullray, "LAST_ROUND_SAMPLES", last_round)
     sizes = []
 
@@ -208,7 +209,7 @@ def test_shading_takes_a_small_remainder_in_one_round(monkeypatch, last_round, r
     def locate(index):
         return index, points[index], unit[index], deltas[index], fronts[index]
 
-    fast, located = shade_samples(field, samples, locate, bg)
+    fast, located = shade_samples(field, samples, locate, bg, first_round=2)
     assert sizes == rounds
     assert torch.equal(located, samples.counts())
     torch.testing.assert_close(fast, full, rtol=0, atol=1e-6)

@@ -7,7 +7,8 @@ solid. An interval of width ``w`` gets ``N = min(ceil(max(w - w_s, 0) / delta_s)
 ``linspace(d_enter, d_exit, N + 2)[1:-1]`` (Procedure 3, line 19-20). All rays are handled at once by any
 :class:`~neural.render.raycast.ShellCaster` (Embree for shells at rest, refitted Warp meshes for moving ones):
 one cast of M+ for every ray, then, for the rays that meet M+ only, one cast of M- and one per depth-peeling
-round of the still-active rays; then pure numpy packing into ``RaySamples``.
+round of the still-active rays (:meth:`~neural.render.raycast.ShellCaster.band_hits`; Warp makes them all in
+one kernel); then pure numpy packing into ``RaySamples``.
 
 Rules where Procedure 3 leaves a case open (they only matter for origins inside M+ or for meshes that are
 not closed and nested) are followed alike by :func:`narrow_band_samples` and its per-ray twin
@@ -197,13 +198,11 @@ def narrow_band_samples(
     starts = origins + near * dirs
     # World distances from the near point along unit directions from here on. A ray that misses M+ has no
     # interval (M+ is closed, so it never is inside M+): M- and the peeling rounds are cast only for the rays
-    # that meet M+ (a third of a lego view's).
-    meets = np.flatnonzero(caster.first_hit("outer", starts, units)[1] >= 0)
-    starts, units = starts[meets], units[meets]
+    # that meet M+ (a fifth to a third of a lego view's), by ShellCaster.band_hits.
+    meets, t_meets, ray_idx, t, entering = caster.band_hits(starts, units, config.max_peel)
     t_inner = np.full(n_rays, np.inf)
-    t_inner[meets] = caster.first_hit("inner", starts, units)[0]
-    ray_idx, t, entering = caster.all_hits("outer", starts, units, config.max_peel, t_stop=t_inner[meets])
-    rays, d_enter, d_exit = intervals_from_hits(meets[ray_idx], t, entering, t_inner, config.max_peel)
+    t_inner[meets] = t_meets
+    rays, d_enter, d_exit = intervals_from_hits(ray_idx, t, entering, t_inner, config.max_peel)
     n = samples_per_interval(d_exit - d_enter, config)
     # Back to units of dirs from the ray origin: an affine map per ray, so sample placement commutes with it.
     scale = 1.0 / norms[rays]

@@ -1,13 +1,15 @@
 """Casting rays against the two shells M+ ("outer") and M- ("inner"): the "CastRay" of Procedure 3.
 
 One interface, :class:`ShellCaster` (:meth:`~ShellCaster.first_hit`, :meth:`~ShellCaster.all_hits` by depth
-peeling), over interchangeable backends that only cast one batch of rays against one mesh:
+peeling, :meth:`~ShellCaster.band_hits` the casts of Procedure 3), over interchangeable backends that only
+cast one batch of rays against one mesh:
 
 - :class:`EmbreeCaster`: Embree scenes (embreex), built once; the faster cast on a CPU, for shells that stay
   put (rest rendering, training): Procedure 3 for one 200x200 view of lego took 32 ms against 76 ms with
   Warp on two cores (Embree's build 0.45 s, Warp's 0.25 s);
 - :class:`WarpCaster`: Warp meshes whose BVHs are refitted to moved vertices (:meth:`WarpCaster.refit`),
-  for shells that move (deformed rendering, paper Sec. 5); casts on the CPU or a GPU.
+  for shells that move (deformed rendering, paper Sec. 5); casts on the CPU or a GPU, each ray's depth
+  peeling (and all of Procedure 3's casts) in one kernel thread.
 
 :func:`ray_triangle_hits` is the brute-force float64 truth they are tested against.
 """
@@ -159,9 +161,24 @@ class ShellCaster(ABC):
                 raise ValueError(f"t_stop must have shape ({n_rays},), got {t_stop.shape}")
             stop = t_stop * norms  # world units
         ray_idx, t, prim = self._peel(scene, origins, units, stop, int(max_hits))
-        normals = self._normals(mesh_which, prim)
-        entering = np.einsum("ij,ij->i", units[ray_idx], normals) < 0
-        return ray_idx, t / norms[ray_idx], entering
+        return ray_idx, t / norms[ray_idx], self._entering(mesh_which, units[ray_idx], prim)
+
+    def band_hits(
+        self, starts: np.ndarray, units: np.ndarray, max_hits: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The casts of Procedure 3 for rays from world ``starts`` along unit ``units`` (R, 3) float64: which
+        rays meet M+, ``meets`` (M,) int64 sorted; their first M- hit ``t_inner`` (M,) (world distance,
+        ``inf`` on a miss); and their M+ hits as :meth:`all_hits` with ``t_stop = t_inner`` finds them:
+        ``ray_idx`` (H,) int64 into the R rays, sorted, world ``t`` (H,) and ``entering`` (H,) bool."""
+        meets = np.flatnonzero(self.first_hit("outer", starts, units)[1] >= 0)
+        starts, units = starts[meets], units[meets]
+        t_inner = self.first_hit("inner", starts, units)[0]
+        ray_idx, t, entering = self.all_hits("outer", starts, units, max_hits, t_stop=t_inner)
+        return meets, t_inner, meets[ray_idx], t, entering
+
+    def _entering(self, mesh_which: str, units: np.ndarray, faces: np.ndarray) -> np.ndarray:
+        """(K,) bool: rays along ``units`` (K, 3) enter the mesh at their hits of ``faces`` (K,)."""
+        return np.einsum("ij,ij->i", units, self._normals(mesh_which, faces)) < 0
 
     def _normals(self, mesh_which: str, faces: np.ndarray) -> np.ndarray:
         """Unnormalised facet normals (K, 3) of ``faces`` (K,) of one mesh."""
@@ -274,33 +291,34 @@ def _cast_kernel(
         dist[i] = wp.inf
 
 
-@wp.kernel
-def _peel_kernel(
+@wp.func
+def _peel_from(
     mesh: wp.uint64,
-    origins: wp.array(dtype=wp.vec3d),
-    units: wp.array(dtype=wp.vec3d),
-    stop: wp.array(dtype=wp.float64),
+    i: int,
+    o: wp.vec3d,
+    u: wp.vec3d,
+    stop: wp.float64,
     center: wp.vec3d,
     step0: wp.float64,
     max_hits: int,
     rounds: int,
+    t_next: wp.float64,
+    last: wp.int64,
+    n: int,
     t_out: wp.array2d(dtype=wp.float64),
     prim_out: wp.array2d(dtype=wp.int64),
-    count: wp.array(dtype=wp.int32),
 ):
-    """:meth:`ShellCaster._peel`'s rounds for one ray in one thread: the same casts in the same order."""
-    i = wp.tid()
-    o = origins[i]
-    u = units[i]
+    """:meth:`ShellCaster._peel`'s rounds for ray ``i`` (world origin ``o``, unit ``u``) from the state after
+    ``n`` hits (the next cast at ``t_next``, the last face ``last``), in one thread: the same casts in the
+    same order. Writes hits ``n, n + 1, ...`` of row ``i``; returns the ray's number of hits."""
     unit = wp.vec3(wp.float32(u[0]), wp.float32(u[1]), wp.float32(u[2]))
-    t_next = wp.float64(0.0)
     step = step0
-    last = wp.int64(-1)
-    n = int(0)  # noqa: UP018 (a Warp dynamic variable, not a constant)
     for _ in range(rounds):
+        if n >= max_hits:
+            break
         reach = wp.float64(wp.inf)
         if n > 0:
-            reach = stop[i] - t_next
+            reach = stop - t_next
         if reach <= wp.float64(0.0):
             break
         s = (o + t_next * u) - center
@@ -320,8 +338,97 @@ def _peel_kernel(
             step = wp.float64(2.0) * step
         last = face
         t_next = t_hit + step
-        if n >= max_hits or (fresh and t_hit > stop[i]):
+        if fresh and t_hit > stop:
             break
+    return n
+
+
+@wp.kernel
+def _peel_kernel(
+    mesh: wp.uint64,
+    origins: wp.array(dtype=wp.vec3d),
+    units: wp.array(dtype=wp.vec3d),
+    stop: wp.array(dtype=wp.float64),
+    center: wp.vec3d,
+    step0: wp.float64,
+    max_hits: int,
+    rounds: int,
+    t_out: wp.array2d(dtype=wp.float64),
+    prim_out: wp.array2d(dtype=wp.int64),
+    count: wp.array(dtype=wp.int32),
+):
+    """:meth:`ShellCaster._peel` for one ray per thread."""
+    i = wp.tid()
+    count[i] = _peel_from(
+        mesh,
+        i,
+        origins[i],
+        units[i],
+        stop[i],
+        center,
+        step0,
+        max_hits,
+        rounds,
+        wp.float64(0.0),
+        wp.int64(-1),
+        0,
+        t_out,
+        prim_out,
+    )
+
+
+@wp.kernel
+def _band_kernel(
+    outer: wp.uint64,
+    inner: wp.uint64,
+    origins: wp.array(dtype=wp.vec3d),
+    units: wp.array(dtype=wp.vec3d),
+    center: wp.vec3d,
+    step0: wp.float64,
+    max_hits: int,
+    rounds: int,
+    t_inner: wp.array(dtype=wp.float64),
+    t_out: wp.array2d(dtype=wp.float64),
+    prim_out: wp.array2d(dtype=wp.int64),
+    count: wp.array(dtype=wp.int32),
+):
+    """:meth:`ShellCaster.band_hits` for one ray per thread: its first M+ hit, on a hit its first M- hit,
+    then the peeling rounds of M+ from the first hit on (the generic path's casts, the first one shared)."""
+    i = wp.tid()
+    o = origins[i]
+    u = units[i]
+    s = o - center
+    start = wp.vec3(wp.float32(s[0]), wp.float32(s[1]), wp.float32(s[2]))
+    unit = wp.vec3(wp.float32(u[0]), wp.float32(u[1]), wp.float32(u[2]))
+    first = wp.mesh_query_ray(outer, start, unit, wp.float32(wp.inf))
+    n = int(0)  # noqa: UP018 (a Warp dynamic variable, not a constant)
+    stop = wp.float64(wp.inf)
+    if first.result:
+        behind = wp.mesh_query_ray(inner, start, unit, wp.float32(wp.inf))
+        if behind.result:
+            stop = wp.float64(behind.t)
+        t_hit = wp.float64(first.t)
+        t_out[i, 0] = t_hit
+        prim_out[i, 0] = wp.int64(first.face)
+        n = 1
+        if t_hit <= stop:
+            n = _peel_from(
+                outer,
+                i,
+                o,
+                u,
+                stop,
+                center,
+                step0,
+                max_hits,
+                rounds - 1,
+                t_hit + step0,
+                wp.int64(first.face),
+                1,
+                t_out,
+                prim_out,
+            )
+    t_inner[i] = stop
     count[i] = n
 
 
@@ -405,6 +512,40 @@ class WarpCaster(ShellCaster):
         t, prim, count = (a.numpy() for a in outputs)
         found = np.arange(max_hits)[None, :] < count[:, None]  # (R, max_hits), row-major: by ray, then t
         return np.nonzero(found)[0], t[found], prim[found]
+
+    def band_hits(
+        self, starts: np.ndarray, units: np.ndarray, max_hits: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every cast of every ray in one kernel launch (per thread chunk): the generic path's casts, its
+        first M+ cast shared with the peeling."""
+        n, dev = len(starts), self.device
+        arrays = [wp.array(np.ascontiguousarray(x), dtype=wp.vec3d, device=dev) for x in (starts, units)]
+        outputs = [
+            wp.empty(n, dtype=wp.float64, device=dev),
+            wp.empty((n, max_hits), dtype=wp.float64, device=dev),
+            wp.empty((n, max_hits), dtype=wp.int64, device=dev),
+            wp.empty(n, dtype=wp.int32, device=dev),
+        ]
+        center, rounds = wp.vec3d(*self.center), 2 * max_hits + 8
+        outer, inner = self._scenes["outer"].id, self._scenes["inner"].id
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(
+                _band_kernel,
+                dim=hi - lo,
+                inputs=[outer, inner, *(a[lo:hi] for a in arrays), center, self.step, max_hits, rounds],
+                outputs=[a[lo:hi] for a in outputs],
+                device=dev,
+            )
+
+        wp.load_module(_band_kernel.module, device=dev)
+        run_in_chunks(n, launch, self.cpu_threads, _MIN_CAST_CHUNK)
+        t_inner, t, prim, count = (a.numpy() for a in outputs)
+        meets = np.flatnonzero(count > 0)
+        found = np.arange(max_hits)[None, :] < count[meets, None]  # (M, max_hits): by ray, then t
+        ray_idx = meets[np.nonzero(found)[0]]
+        prim = prim[meets][found]
+        return meets, t_inner[meets], ray_idx, t[meets][found], self._entering("outer", units[ray_idx], prim)
 
     def _cast(
         self, scene: wp.Mesh, starts: np.ndarray, units: np.ndarray, reach: np.ndarray | None = None

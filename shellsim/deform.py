@@ -10,10 +10,10 @@ rest-space length (:meth:`InverseMap.map_rays`).
 
 ``Phi^-1`` is piecewise affine: inside deformed tet ``t`` with vertices ``v0..v3`` (rest ``r0..r3``),
 ``b = D_t^-1 (x - v0)`` with ``D_t = [v1 - v0, v2 - v0, v3 - v0]`` and ``x_rest = r0 + R_t b`` with
-``R_t = [r1 - r0, r2 - r0, r3 - r0]``. :class:`InverseMap` finds the tet with a Warp BVH over the deformed
-tets' bounding boxes, rebuilt for every frame, and runs the point-in-tet test in a Warp kernel (CPU or
-CUDA) in float64. :func:`map_points_reference` and :func:`map_directions_reference` are its brute-force
-numpy twins.
+``R_t = [r1 - r0, r2 - r0, r3 - r0]``. :class:`InverseMap` finds the tet by walking from the previous
+point's tet across the faces the point lies beyond, else with a Warp BVH over the deformed tets' bounding
+boxes, rebuilt for every frame, and runs the point-in-tet test in a Warp kernel (CPU or CUDA) in float64.
+:func:`map_points_reference` and :func:`map_directions_reference` are its brute-force numpy twins.
 
 Points in no deformed tet (outside the cage) get ``inside = False`` and ``x_rest = nan``; the cage
 contains all content, so a renderer drops those samples.
@@ -28,7 +28,7 @@ from neural.device import cpu_threads as default_cpu_threads
 from neural.device import run_in_chunks
 
 from .embed import interpolate
-from .geometry import check_points, check_tets
+from .geometry import check_points, check_tets, tet_neighbors
 
 #: Barycentric tolerance of the point-in-tet test: a point whose smallest barycentric coordinate is
 #: at least ``-BARY_TOL`` is inside (points on shared and boundary faces are found).
@@ -37,6 +37,8 @@ BARY_TOL = 1e-6
 EPS_REL = 1e-4
 #: Fewest points per CPU thread of a query.
 _MIN_CHUNK = 16384
+#: Most tets a point's search walks through from its hint before it queries the BVH.
+_WALK_STEPS = wp.constant(8)
 #: Consecutive points a CPU kernel thread maps, each first tried in its predecessor's tet (one per thread
 #: on CUDA).
 _CPU_SPAN = 256
@@ -61,7 +63,8 @@ def deform_points(cage_positions, tets, tet_index, bary) -> np.ndarray:
 @wp.struct
 class _Tets:
     """Per deformed tet ``t`` of one frame: ``origin`` v0, ``to_bary`` D_t^-1 (``valid`` 0 where D_t is
-    degenerate), ``rest_origin`` r0 and ``rest_edges`` R_t; ``bvh`` the Warp BVH over their boxes."""
+    degenerate), ``rest_origin`` r0, ``rest_edges`` R_t and ``neighbors`` (:func:`tet_neighbors`); ``bvh``
+    the Warp BVH over their boxes."""
 
     bvh: wp.uint64
     origin: wp.array(dtype=wp.vec3d)
@@ -69,6 +72,7 @@ class _Tets:
     rest_origin: wp.array(dtype=wp.vec3d)
     rest_edges: wp.array(dtype=wp.mat33d)
     valid: wp.array(dtype=wp.int32)
+    neighbors: wp.array2d(dtype=wp.int32)
 
 
 @wp.kernel
@@ -129,17 +133,32 @@ def _locate(tets: _Tets, p: wp.vec3d):
 
 @wp.func
 def _locate_near(tets: _Tets, p: wp.vec3d, hint: int):
-    """:func:`_locate`, trying tet ``hint`` (-1: none) first: when it contains ``p`` (smallest barycentric
-    coordinate >= 0) it is taken without a search (where tets share a face, a point on it maps to the same
-    rest point through either)."""
-    t = int(-1)  # noqa: UP018 (a Warp dynamic variable, not a constant)
+    """:func:`_locate`, walking from tet ``hint`` (-1: none) first: across the face of the most negative
+    barycentric coordinate of ``p``, at most ``_WALK_STEPS`` tets; a tet that contains ``p`` (smallest
+    coordinate >= 0) is taken without a search (where tets share a face, a point on it maps to the same
+    rest point through either). A walk that leaves the cage, meets a degenerate tet or runs out of steps
+    ends in the search."""
+    t = hint
     m = wp.float64(-1.0e300)
     b = wp.vec3d()
-    if hint >= 0:
-        if tets.valid[hint] == 1:
-            b = tets.to_bary[hint] * (p - tets.origin[hint])
-            m = wp.min(wp.min(b[0], b[1]), wp.min(b[2], wp.float64(1.0) - b[0] - b[1] - b[2]))
-            t = hint
+    for _ in range(_WALK_STEPS):
+        if t < 0:
+            break
+        if tets.valid[t] == 0:
+            break
+        b = tets.to_bary[t] * (p - tets.origin[t])
+        b0 = wp.float64(1.0) - b[0] - b[1] - b[2]
+        m = wp.min(wp.min(b0, b[0]), wp.min(b[1], b[2]))
+        if m >= wp.float64(0.0):
+            break
+        k = int(0)  # noqa: UP018 (a Warp dynamic variable, not a constant)
+        if b[0] == m:
+            k = 1
+        elif b[1] == m:
+            k = 2
+        elif b[2] == m:
+            k = 3
+        t = tets.neighbors[t, k]
     if m < wp.float64(0.0):
         t, m, b = _locate(tets, p)
     return t, m, b
@@ -222,8 +241,11 @@ class InverseMap:
     device : Warp device ("cpu", "cuda:0"); None picks Warp's preferred device (CUDA when present)
     tol : barycentric tolerance of the point-in-tet test
     cpu_threads : threads sharing a query on the CPU (None: :func:`neural.device.cpu_threads`)
+    neighbors : (T, 4) int, :func:`shellsim.geometry.tet_neighbors` of ``tets`` when already known (a
+        renderer maps many frames of one cage); None computes it
 
-    Building costs one Warp kernel over the tets and one BVH build (a few ms for 10k tets on a CPU).
+    Building costs one Warp kernel over the tets and one BVH build (a few ms for 10k tets on a CPU), and
+    the tets' neighbours unless given.
     Queries accept numpy arrays (answered as float64 numpy) or torch tensors (answered as tensors of
     the input's dtype and device).
     """
@@ -236,6 +258,7 @@ class InverseMap:
         device: str | None = None,
         tol: float = BARY_TOL,
         cpu_threads: int | None = None,
+        neighbors=None,
     ):
         deformed = check_points("deformed_vertices", deformed_vertices)
         rest = check_points("rest_vertices", rest_vertices)
@@ -270,6 +293,10 @@ class InverseMap:
         self._tets.rest_origin = wp.empty(n, dtype=wp.vec3d, device=dev)
         self._tets.rest_edges = wp.empty(n, dtype=wp.mat33d, device=dev)
         self._tets.valid = wp.empty(n, dtype=wp.int32, device=dev)
+        neighbors = tet_neighbors(tets) if neighbors is None else np.asarray(neighbors)
+        if neighbors.shape != tets.shape or not ((neighbors >= -1) & (neighbors < n)).all():
+            raise ValueError(f"neighbors: expected shape {tets.shape} of tet indices or -1")
+        self._tets.neighbors = wp.array(neighbors.astype(np.int32), dtype=wp.int32, device=dev)
         wp.launch(
             _prepare_tets,
             dim=n,

@@ -87,6 +87,21 @@ def boundary_faces(tets: np.ndarray) -> np.ndarray:
     return boundary_facets(tets)[0]
 
 
+def tet_neighbors(tets: np.ndarray) -> np.ndarray:
+    """The tet across each face: tets (T, 4) -> (T, 4) int64 whose entry ``[t, k]`` is the other tet sharing
+    tet ``t``'s face opposite its vertex ``k`` (``TET_FACES[k]``), -1 where that face is on the boundary (or
+    shared by more than two tets)."""
+    tets = np.asarray(tets, dtype=np.int64)
+    faces = np.sort(tets[:, TET_FACES].reshape(-1, 3), axis=1)  # (4T, 3): slot 4 t + k
+    order = np.lexsort(faces.T[::-1])
+    same = np.r_[False, (faces[order[1:]] == faces[order[:-1]]).all(axis=1), False]  # row i as row i - 1
+    pair = np.flatnonzero(same[1:-1] & ~same[:-2] & ~same[2:])  # rows i, i + 1 alike, no third
+    first, second = order[pair], order[pair + 1]
+    neighbors = np.full(len(faces), -1, dtype=np.int64)
+    neighbors[first], neighbors[second] = second // 4, first // 4
+    return neighbors.reshape(-1, 4)
+
+
 def connected_parts(tets: np.ndarray) -> np.ndarray:
     """Label of the solid each tet belongs to, tets connecting through shared faces: (T, 4) -> (T,) int64."""
     from scipy.sparse import coo_matrix

@@ -92,6 +92,7 @@ class DeformedRenderer:
         self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
         self._deformed = None  # WarpCaster, built for the first deformed frame
         self._interpolation = None  # sparse (V+, V) and (V-, V) barycentric weights, built with it
+        self._neighbors = None  # (T, 4) the cage's tet_neighbors, for every frame's inverse map
 
     def deformed_vertices(self, positions) -> tuple[np.ndarray, np.ndarray]:
         """Deformed ``M+``, ``M-`` vertices (V+, 3), (V-, 3) float64 of cage vertices ``positions`` (V, 3):
@@ -115,6 +116,7 @@ class DeformedRenderer:
         from neural.render.view import narrow_band_sampler
 
         from .deform import InverseMap
+        from .geometry import tet_neighbors
 
         if positions is None:
             return self._rest, None
@@ -128,7 +130,11 @@ class DeformedRenderer:
         if self._deformed is None:
             self._deformed = WarpCaster(self.outer, self.inner, device=self.warp_device)
         self._deformed.refit(*self.deformed_vertices(positions))
-        inverse = InverseMap(positions, self.cage.tets, self.cage.vertices, device=self.warp_device)
+        if self._neighbors is None:
+            self._neighbors = tet_neighbors(self.cage.tets)
+        inverse = InverseMap(
+            positions, self.cage.tets, self.cage.vertices, device=self.warp_device, neighbors=self._neighbors
+        )
         return narrow_band_sampler(self._deformed, self.config), inverse
 
     def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:

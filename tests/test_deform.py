@@ -207,6 +207,8 @@ def test_empty_query_and_bad_input(grid):
         InverseMap(verts, tets + len(verts), verts)
     with pytest.raises(ValueError, match="rest_vertices"):
         InverseMap(verts, tets, verts[:-1])
+    with pytest.raises(ValueError, match="neighbors"):
+        InverseMap(verts, tets, verts, neighbors=np.full_like(tets, len(tets)))
     with pytest.raises(ValueError, match="tet_index"):
         deform_points(verts, tets, np.array([len(tets)]), np.full((1, 4), 0.25))
 
@@ -223,3 +225,22 @@ def test_cpu_threads_split_the_query(grid, rng, monkeypatch):
     three = InverseMap(deformed_cage, tets, verts, cpu_threads=3).map_samples(x, d)
     for a, b in zip(one, three, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_walking_from_the_previous_tet_maps_like_the_search(grid, rng):
+    """Samples along rays (consecutive points a step apart, as a renderer maps them) map alike when each
+    search walks across faces from the previous point's tet and when every search queries the BVH (no
+    neighbours: the walk ends at once)."""
+    verts, tets, _ = grid
+    deformed_cage = smooth_warp(verts)
+    lo, hi = deformed_cage.min(0), deformed_cage.max(0)
+    starts = lo + (hi - lo) * rng.random((300, 1, 3))
+    steps = rng.normal(size=(300, 1, 3)) * 0.01
+    x = (starts + steps * np.arange(40)[None, :, None]).reshape(-1, 3)
+    d = np.repeat(steps[:, 0] / np.linalg.norm(steps[:, 0], axis=1, keepdims=True), 40, axis=0)
+    walked = InverseMap(deformed_cage, tets, verts).map_rays(x, d)
+    searched = InverseMap(deformed_cage, tets, verts, neighbors=-np.ones_like(tets)).map_rays(x, d)
+    np.testing.assert_array_equal(walked[3], searched[3])
+    assert 0.3 < walked[3].mean() < 0.95
+    for a, b in zip(walked[:3], searched[:3], strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)

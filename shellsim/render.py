@@ -92,7 +92,7 @@ class DeformedRenderer:
         self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
         self._deformed = None  # WarpCaster, built for the first deformed frame
         self._interpolation = None  # sparse (V+, V) and (V-, V) barycentric weights, built with it
-        self._neighbors = None  # (T, 4) the cage's tet_neighbors, for every frame's inverse map
+        self._inverse = None  # the InverseMap, built for the first deformed frame and updated for the next
 
     def deformed_vertices(self, positions) -> tuple[np.ndarray, np.ndarray]:
         """Deformed ``M+``, ``M-`` vertices (V+, 3), (V-, 3) float64 of cage vertices ``positions`` (V, 3):
@@ -116,7 +116,6 @@ class DeformedRenderer:
         from neural.render.view import narrow_band_sampler
 
         from .deform import InverseMap
-        from .geometry import tet_neighbors
 
         if positions is None:
             return self._rest, None
@@ -129,16 +128,18 @@ class DeformedRenderer:
             )
         if self._deformed is None:
             self._deformed = WarpCaster(self.outer, self.inner, device=self.warp_device)
-            self._neighbors = tet_neighbors(self.cage.tets)
-        cage = self.cage
-        build = functools.partial(
-            InverseMap, positions, cage.tets, cage.vertices, self.warp_device, neighbors=self._neighbors
-        )
-        # on the CPU the inverse map's BVH is built while the shells' BVHs are refitted (0.7x the time)
-        inverse = _side_pool().submit(build) if self.warp_device == "cpu" else None
+
+        def inverse_map():  # of these positions: built for the first frame, then updated
+            if self._inverse is None:
+                return InverseMap(positions, self.cage.tets, self.cage.vertices, self.warp_device)
+            self._inverse.update(positions)
+            return self._inverse
+
+        # on the CPU the inverse map is made ready while the shells' BVHs are refitted (0.7x the time)
+        future = _side_pool().submit(inverse_map) if self.warp_device == "cpu" else None
         self._deformed.refit(*self.deformed_vertices(positions))
-        inverse = build() if inverse is None else inverse.result()
-        return narrow_band_sampler(self._deformed, self.config), inverse
+        self._inverse = inverse_map() if future is None else future.result()
+        return narrow_band_sampler(self._deformed, self.config), self._inverse
 
     def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
         """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``

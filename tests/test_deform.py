@@ -96,6 +96,40 @@ def test_matches_brute_force_twin(grid, rng):
     np.testing.assert_allclose(inverse.map_directions(x, d, eps=0.02), d_rest, atol=0, equal_nan=True)
 
 
+def test_a_map_updated_to_another_frame_matches_the_brute_force_twin(grid, rng):
+    """A map built for one frame and updated to a far larger deformation (its BVH refitted, not rebuilt)
+    maps like the brute-force twin of the new frame; a bad frame is refused."""
+    verts, tets, _ = grid
+    inverse = InverseMap(smooth_warp(verts), tets, verts)
+    center = verts.mean(0)
+    twisted = center + np.einsum("vij,vj->vi", _rotations_about_z(2.0 * (verts[:, 2] - 0.5)), verts - center)
+    inverse.update(twisted)
+    lo, hi = twisted.min(0), twisted.max(0)
+    x = lo + (hi - lo) * rng.random((2000, 3))
+    d = rng.normal(size=x.shape)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    x_rest, d_rest, inside = inverse.map_samples(x, d, eps=0.02)
+    ref_rest, ref_inside = map_points_reference(twisted, tets, verts, x)
+    ref_dirs = map_directions_reference(twisted, tets, verts, x, d, eps=0.02)
+    assert 0.2 < inside.mean() < 0.95
+    np.testing.assert_array_equal(inside, ref_inside)
+    np.testing.assert_allclose(x_rest[inside], ref_rest[inside], atol=1e-9)
+    np.testing.assert_allclose(d_rest[inside], ref_dirs[inside], atol=1e-7)
+    with pytest.raises(ValueError, match="deformed_vertices: expected"):
+        inverse.update(twisted[:-1])
+    with pytest.raises(ValueError, match="NaN"):
+        inverse.update(np.full_like(twisted, np.nan))
+
+
+def _rotations_about_z(angles: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations by ``angles`` (N,) radians about the z axis."""
+    c, s = np.cos(angles), np.sin(angles)
+    rotations = np.zeros((len(angles), 3, 3))
+    rotations[:, 0, 0], rotations[:, 0, 1], rotations[:, 1, 0], rotations[:, 1, 1] = c, -s, s, c
+    rotations[:, 2, 2] = 1.0
+    return rotations
+
+
 def test_points_along_rays_match_brute_force_twin(grid, rng):
     """Samples along rays, in order (as a renderer queries them: each mostly in its predecessor's tet, some
     leaving the cage and coming back), map like the brute-force twin."""

@@ -315,8 +315,11 @@ def test_samples_per_interval_and_packing():
     config = NarrowBandConfig(delta_s=0.1, w_s=0.05, n_max=5)
     widths = np.array([0.0, 0.04, 0.05, 0.0501, 0.15, 0.1501, 10.0])
     np.testing.assert_array_equal(samples_per_interval(widths, config), [1, 1, 1, 2, 2, 3, 5])
-    rays, starts, ends, positions = samples_from_intervals(
-        np.array([0, 0, 2]), np.array([1.0, 3.0, 0.0]), np.array([2.0, 3.0, 4.0]), np.array([3, 1, 1])
+    rays, starts, ends, positions = samples_from_intervals(  # ray 1's interval asks for no sample
+        np.array([0, 0, 1, 2]),
+        np.array([1.0, 3.0, 5.0, 0.0]),
+        np.array([2.0, 3.0, 6.0, 4.0]),
+        np.array([3, 1, 0, 1]),
     )
     np.testing.assert_array_equal(rays, [0, 0, 0, 0, 2])
     np.testing.assert_allclose(positions, [1.25, 1.5, 1.75, 3.0, 2.0])

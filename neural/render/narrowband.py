@@ -142,12 +142,15 @@ def samples_from_intervals(
     interval. Returns ``ray_indices`` (S,) int64, ``t_starts``, ``t_ends``, ``t_positions`` (S,) float64.
     """
     owner = np.repeat(np.arange(len(n)), n)
-    k = np.arange(len(owner)) - np.repeat(np.cumsum(n) - n, n)
-    n_s, enter, exit_ = n[owner], d_enter[owner], d_exit[owner]
-    gap = (exit_ - enter) / (n_s + 1)
-    positions = enter + (k + 1) * gap
-    starts = np.where(k == 0, enter, positions - 0.5 * gap)
-    ends = np.where(k == n_s - 1, exit_, positions + 0.5 * gap)
+    first = np.cumsum(n) - n  # (I,) each interval's first sample
+    k = np.arange(len(owner)) - first[owner]
+    gap = ((d_exit - d_enter) / (n + 1))[owner]
+    positions = d_enter[owner] + (k + 1) * gap
+    starts = positions - 0.5 * gap
+    ends = positions + 0.5 * gap
+    some = n > 0  # an interval's first section starts at d_enter, its last ends at d_exit
+    starts[first[some]] = d_enter[some]
+    ends[(first + n - 1)[some]] = d_exit[some]
     return interval_rays[owner], starts, ends, positions
 
 

@@ -95,19 +95,12 @@ def main():
     t_total, (samples, stats) = best_of(
         args.repeats, lambda: narrow_band_samples(intersector, origins, dirs, config)
     )
-    t_outer_first, (_, first) = best_of(args.repeats, lambda: intersector.first_hit("outer", origins, dirs))
-    meets = np.flatnonzero(first >= 0)  # only the rays that meet M+ are cast further
-    o_meet, d_meet = origins[meets], dirs[meets]
-    t_inner_cast, (t_inner_meet, _) = best_of(
-        args.repeats, lambda: intersector.first_hit("inner", o_meet, d_meet)
-    )
-    t_outer_cast, hits = best_of(
-        args.repeats,
-        lambda: intersector.all_hits("outer", o_meet, d_meet, config.max_peel, t_stop=t_inner_meet),
+    units = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    t_casts, (meets, t_meets, *hits) = best_of(
+        args.repeats, lambda: intersector.band_hits(origins, units, config.max_peel)
     )
     t_inner = np.full(n_rays, np.inf)
-    t_inner[meets] = t_inner_meet
-    hits = (meets[hits[0]], *hits[1:])
+    t_inner[meets] = t_meets
     t_pair, intervals = best_of(args.repeats, lambda: intervals_from_hits(*hits, t_inner, config.max_peel))
     rays, d_enter, d_exit = intervals
     t_count, n = best_of(args.repeats, lambda: samples_per_interval(d_exit - d_enter, config))
@@ -127,16 +120,11 @@ def main():
     )
     print(f"CPU time, end to end: {t_total * 1e3:7.1f} ms  -> {n_rays / t_total / 1e6:.2f} M rays/s")
     parts = [
-        ("cast M+ (first hit)", t_outer_first),
-        (f"cast M- ({len(meets):,} rays)", t_inner_cast),
-        (f"cast M+ (all hits, {len(meets):,})", t_outer_cast),
+        (f"casts ({len(meets):,} meet M+)", t_casts),
         ("pair hits -> intervals", t_pair),
         ("N per interval", t_count),
         ("place samples", t_pack),
-        (
-            "to torch + checks",
-            t_total - t_outer_first - t_inner_cast - t_outer_cast - t_pair - t_count - t_pack,
-        ),
+        ("to torch + checks", t_total - t_casts - t_pair - t_count - t_pack),
     ]
     for name, seconds in parts:
         print(f"  {name:24s} {seconds * 1e3:7.1f} ms  ({100 * seconds / t_total:4.1f} %)")

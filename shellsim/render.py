@@ -5,9 +5,9 @@ shade); this module supplies, for one frame with cage vertices ``p`` (V, 3), the
 to rest space. :class:`DeformedRenderer`
 
 1. **deforms the shells**: every ``M+`` / ``M-`` vertex is the barycentric interpolation of ``p`` in its
-   rest tet (:func:`shellsim.deform.deform_points`); the BVHs of their Warp meshes, built once from the rest
-   shells, are refitted (:class:`neural.render.raycast.WarpCaster`), and meanwhile the Warp BVH of the
-   deformed tets is built (:class:`shellsim.deform.InverseMap`);
+   rest tet (:func:`shellsim.deform.deform_points`, as :meth:`~neural.render.raycast.WarpCaster.refit_blended`
+   computes it in a Warp kernel); the BVHs of their Warp meshes, built once from the rest shells, are
+   refitted, and meanwhile the inverse map (:class:`shellsim.deform.InverseMap`) is updated to the frame;
 2. **samples**: casts the camera rays against the deformed shells and places samples in the deformed narrow
    band (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
 3. **maps** every sample back to rest space: ``x_rest = Phi^-1(x)``, the ray direction by finite
@@ -91,24 +91,7 @@ class DeformedRenderer:
         self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
         self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
         self._deformed = None  # WarpCaster, built for the first deformed frame
-        self._interpolation = None  # sparse (V+, V) and (V-, V) barycentric weights, built with it
         self._inverse = None  # the InverseMap, built for the first deformed frame and updated for the next
-
-    def deformed_vertices(self, positions) -> tuple[np.ndarray, np.ndarray]:
-        """Deformed ``M+``, ``M-`` vertices (V+, 3), (V-, 3) float64 of cage vertices ``positions`` (V, 3):
-        :func:`shellsim.deform.deform_points` as one sparse (V+-, V) product per shell, built on first use."""
-        from .geometry import check_points
-
-        positions = check_points("positions", positions)
-        if self._interpolation is None:
-            self._interpolation = tuple(
-                _interpolation_matrix(self.cage.tets, tet, bary, len(self.cage.vertices))
-                for tet, bary in (
-                    (self.cage.outer_tet, self.cage.outer_bary),
-                    (self.cage.inner_tet, self.cage.inner_bary),
-                )
-            )
-        return tuple(weights @ positions for weights in self._interpolation)
 
     def _frame(self, positions):
         """The sampler and the map to rest space (None at rest) of cage vertices ``positions`` (V, 3)."""
@@ -127,7 +110,11 @@ class DeformedRenderer:
                 f"positions: expected {self.cage.vertices.shape} like the cage, got {positions.shape}"
             )
         if self._deformed is None:
+            c = self.cage
             self._deformed = WarpCaster(self.outer, self.inner, device=self.warp_device)
+            self._deformed.set_blend(
+                outer=(c.tets[c.outer_tet], c.outer_bary), inner=(c.tets[c.inner_tet], c.inner_bary)
+            )
 
         def inverse_map():  # of these positions: built for the first frame, then updated
             if self._inverse is None:
@@ -137,7 +124,7 @@ class DeformedRenderer:
 
         # on the CPU the inverse map is made ready while the shells' BVHs are refitted (0.7x the time)
         future = _side_pool().submit(inverse_map) if self.warp_device == "cpu" else None
-        self._deformed.refit(*self.deformed_vertices(positions))
+        self._deformed.refit_blended(positions)
         self._inverse = inverse_map() if future is None else future.result()
         return narrow_band_sampler(self._deformed, self.config), self._inverse
 
@@ -163,23 +150,6 @@ def _side_pool():
     from concurrent.futures import ThreadPoolExecutor
 
     return ThreadPoolExecutor(1, thread_name_prefix="shellsim-frame")
-
-
-def _interpolation_matrix(tets: np.ndarray, tet_index: np.ndarray, bary: np.ndarray, n_vertices: int):
-    """Sparse (P, V) CSR matrix of the barycentric weights ``bary`` (P, 4) of points in tets ``tet_index``
-    (P,) of ``tets`` (T, 4): times cage positions (V, 3) it gives the points moved with the cage."""
-    import scipy.sparse
-
-    from .embed import check_embedding
-    from .geometry import check_tets
-
-    tets = check_tets(tets, n_vertices)
-    tet_index, bary = check_embedding(tet_index, bary, len(tets))
-    rows = np.repeat(np.arange(len(tet_index)), 4)
-    return scipy.sparse.csr_matrix(
-        (np.asarray(bary, dtype=np.float64).ravel(), (rows, tets[tet_index].ravel())),
-        shape=(len(tet_index), n_vertices),
-    )
 
 
 # --------------------------------------------------------------------------- cameras and frames

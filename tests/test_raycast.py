@@ -110,6 +110,42 @@ def test_backends_agree_after_a_refit(rng):
         np.testing.assert_array_equal(w[2][w_ok], e[2][e_ok])
 
 
+def test_blended_refit_moves_the_shells_like_a_refit_to_the_blends(rng):
+    """Shell vertices as weighted sums of four control points each: refit_blended gives the Warp meshes the
+    points (and so the hits) that refit gives them with the sums made in numpy; bad blends are refused."""
+    outer, inner = tori()
+    control = rng.normal(size=(200, 3)) * 0.05 + rng.uniform(-1.5, 1.5, size=(200, 3))
+    blends, moved = {}, {}
+    for which, mesh in (("outer", outer), ("inner", inner)):
+        corners = rng.integers(0, len(control), size=(len(mesh.vertices), 4))
+        weights = rng.dirichlet(np.ones(4), size=len(mesh.vertices))
+        blends[which] = corners, weights
+        moved[which] = sum(weights[:, k, None] * control[corners[:, k]] for k in range(4))
+    blended = WarpCaster(outer, inner, device="cpu", cpu_threads=2)
+    with pytest.raises(ValueError, match="no blend"):
+        blended.refit_blended(control)
+    blended.set_blend(**blends)
+    blended.refit_blended(control)
+    plain = WarpCaster(outer, inner, device="cpu", cpu_threads=2)
+    plain.refit(moved["outer"], moved["inner"])
+    for which in blends:
+        a, b = blended._scenes[which].points.numpy(), plain._scenes[which].points.numpy()
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
+    origins, dirs = rays(rng, 500, 4.0, (1.4, 1.4, 0.6))
+    units = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    ours, theirs = blended.band_hits(origins, units, 16), plain.band_hits(origins, units, 16)
+    assert len(ours[0]) > 10
+    np.testing.assert_array_equal(ours[0], theirs[0])  # the same rays meet the blended shells
+    with pytest.raises(ValueError, match="control"):
+        blended.refit_blended(control[:10])
+    with pytest.raises(ValueError, match="control"):
+        blended.refit_blended(np.full_like(control, np.nan))
+    with pytest.raises(ValueError, match="outer: expected corners and weights"):
+        blended.set_blend(outer=(blends["outer"][0][:-1], blends["outer"][1]), inner=blends["inner"])
+    with pytest.raises(ValueError, match="inner: corners must be >= 0"):
+        blended.set_blend(outer=blends["outer"], inner=(-blends["inner"][0] - 1, blends["inner"][1]))
+
+
 def test_warp_peels_every_ray_in_one_kernel_like_the_shared_rounds(rng):
     """WarpCaster's one-launch depth peeling finds the hits that the shared round-by-round loop finds with the
     same casts, also for rays through a torus's vertices and edges (repeated faces, stepping off them) and

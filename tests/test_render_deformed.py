@@ -178,14 +178,18 @@ def test_a_bend_moves_only_what_it_moves(renderer):
 
 
 def test_deformed_shells_are_the_barycentric_interpolation(renderer):
-    """The renderer's sparse interpolation moves every shell vertex as deform_points does."""
+    """The Warp meshes of a deformed frame hold every shell vertex where deform_points puts it (up to their
+    float32 rounding); a frame of the wrong shape is refused."""
     c = renderer.cage
     positions = c.vertices + 0.05 * np.sin(4 * c.vertices[:, [2, 0, 1]])
-    outer, inner = renderer.deformed_vertices(positions)
-    np.testing.assert_allclose(outer, deform_points(positions, c.tets, c.outer_tet, c.outer_bary), atol=1e-12)
-    np.testing.assert_allclose(inner, deform_points(positions, c.tets, c.inner_tet, c.inner_bary), atol=1e-12)
+    renderer._frame(positions)
+    caster = renderer._deformed
+    for which, tet, bary in (("outer", c.outer_tet, c.outer_bary), ("inner", c.inner_tet, c.inner_bary)):
+        expected = deform_points(positions, c.tets, tet, bary) - caster.center
+        points = caster._scenes[which].points.numpy()
+        np.testing.assert_allclose(points, expected, rtol=0, atol=1e-7 * np.abs(expected).max())
     with pytest.raises(ValueError, match="positions"):
-        renderer.deformed_vertices(positions[:, :2])
+        renderer._frame(positions[:, :2])
 
 
 def test_samples_outside_the_cage_are_dropped(asset, renderer):

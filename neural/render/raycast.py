@@ -469,6 +469,23 @@ def _band_kernel(
     count[i] = n
 
 
+@wp.kernel
+def _blend_points(
+    control: wp.array(dtype=wp.vec3d),
+    corners: wp.array2d(dtype=wp.int32),
+    weights: wp.array2d(dtype=wp.float64),
+    center: wp.vec3d,
+    points: wp.array(dtype=wp.vec3),
+):
+    """points[i] = sum_k weights[i, k] control[corners[i, k]] - center, in float64, stored as float32."""
+    i = wp.tid()
+    x = weights[i, 0] * control[corners[i, 0]] + weights[i, 1] * control[corners[i, 1]]
+    x += weights[i, 2] * control[corners[i, 2]]
+    x += weights[i, 3] * control[corners[i, 3]]
+    x -= center
+    points[i] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+
+
 @wp.func
 def _corner(mesh: wp.uint64, index: int):
     """Corner ``index`` (3 face + k) of a Warp mesh's faces, in float64."""
@@ -510,6 +527,8 @@ class WarpCaster(ShellCaster):
     ):
         self.device = wp.get_device(device)
         self.cpu_threads = 1 if self.device.is_cuda else (cpu_threads or default_cpu_threads())
+        self._blends = None  # per shell (corners, weights) as Warp arrays (set_blend)
+        self._blend_controls = 0  # control points a blend reads
         super().__init__(outer, inner)
 
     def _build(self, vertices: np.ndarray, faces: np.ndarray) -> wp.Mesh:
@@ -524,22 +543,71 @@ class WarpCaster(ShellCaster):
         moved = {"outer": outer_vertices, "inner": inner_vertices}
         for which, vertices in moved.items():
             vertices = np.asarray(vertices, dtype=np.float64)
-            if vertices.shape != self._vertices[which].shape:
-                raise ValueError(
-                    f"{which}_vertices: expected shape {self._vertices[which].shape}, got {vertices.shape}"
-                )
+            expected = (self._scenes[which].points.shape[0], 3)
+            if vertices.shape != expected:
+                raise ValueError(f"{which}_vertices: expected shape {expected}, got {vertices.shape}")
             if not np.isfinite(vertices).all():
                 raise ValueError(f"{which}_vertices: contain NaN or infinity")
-            moved[which] = vertices
+            moved[which] = wp.array(vertices - self.center, dtype=wp.vec3, device=self.device)
+        self._refit_each(lambda which, points: points.assign(moved[which]))
 
-        def refit(lo: int, hi: int) -> None:  # both meshes at once on the CPU (Warp releases the GIL)
-            for which in list(moved)[lo:hi]:
-                self._vertices[which] = moved[which]
+    def set_blend(self, outer: tuple, inner: tuple) -> None:
+        """Make every shell vertex a weighted sum of control points, for :meth:`refit_blended`: per shell
+        ``(corners (V, 4) int, weights (V, 4) float)``, vertex ``i`` = ``sum_k weights[i, k] *
+        control[corners[i, k]]`` (a cage's barycentric embedding of the shells)."""
+        blends = {}
+        for which, (corners, weights) in {"outer": outer, "inner": inner}.items():
+            corners, weights = np.asarray(corners), np.asarray(weights, dtype=np.float64)
+            expected = (self._scenes[which].points.shape[0], 4)
+            if corners.shape != expected or weights.shape != expected:
+                raise ValueError(
+                    f"{which}: expected corners and weights of shape {expected}, got {corners.shape} and "
+                    f"{weights.shape}"
+                )
+            if corners.size and corners.min() < 0 or not np.isfinite(weights).all():
+                raise ValueError(f"{which}: corners must be >= 0 and weights finite")
+            blends[which] = (
+                wp.array(corners.astype(np.int32), dtype=wp.int32, device=self.device),
+                wp.array(weights, dtype=wp.float64, device=self.device),
+            )
+        self._blends = blends
+        self._blend_controls = 1 + max((int(c.max()) for c in (outer[0], inner[0]) if np.size(c)), default=-1)
+
+    def refit_blended(self, control) -> None:
+        """Move the shells' vertices to their blends (:meth:`set_blend`) of world ``control`` points (C, 3),
+        in a Warp kernel straight into the meshes' float32 points, and refit both BVHs: the vertices of
+        :meth:`refit` with the blends computed in float64 (lego's shells: 0.69x the time of blending them
+        in numpy first)."""
+        if self._blends is None:
+            raise ValueError("refit_blended: no blend of the shells (set_blend)")
+        control = np.asarray(control, dtype=np.float64)
+        if control.ndim != 2 or control.shape[1] != 3 or len(control) < self._blend_controls:
+            raise ValueError(
+                f"control: expected shape (C, 3) with C >= {self._blend_controls}, got {control.shape}"
+            )
+        if not np.isfinite(control).all():
+            raise ValueError("control: contain NaN or infinity")
+        control = wp.array(control, dtype=wp.vec3d, device=self.device)
+        center = wp.vec3d(*self.center)
+
+        def blend(which: str, points: wp.array) -> None:
+            inputs = [control, *self._blends[which], center]
+            wp.launch(_blend_points, dim=len(points), inputs=inputs, outputs=[points], device=self.device)
+
+        wp.load_module(_blend_points.module, device=self.device)
+        self._refit_each(blend)
+
+    def _refit_each(self, move) -> None:
+        """``move(which, points)`` writes a shell's centred float32 points; then its BVH is refitted; both
+        shells at once on the CPU (Warp releases the GIL)."""
+
+        def refit(lo: int, hi: int) -> None:
+            for which in ("outer", "inner")[lo:hi]:
                 mesh = self._scenes[which]
-                mesh.points.assign(wp.array(moved[which] - self.center, dtype=wp.vec3, device=self.device))
+                move(which, mesh.points)
                 mesh.refit()
 
-        run_in_chunks(len(moved), refit, self.cpu_threads, 1)
+        run_in_chunks(2, refit, self.cpu_threads, 1)
 
     def _peel(
         self, scene: wp.Mesh, origins: np.ndarray, units: np.ndarray, stop: np.ndarray, max_hits: int

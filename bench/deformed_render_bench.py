@@ -3,8 +3,8 @@
 For each view (a camera orbiting the asset, evenly spaced in azimuth) it renders the asset at rest
 (narrow-band rendering of the rest shells, Sec. 3.4) and with its cage deformed (shells deformed by
 barycentric interpolation, cast in deformed space, every sample mapped back to rest space), and prints the
-median milliseconds per frame of each and their split (build: shell deformation, BVH refit and the inverse
-map's BVH; sample: casting; map: the inverse map; shade: the field), and the ratio deformed / rest as the
+median milliseconds per frame of each and their split (build: shell deformation and BVH refits, the inverse
+map's update; sample: casting; map: the inverse map; shade: the field), and the ratio deformed / rest as the
 median over back-to-back pairs (rest and deformed renders alternate, so a slow moment of a shared machine
 slows both alike; target: at most 1.5).
 The deformation is a frame of the analytic wind (``--motion wind``, :mod:`shellsim.wind`) or a twist of the

@@ -68,7 +68,8 @@ class DeformedRenderer:
     config : narrow-band settings; None takes the asset's ``meta["narrowband"]`` (or the defaults)
 
     State: the rest sampler (:func:`neural.render.view.asset_sampler`, Embree scenes built once), the field,
-    the cage, and Warp meshes of the shells refitted to each deformed frame (built on the first one).
+    the cage, Warp meshes of the shells refitted to each deformed frame and the inverse map updated to it
+    (both built on the first one): the renderer draws one frame at a time.
     """
 
     def __init__(self, asset, field, cage, device: str = "cpu", config=None):
@@ -131,8 +132,8 @@ class DeformedRenderer:
     def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
         """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
         (V, 3) (None: at rest, exactly :func:`neural.render.view.render_camera` with the asset's sampler),
-        and the stats of ``render_camera`` plus ``build_ms`` (shell deformation, refitting their BVHs
-        (built on the first deformed frame) and building the inverse map's BVH) and ``ms`` with it."""
+        and the stats of ``render_camera`` plus ``build_ms`` (shell deformation, refitting their BVHs and
+        updating the inverse map; both built on the first deformed frame) and ``ms`` with it."""
         from neural.render.view import render_camera
 
         start = time.perf_counter()

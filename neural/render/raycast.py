@@ -97,7 +97,8 @@ class ShellCaster(ABC):
         lo, hi = points.min(axis=0), points.max(axis=0)
         self.center = 0.5 * (lo + hi)  # (3,) float64
         self.step = _STEP_REL * max(float(np.linalg.norm(hi - lo)), 1e-12)  # world units
-        self._vertices = {which: vertices for which, (vertices, _) in arrays.items()}  # (V, 3) float64
+        # (V, 3) float64 as given here (a WarpCaster's refits move its meshes' points, not these)
+        self._vertices = {which: vertices for which, (vertices, _) in arrays.items()}
         self._faces = {which: faces for which, (_, faces) in arrays.items()}  # (F, 3) int64
         self._scenes = {
             which: self._build(

@@ -61,11 +61,12 @@ def cpu_threads() -> int:
 
 
 @functools.cache
-def _chunk_pool(workers: int):
-    """A thread pool of ``workers`` threads kept for the process (a new pool per call costs ~0.2 ms)."""
+def kept_pool(workers: int, name: str):
+    """A thread pool of ``workers`` threads named ``name``, kept for the process (a new pool per call costs
+    ~0.2 ms); each use names its own, so that work waiting in one pool never holds up another's."""
     from concurrent.futures import ThreadPoolExecutor
 
-    return ThreadPoolExecutor(workers, thread_name_prefix="warp-chunks")
+    return ThreadPoolExecutor(workers, thread_name_prefix=name)
 
 
 def run_in_chunks(n: int, launch, threads: int, min_chunk: int) -> None:
@@ -85,7 +86,7 @@ def run_in_chunks(n: int, launch, threads: int, min_chunk: int) -> None:
     import numpy as np
 
     bounds = np.linspace(0, n, threads + 1).astype(np.int64)
-    pool = _chunk_pool(threads - 1)
+    pool = kept_pool(threads - 1, "warp-chunks")
     futures = [pool.submit(launch, int(bounds[k]), int(bounds[k + 1])) for k in range(1, threads)]
     launch(int(bounds[0]), int(bounds[1]))
     for future in futures:

@@ -12,7 +12,8 @@ rest-space length (:meth:`InverseMap.map_rays`).
 ``b = D_t^-1 (x - v0)`` with ``D_t = [v1 - v0, v2 - v0, v3 - v0]`` and ``x_rest = r0 + R_t b`` with
 ``R_t = [r1 - r0, r2 - r0, r3 - r0]``. :class:`InverseMap` finds the tet by walking from the previous
 point's tet across the faces the point lies beyond, else with a Warp BVH over the deformed tets' bounding
-boxes, rebuilt for every frame, and runs the point-in-tet test in a Warp kernel (CPU or CUDA) in float64.
+boxes (built once, refitted for every further frame by :meth:`InverseMap.update`), and runs the
+point-in-tet test in a Warp kernel (CPU or CUDA) in float64.
 :func:`map_points_reference` and :func:`map_directions_reference` are its brute-force numpy twins.
 
 Points in no deformed tet (outside the cage) get ``inside = False`` and ``x_rest = nan``; the cage

@@ -96,6 +96,7 @@ class DeformedRenderer:
 
     def _frame(self, positions):
         """The sampler and the map to rest space (None at rest) of cage vertices ``positions`` (V, 3)."""
+        from neural.device import kept_pool
         from neural.render.raycast import WarpCaster
         from neural.render.view import narrow_band_sampler
 
@@ -124,7 +125,8 @@ class DeformedRenderer:
             return self._inverse
 
         # on the CPU the inverse map is made ready while the shells' BVHs are refitted (0.7x the time)
-        future = _side_pool().submit(inverse_map) if self.warp_device == "cpu" else None
+        on_cpu = self.warp_device == "cpu"
+        future = kept_pool(1, "shellsim-frame").submit(inverse_map) if on_cpu else None
         self._deformed.refit_blended(positions)
         self._inverse = inverse_map() if future is None else future.result()
         return narrow_band_sampler(self._deformed, self.config), self._inverse
@@ -143,14 +145,6 @@ class DeformedRenderer:
         stats["build_ms"] = 1000.0 * build
         stats["ms"] = 1000.0 * (time.perf_counter() - start)
         return image, stats
-
-
-@functools.cache
-def _side_pool():
-    """One worker thread, kept, for work that overlaps a frame's other work."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    return ThreadPoolExecutor(1, thread_name_prefix="shellsim-frame")
 
 
 # --------------------------------------------------------------------------- cameras and frames

@@ -17,11 +17,10 @@ disjoint parts of the output and of the table gradient, so the threads never rac
 # no ``from __future__ import annotations``: Warp reads the kernels' annotations, which name closure types
 import functools
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 
 import torch
 
-from ..device import initialised_warp
+from ..device import initialised_warp, kept_pool
 from .hashgrid import check_encode_inputs, is_dense
 
 
@@ -114,11 +113,6 @@ def _kernels(n_features: int):
     return vecf, encode_forward, encode_backward
 
 
-@functools.cache
-def _pool(n_threads: int) -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="hashgrid")
-
-
 def _launch(
     kernel,
     x,
@@ -156,7 +150,8 @@ def _launch(
         return
     wp.load_module(kernel.module, device=x.device)  # compile once, before the threads race to do it
     n_threads = min(cpu_threads, n_levels)
-    futures = [_pool(n_threads).submit(run, range(k, n_levels, n_threads)) for k in range(n_threads)]
+    pool = kept_pool(n_threads, "hashgrid")
+    futures = [pool.submit(run, range(k, n_levels, n_threads)) for k in range(n_threads)]
     for future in futures:
         future.result()
 

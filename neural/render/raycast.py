@@ -470,6 +470,13 @@ def _band_kernel(
     count[i] = n
 
 
+def _listed_hits(t: np.ndarray, prim: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The hits a kernel wrote per row, ``t`` and ``prim`` (R, max_hits) with ``count`` (R,) of them in each
+    row, as lists: row (H,) sorted, ``t`` (H,) and ``prim`` (H,), in t order within a row."""
+    found = np.arange(t.shape[1])[None, :] < count[:, None]  # row-major: by row, then t
+    return np.nonzero(found)[0], t[found], prim[found]
+
+
 @wp.kernel
 def _blend_points(
     control: wp.array(dtype=wp.vec3d),
@@ -639,8 +646,7 @@ class WarpCaster(ShellCaster):
         wp.load_module(_peel_kernel.module, device=dev)
         run_in_chunks(n, launch, self.cpu_threads, _MIN_CAST_CHUNK)
         t, prim, count = (a.numpy() for a in outputs)
-        found = np.arange(max_hits)[None, :] < count[:, None]  # (R, max_hits), row-major: by ray, then t
-        return np.nonzero(found)[0], t[found], prim[found]
+        return _listed_hits(t, prim, count)
 
     def band_hits(
         self, starts: np.ndarray, units: np.ndarray, max_hits: int
@@ -677,10 +683,9 @@ class WarpCaster(ShellCaster):
         run_in_chunks(threads, launch, threads, 1)
         t_inner, t, prim, count = (a.numpy() for a in outputs)
         meets = np.flatnonzero(count > 0)
-        found = np.arange(max_hits)[None, :] < count[meets, None]  # (M, max_hits): by ray, then t
-        ray_idx = meets[np.nonzero(found)[0]]
-        prim = prim[meets][found]
-        return meets, t_inner[meets], ray_idx, t[meets][found], self._entering("outer", units[ray_idx], prim)
+        rows, t, prim = _listed_hits(t[meets], prim[meets], count[meets])
+        ray_idx = meets[rows]
+        return meets, t_inner[meets], ray_idx, t, self._entering("outer", units[ray_idx], prim)
 
     def _entering(self, mesh_which: str, units: np.ndarray, faces: np.ndarray) -> np.ndarray:
         """In a Warp kernel from the mesh's own corners (a third of the time of gathering the corners in

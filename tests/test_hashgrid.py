@@ -7,7 +7,7 @@ import torch
 
 from neural.field import HashGridConfig, HashGridEncoding, hash_encode_torch
 from neural.field.hashgrid import is_dense
-from neural.field.hashgrid_warp import hash_encode_warp
+from neural.field.hashgrid_warp import CPU_BLOCK, _kernels, _launch, hash_encode_warp
 
 # 4, 6, 12, 21, 36, 64 with T = 4096: three dense levels, three hashed levels with collisions
 SMALL = HashGridConfig(n_levels=6, log2_table_size=12, base_resolution=4, max_resolution=64)
@@ -64,6 +64,37 @@ def test_warp_matches_torch_in_values_and_table_gradients(device, n_points, cpu_
     (g_fast,) = torch.autograd.grad(fast, table, upstream)
     (g_ref,) = torch.autograd.grad(ref, table, upstream)
     torch.testing.assert_close(g_fast, g_ref, rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("n_features", [1, 2, 4])
+def test_cpu_block_kernel_gives_the_bits_of_the_per_point_kernel(n_features):
+    """The CPU forward (a vectorised C++ loop over blocks of points) against the per-point Warp kernel that
+    CUDA runs, level by level: the same float32 bits, across block boundaries and for points outside the
+    cube, on dense and hashed levels."""
+    import warp as wp
+
+    gen = torch.Generator().manual_seed(n_features)
+    table = torch.randn(SMALL.n_levels, SMALL.table_size, n_features, generator=gen)
+    res = SMALL.resolutions()
+    vecf, per_point, _, per_block = _kernels(n_features)
+    for n in (1, CPU_BLOCK - 1, CPU_BLOCK, CPU_BLOCK + 1, 3 * CPU_BLOCK + 17):
+        x = random_points(n, gen)
+        outs = []
+        for kernel, points_per_thread in ((per_point, 1), (per_block, CPU_BLOCK)):
+            out = torch.full((n * SMALL.n_levels, n_features), math.nan)
+            _launch(
+                kernel,
+                wp.from_torch(x, dtype=wp.vec3),
+                wp.from_torch(table.view(-1, n_features), dtype=vecf),
+                wp.from_torch(out, dtype=vecf),
+                res,
+                SMALL.table_size,
+                cpu_threads=2,
+                points_per_thread=points_per_thread,
+            )
+            outs.append(out)
+        assert not outs[1].isnan().any()
+        assert torch.equal(outs[0], outs[1]), n
 
 
 def test_warp_points_without_gradient_and_empty_input():

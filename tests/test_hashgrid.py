@@ -69,8 +69,8 @@ def test_warp_matches_torch_in_values_and_table_gradients(device, n_points, cpu_
 @pytest.mark.parametrize("n_features", [1, 2, 4])
 def test_cpu_block_kernel_gives_the_bits_of_the_per_point_kernel(n_features):
     """The CPU forward (a vectorised C++ loop over blocks of points) against the per-point Warp kernel that
-    CUDA runs, level by level: the same float32 bits, across block boundaries and for points outside the
-    cube, on dense and hashed levels."""
+    CUDA runs, level by level: the same float32 bits, across block boundaries, for points outside the cube,
+    infinite or NaN (clamped into the cube, NaN to 0, as Warp's clamp does), on dense and hashed levels."""
     import warp as wp
 
     gen = torch.Generator().manual_seed(n_features)
@@ -79,6 +79,7 @@ def test_cpu_block_kernel_gives_the_bits_of_the_per_point_kernel(n_features):
     vecf, per_point, _, per_block = _kernels(n_features)
     for n in (1, CPU_BLOCK - 1, CPU_BLOCK, CPU_BLOCK + 1, 3 * CPU_BLOCK + 17):
         x = random_points(n, gen)
+        x[-3:] = torch.tensor([[math.nan, 0.5, 0.5], [math.inf, -math.inf, 0.5], [-0.0, 1.0, math.nan]])[-n:]
         outs = []
         for kernel, points_per_thread in ((per_point, 1), (per_block, CPU_BLOCK)):
             out = torch.full((n * SMALL.n_levels, n_features), math.nan)

@@ -126,8 +126,9 @@ CPU_BLOCK = 256
 
 # One level of the encoding for points [block * CPU_BLOCK, ...) in C++: the Warp kernel's operations in its
 # order (clamp, cell, the 8 corners' rows, weights, the sum over corners in the same sequence), so the same
-# float32 results. ``F`` (features per level) is substituted, so the feature loop unrolls and the point loop
-# vectorises; ``assume_safety``: the output never aliases the table or the points.
+# float32 results; the clamp sends NaN to 0, as Warp's ``fmin(fmax(0, x), 1)`` does, so rows stay in range.
+# ``F`` (features per level) is substituted, so the feature loop unrolls and the point loop vectorises;
+# ``assume_safety``: the output never aliases the table or the points.
 _CPU_FORWARD_SNIPPET = """
     const int F = {n_features};
     const float* P = (const float*)x.data;
@@ -143,9 +144,9 @@ _CPU_FORWARD_SNIPPET = """
     #pragma clang loop vectorize(assume_safety)
     for (int i = start; i < stop; ++i) {{
         float px = P[3 * i], py = P[3 * i + 1], pz = P[3 * i + 2];
-        float ux = (px < 0.f ? 0.f : (px > 1.f ? 1.f : px)) * fres;
-        float uy = (py < 0.f ? 0.f : (py > 1.f ? 1.f : py)) * fres;
-        float uz = (pz < 0.f ? 0.f : (pz > 1.f ? 1.f : pz)) * fres;
+        float ux = (px > 0.f ? (px < 1.f ? px : 1.f) : 0.f) * fres;
+        float uy = (py > 0.f ? (py < 1.f ? py : 1.f) : 0.f) * fres;
+        float uz = (pz > 0.f ? (pz < 1.f ? pz : 1.f) : 0.f) * fres;
         int x0 = (int)ux; x0 = x0 < res - 1 ? x0 : res - 1;
         int y0 = (int)uy; y0 = y0 < res - 1 ? y0 : res - 1;
         int z0 = (int)uz; z0 = z0 < res - 1 ? z0 : res - 1;

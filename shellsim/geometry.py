@@ -66,6 +66,18 @@ def tet_quality(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return 6.0 * math.sqrt(2.0) * tet_volumes(vertices, tets) / rms**3
 
 
+def _face_ids(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which face each tet face slot is: tets (T, 4) int64 -> ``face_id`` (4T,) of slot ``4 t + k`` (the face
+    opposite vertex ``k``, ``TET_FACES[k]``; slots with the same three vertices share an id) and ``counts``
+    (n_faces,), the slots of each face."""
+    faces = np.sort(tets[:, TET_FACES].reshape(-1, 3), axis=1)
+    order = np.lexsort(faces.T[::-1])  # rows in lexicographic order (what np.unique(axis=0) numbers by)
+    new_face = np.r_[True, (faces[order[1:]] != faces[order[:-1]]).any(axis=1)]
+    face_id = np.empty(len(faces), dtype=np.int64)
+    face_id[order] = np.cumsum(new_face) - 1
+    return face_id, np.bincount(face_id)
+
+
 def boundary_facets(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Faces of a tet mesh that belong to exactly one tet, with the tet each belongs to.
 
@@ -76,10 +88,9 @@ def boundary_facets(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     tets = np.asarray(tets, dtype=np.int64)
     if tets.ndim != 2 or tets.shape[1] != 4:
         raise ValueError(f"tets: expected shape (T, 4), got {tets.shape}")
-    faces = tets[:, TET_FACES].reshape(-1, 3)  # (4T, 3)
-    _, inverse, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
-    once = counts[inverse.ravel()] == 1
-    return faces[once], np.nonzero(once)[0] // 4
+    face_id, counts = _face_ids(tets)
+    once = counts[face_id] == 1
+    return tets[:, TET_FACES].reshape(-1, 3)[once], np.nonzero(once)[0] // 4
 
 
 def boundary_faces(tets: np.ndarray) -> np.ndarray:
@@ -91,13 +102,12 @@ def tet_neighbors(tets: np.ndarray) -> np.ndarray:
     """The tet across each face: tets (T, 4) -> (T, 4) int64 whose entry ``[t, k]`` is the other tet sharing
     tet ``t``'s face opposite its vertex ``k`` (``TET_FACES[k]``), -1 where that face is on the boundary (or
     shared by more than two tets)."""
-    tets = np.asarray(tets, dtype=np.int64)
-    faces = np.sort(tets[:, TET_FACES].reshape(-1, 3), axis=1)  # (4T, 3): slot 4 t + k
-    order = np.lexsort(faces.T[::-1])
-    same = np.r_[False, (faces[order[1:]] == faces[order[:-1]]).all(axis=1), False]  # row i as row i - 1
-    pair = np.flatnonzero(same[1:-1] & ~same[:-2] & ~same[2:])  # rows i, i + 1 alike, no third
+    face_id, counts = _face_ids(np.asarray(tets, dtype=np.int64))
+    order = np.argsort(face_id, kind="stable")  # the slots of one face side by side
+    sorted_id = face_id[order]
+    pair = np.flatnonzero((sorted_id[:-1] == sorted_id[1:]) & (counts[sorted_id[:-1]] == 2))
     first, second = order[pair], order[pair + 1]
-    neighbors = np.full(len(faces), -1, dtype=np.int64)
+    neighbors = np.full(len(face_id), -1, dtype=np.int64)
     neighbors[first], neighbors[second] = second // 4, first // 4
     return neighbors.reshape(-1, 4)
 
@@ -108,9 +118,9 @@ def connected_parts(tets: np.ndarray) -> np.ndarray:
     from scipy.sparse.csgraph import connected_components
 
     tets = np.asarray(tets, dtype=np.int64)
-    _, face_id = np.unique(np.sort(tets[:, TET_FACES].reshape(-1, 3), axis=1), axis=0, return_inverse=True)
+    face_id, _ = _face_ids(tets)
     n = len(tets)
     rows = np.repeat(np.arange(n), 4)
-    graph = coo_matrix((np.ones(4 * n), (rows, n + face_id.ravel())), shape=(n + face_id.max() + 1,) * 2)
+    graph = coo_matrix((np.ones(4 * n), (rows, n + face_id)), shape=(n + face_id.max() + 1,) * 2)
     _, labels = connected_components(graph, directed=False)
     return np.unique(labels[:n], return_inverse=True)[1].ravel().astype(np.int64)

@@ -242,8 +242,8 @@ class InverseMap:
     device : Warp device ("cpu", "cuda:0"); None picks Warp's preferred device (CUDA when present)
     tol : barycentric tolerance of the point-in-tet test
     cpu_threads : threads sharing a query on the CPU (None: :func:`neural.device.cpu_threads`)
-    neighbors : (T, 4) int, :func:`shellsim.geometry.tet_neighbors` of ``tets`` when already known (a
-        renderer maps many frames of one cage); None computes it
+    neighbors : (T, 4) int, the tet across each face as :func:`shellsim.geometry.tet_neighbors` gives it;
+        None computes it (-1 everywhere ends every walk at once, so each point searches the BVH)
 
     Building costs one Warp kernel over the tets and one BVH build (a few ms for 10k tets on a CPU), and
     the tets' neighbours unless given; :meth:`update` takes the map to another frame of the cage with a

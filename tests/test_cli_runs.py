@@ -2,6 +2,7 @@
 Ctrl-C, and Warp prints nothing on stdout unless --verbose."""
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -126,10 +127,16 @@ def _outputs(logs: Path) -> tuple[str, str]:
     return (logs / "stdout.txt").read_text(), (logs / "stderr.txt").read_text()
 
 
+def _frames_shown(logs: Path) -> int:
+    """Frames in the motion file once the simulate bar on stderr reads ``k/N``: frame 0 and k steps."""
+    counts = re.findall(r"(\d+)/\d+ \[", _outputs(logs)[1])
+    return int(counts[-1]) + 1 if counts else 0
+
+
 def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
-    """A simulation killed by SIGTERM after its first flush exits 143 with one line, and its motion file
-    holds the frames made up to the signal (more than the first flush): the writer closed as on Ctrl-C.
-    Warp's banner and module-load lines stay off stdout."""
+    """A simulation killed by SIGTERM after its first flush, once its progress bar shows two frames more
+    than the file holds, exits 143 with one line, and its motion file holds every frame the bar showed:
+    the writer closed as on Ctrl-C. Warp's banner and module-load lines stay off stdout."""
     asset = rod_asset(tmp_path / "rod")
     out = tmp_path / "m.npz"
     proc = _cli(
@@ -141,7 +148,9 @@ def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
             time.sleep(0.05)
         assert out.exists(), _outputs(tmp_path)[1][-2000:]
         first = load_motion(out).n_frames
-        time.sleep(1.0)  # well under the writer's 2 s flush interval: these frames are only in memory
+        while (made := _frames_shown(tmp_path)) < first + 2 and proc.poll() is None:
+            assert time.monotonic() < deadline, _outputs(tmp_path)[1][-2000:]
+            time.sleep(0.05)
         proc.send_signal(signal.SIGTERM)
         try:
             proc.wait(timeout=120)
@@ -155,7 +164,7 @@ def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
     assert proc.returncode == 128 + signal.SIGTERM, stderr[-2000:]
     assert stderr.splitlines()[-1] == "shellsim: terminated; what was written so far is kept"
     motion = load_motion(out)
-    assert motion.n_frames > first + 1
+    assert motion.n_frames >= made > first + 1
     assert np.isfinite(motion.positions).all()
     assert "Warp" not in stdout and "Module" not in stdout, stdout
     assert "Warp" not in stderr, stderr  # not even the CUDA probe's line on a machine without a GPU

@@ -1,7 +1,12 @@
 """neural.device.pick_device: the one device choice (torch or Warp), its errors speaking of values, and the
-CLI's ``--device`` naming the option."""
+CLI's ``--device`` naming the option; denormals flushed in each torch thread once neural.field is imported."""
 
 from __future__ import annotations
+
+import os
+import platform
+import subprocess
+import sys
 
 import pytest
 import torch
@@ -66,3 +71,29 @@ def test_parallel_work_takes_no_more_threads_than_torch_was_given(monkeypatch):
         assert InverseMap(verts, tets, verts, device="cpu").cpu_threads == threads
         encoding(torch.zeros(4, 3))
     assert seen == [2, 1]
+
+
+DENORMALS_KEPT = """
+import sys, torch
+if sys.argv[1] == "field":
+    import neural.field
+x = torch.full((1 << 22,), 1e-39)  # a denormal float32; the product runs on every thread of torch's pool
+print(torch.get_num_threads(), int(torch.count_nonzero(x * 1.0)))
+"""
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="FTZ/DAZ are x86 settings")
+def test_importing_the_field_flushes_denormals_in_every_torch_thread():
+    """After ``import neural.field`` a product of 4M denormals is all zeros (DAZ), on each of torch's threads,
+    which inherit the setting as they start; without that import none is zero (the check can fail)."""
+    env = {**os.environ, "OMP_NUM_THREADS": "2"}
+
+    def nonzero(mode: str) -> tuple[int, int]:
+        done = subprocess.run(
+            [sys.executable, "-c", DENORMALS_KEPT, mode], env=env, capture_output=True, text=True, check=True
+        )
+        threads, count = map(int, done.stdout.split())
+        return threads, count
+
+    assert nonzero("plain") == (2, 1 << 22)
+    assert nonzero("field") == (2, 0)

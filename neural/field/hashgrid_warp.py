@@ -117,7 +117,7 @@ def _kernels(n_features: int):
         wp.atomic_add(grad_table, base + row(x0, y0 + 1, z0 + 1, side, dense, mask), g * (gx * fy * fz))
         wp.atomic_add(grad_table, base + row(x0 + 1, y0 + 1, z0 + 1, side, dense, mask), g * (fx * fy * fz))
 
-    cpu_forward = _cpu_forward_kernel(n_features)
+    cpu_forward = _cpu_forward_kernel(vecf, n_features)
     return vecf, encode_forward, encode_backward, cpu_forward
 
 
@@ -177,11 +177,11 @@ _CPU_FORWARD_SNIPPET = """
 """
 
 
-def _cpu_forward_kernel(n_features: int):
-    """The CPU forward kernel for ``n_features`` floats per level: :func:`_kernels`'s ``encode_forward``
-    arguments, one thread per block of :data:`CPU_BLOCK` points (launch ``ceil(N / CPU_BLOCK)`` threads)."""
+def _cpu_forward_kernel(vecf, n_features: int):
+    """The CPU forward kernel for ``n_features`` floats per level (``vecf`` :func:`_kernels`'s vector type of
+    them): ``encode_forward``'s arguments, one thread per block of :data:`CPU_BLOCK` points (launch
+    ``ceil(N / CPU_BLOCK)`` threads)."""
     wp = initialised_warp()
-    vecf = wp.types.vector(length=n_features, dtype=wp.float32)
     snippet = _CPU_FORWARD_SNIPPET.format(n_features=n_features, block=CPU_BLOCK)
 
     @wp.func_native(snippet)

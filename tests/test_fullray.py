@@ -7,6 +7,8 @@ import pytest
 import torch
 from scenes import SphereField
 
+from neural.render import fullray
+from neural.render.composite import transmittance
 from neural.render.fullray import (
     pack_dense,
     ray_aabb,
@@ -16,6 +18,7 @@ from neural.render.fullray import (
     stepped_samples,
     visible_samples,
 )
+from neural.render.neus import neus_alpha
 from neural.render.occupancy import OccupancyConfig, OccupancyGrid
 from neural.render.occupancy_warp import march_occupied
 
@@ -233,6 +236,46 @@ def test_visible_samples_drop_a_tail_that_changes_colours_by_at_most_the_thresho
         hit = full["opacity"] > 0.99
         assert hit.sum() > 50 and kept.counts()[hit].sum() < left * counts[hit].sum()
     assert visible_samples(field, origins, dirs, samples, 0.0) is samples
+
+
+@pytest.mark.parametrize(("first_round", "last_round"), [(2, 0), (16, 300), (1 << 20, 0)])
+def test_visible_samples_keep_what_one_pass_over_every_sample_keeps(monkeypatch, first_round, last_round):
+    """Rounds change which samples the network sees, not which are kept: the kept samples are those with
+    ``T_i > threshold`` from one pass of every sample's opacity (the definition), whatever the rounds; rays
+    through the sphere are not evaluated far behind its front once rounds are small."""
+    monkeypatch.setattr(fullray, "VISIBLE_FIRST_ROUND", first_round)
+    monkeypatch.setattr(fullray, "VISIBLE_LAST_ROUND_SAMPLES", last_round)
+    rows = []
+
+    class Counting(SphereField):
+        def geometry(self, x):
+            rows.append(len(x))
+            return super().geometry(x)
+
+    field = Counting(0.6, 200.0)
+    origins, dirs = random_rays(300, 11, spread=1.1)
+    near, far = ray_aabb(origins, dirs, LO, HI)
+    samples = stepped_samples(near, far, 0.01, 1024, perturb=True, generator=torch.Generator().manual_seed(4))
+    norm = dirs.norm(dim=1)[samples.ray_indices]
+    geo = SphereField.geometry(field, samples.points(origins, dirs))
+    cos = ((dirs[samples.ray_indices] / norm[:, None]) * geo.normal).sum(1)
+    fronts = (samples.t_mid - samples.t_starts) * norm
+    alpha = neus_alpha(geo.sdf, geo.inv_s, cos, samples.deltas * norm, 1.0, fronts)
+    before = transmittance(alpha, samples.ray_indices, samples.n_rays)
+    for threshold in (1e-1, 1e-4):
+        rows.clear()
+        kept = visible_samples(field, origins, dirs, samples, threshold)
+        expected = samples.select(before > threshold)
+        assert torch.equal(kept.ray_indices, expected.ray_indices)
+        assert torch.equal(kept.t_starts, expected.t_starts) and torch.equal(kept.t_ends, expected.t_ends)
+        assert 0 < len(expected.ray_indices) < 0.8 * len(samples.ray_indices)
+        if first_round == 2:  # rounds [0, 2), [2, 4), [4, 8), ...: a ray stops after its last kept sample's
+            count, k = samples.counts(), kept.counts()
+            end = 2 ** (torch.log2((k - 1).clamp_min(1).double()).floor().long() + 1)
+            evaluated = torch.where(k < count, end.clamp_max(count), count)
+            assert len(rows) > 4 and sum(rows) == int(evaluated.sum()) < len(samples.ray_indices)
+        if first_round > 1000:
+            assert rows == [len(samples.ray_indices)]
 
 
 @pytest.mark.parametrize("threads", [1, 2, 3])

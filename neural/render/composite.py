@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 
 # 1 - alpha is clamped to this before the logarithm: a fully opaque sample ends its ray (T <= 1e-30).
-_MIN_TRANSMITTANCE = 1e-30
+MIN_TRANSMITTANCE = 1e-30
 
 
 def _check_inputs(
@@ -56,21 +56,27 @@ def _finish(
     return {"color": color, "opacity": opacity, "depth": depth, "weights": weights}
 
 
-def transmittance(alpha: torch.Tensor, ray_indices: torch.Tensor, n_rays: int) -> torch.Tensor:
-    """Exclusive per-ray product ``T_i = prod_{j < i, same ray} (1 - alpha_j)`` of packed samples.
+def log_transmittance(alpha: torch.Tensor, ray_indices: torch.Tensor, n_rays: int) -> torch.Tensor:
+    """(S,) float64 ``log T_i = sum_{j < i, same ray} log(1 - alpha_j)`` of packed samples: a segmented
+    exclusive cumulative sum in float64 (so that the global running sum over many rays loses no precision)
+    minus each ray's value at its first sample; ``1 - alpha`` is clamped to :data:`MIN_TRANSMITTANCE`.
 
-    Computed as a segmented exclusive cumulative sum of ``log(1 - alpha)`` in float64 (so that the global
-    running sum over many rays loses no precision) minus each ray's value at its first sample.
-    Differentiable; ``1 - alpha`` is clamped to 1e-30, so a sample with alpha == 1 passes no gradient.
-
-    alpha : (S,) in [0, 1]; ray_indices : (S,) sorted; n_rays : R. Returns T (S,) in alpha's dtype.
+    alpha : (S,) in [0, 1]; ray_indices : (S,) sorted; n_rays : R.
     """
-    log_keep = torch.log(torch.clamp(1.0 - alpha.double(), min=_MIN_TRANSMITTANCE))
+    log_keep = torch.log(torch.clamp(1.0 - alpha.double(), min=MIN_TRANSMITTANCE))
     exclusive = torch.cumsum(log_keep, dim=0) - log_keep  # global exclusive sum over all rays
     counts = torch.bincount(ray_indices, minlength=n_rays)
     first = torch.cumsum(counts, dim=0) - counts  # (R,) index of each ray's first sample
-    start_value = exclusive[first[ray_indices]]
-    return torch.exp(exclusive - start_value).to(alpha.dtype)
+    return exclusive - exclusive[first[ray_indices]]
+
+
+def transmittance(alpha: torch.Tensor, ray_indices: torch.Tensor, n_rays: int) -> torch.Tensor:
+    """Exclusive per-ray product ``T_i = prod_{j < i, same ray} (1 - alpha_j)`` of packed samples, the
+    exponential of :func:`log_transmittance`. Differentiable; a sample with alpha == 1 passes no gradient.
+
+    alpha : (S,) in [0, 1]; ray_indices : (S,) sorted; n_rays : R. Returns T (S,) in alpha's dtype.
+    """
+    return torch.exp(log_transmittance(alpha, ray_indices, n_rays)).to(alpha.dtype)
 
 
 def composite(

@@ -3,7 +3,9 @@
 Every sub-command module defines ``register(subparsers)``, which adds its parser and sets
 ``func=run`` on it. Errors a user can act on (:class:`neural.errors.ShellsimError`) print one line
 ``shellsim: error: ...`` and exit with status 2. Ctrl-C (SIGINT) and SIGTERM both unwind the command as a
-``KeyboardInterrupt``, so it saves what it made; they exit with 130 and 143 (128 + the signal number).
+``KeyboardInterrupt``, so it saves what it made; they exit with 130 and 143 (128 + the signal number). A
+signal that arrives while a finalizer runs (Warp frees arrays in ``__del__``, where Python ignores exceptions)
+is sent again a moment later, so that it is never lost.
 Warp's banner and module-load lines are shown only with ``--verbose``.
 """
 
@@ -15,6 +17,7 @@ import logging
 import os
 import signal
 import sys
+import threading
 from pathlib import Path
 
 from neural.errors import ShellsimError
@@ -58,8 +61,29 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the program is so that ``with`` blocks and writers close as for Ctrl-C."""
 
 
-def _raise_terminated(signum, frame) -> None:
-    raise Terminated()
+#: Seconds after which a signal that arrived inside a finalizer is sent again.
+REDELIVERY_SECONDS = 0.01
+
+
+def _in_finalizer(frame) -> bool:
+    """Whether ``frame`` or a frame that called it runs a ``__del__``, where Python prints an exception raised
+    by a signal handler ("Exception ignored in ...") and drops it."""
+    while frame is not None:
+        if frame.f_code.co_name == "__del__":
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _interrupt(signum, frame) -> None:
+    """SIGINT and SIGTERM: raise ``KeyboardInterrupt`` or :class:`Terminated` where the program is; inside a
+    finalizer, send the signal again in :data:`REDELIVERY_SECONDS` instead."""
+    if _in_finalizer(frame):
+        again = threading.Timer(REDELIVERY_SECONDS, os.kill, (os.getpid(), signum))
+        again.daemon = True
+        again.start()
+        return
+    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
 def _init_warp_quietly(warp) -> None:
@@ -91,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     warp.config.log_level = warp.LOG_INFO if args.verbose else warp.LOG_WARNING
     if not args.verbose:
         _init_warp_quietly(warp)
-    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGINT, signal.SIGTERM)}
     try:
         args.func(args)
     except ShellsimError as err:
@@ -104,7 +128,8 @@ def main(argv: list[str] | None = None) -> int:
         print("shellsim: interrupted; what was written so far is kept", file=sys.stderr)
         return 130
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     return 0
 
 

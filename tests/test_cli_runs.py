@@ -14,7 +14,8 @@ import pytest
 import trimesh
 from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
-from shellsim.cli import main
+from shellsim import cli
+from shellsim.cli import Terminated, main
 from shellsim.motion import load_motion
 from shellsim.outputs import check_writable_dir, check_writable_file
 
@@ -168,6 +169,31 @@ def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
     assert np.isfinite(motion.positions).all()
     assert "Warp" not in stdout and "Module" not in stdout, stdout
     assert "Warp" not in stderr, stderr  # not even the CUDA probe's line on a machine without a GPU
+
+
+@pytest.mark.parametrize(
+    ("signum", "raised"), [(signal.SIGTERM, Terminated), (signal.SIGINT, KeyboardInterrupt)]
+)
+def test_a_signal_that_lands_in_a_finalizer_is_not_lost(signum, raised):
+    """A signal whose handler runs inside ``__del__`` (Warp frees arrays there) would raise where Python drops
+    the exception; the command's handler sends it again instead, and it then interrupts the program."""
+    handled = []
+
+    class Freed:
+        def __del__(self):
+            os.kill(os.getpid(), signum)  # the handler runs at the next instruction, still in __del__
+            handled.append("in __del__")
+
+    previous = signal.signal(signum, cli._interrupt)
+    try:
+        with pytest.raises(raised):
+            Freed()  # dropped at once: __del__ runs here
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline:
+                time.sleep(0.001)
+        assert handled == ["in __del__"]  # the first delivery did not break the finalizer
+    finally:
+        signal.signal(signum, previous)
 
 
 def test_verbose_shows_warp_messages(tmp_path):

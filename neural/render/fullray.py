@@ -310,15 +310,15 @@ def visible_samples(
     rays = samples.ray_indices
     if min_transmittance <= 0 or rays.numel() == 0:
         return samples
-    points, sections = samples.points(origins, dirs), _sections(dirs, samples)
     log_t = torch.zeros(samples.n_rays, dtype=torch.float64, device=rays.device)  # log T after each round
     alive = torch.ones(samples.n_rays, dtype=torch.bool, device=rays.device)
     keep = torch.zeros(len(rays), dtype=torch.bool, device=rays.device)
     log_min = math.log(min_transmittance)
     for index in _rounds(samples, VISIBLE_FIRST_ROUND, VISIBLE_LAST_ROUND_SAMPLES, alive):
-        part = rays.index_select(0, index)
+        round_samples = samples.select(index)
+        part = round_samples.ray_indices
         _, alpha = _opacity(
-            field, points.index_select(0, index), *(s.index_select(0, index) for s in sections), cos_anneal
+            field, round_samples.points(origins, dirs), *_sections(dirs, round_samples), cos_anneal
         )
         keep[index] = log_t.index_select(0, part) + log_transmittance(alpha, part, samples.n_rays) > log_min
         log_t.index_add_(0, part, torch.log(torch.clamp(1.0 - alpha.double(), min=MIN_TRANSMITTANCE)))

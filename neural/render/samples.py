@@ -39,7 +39,8 @@ class RaySamples:
         return torch.bincount(self.ray_indices, minlength=self.n_rays)
 
     def select(self, keep: torch.Tensor) -> RaySamples:
-        """The samples where ``keep`` (S,) bool is true, over the same rays."""
+        """The samples where ``keep`` (S,) bool is true, or at the increasing indices ``keep`` (K,) int64,
+        over the same rays."""
         return RaySamples(
             self.ray_indices[keep], self.t_starts[keep], self.t_ends[keep], self.n_rays, self.t_mid[keep]
         )

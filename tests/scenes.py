@@ -146,3 +146,21 @@ class SphereField:
 
     def radiance(self, x, d, geo):
         return torch.sigmoid(torch.stack([x[:, 0] + d[:, 2], x[:, 1], x[:, 2] * 2.0], dim=1))
+
+
+class RecordingSphereField(SphereField):
+    """A :class:`SphereField` that records the rows of each call: ``geometry_calls`` and ``radiance_calls``,
+    lists of ints (what a renderer evaluated, and in how many calls)."""
+
+    def __init__(self, radius=1.0, inv_s=1000.0, center=(0.0, 0.0, 0.0)):
+        super().__init__(radius, inv_s, center)
+        self.geometry_calls: list[int] = []
+        self.radiance_calls: list[int] = []
+
+    def geometry(self, x):
+        self.geometry_calls.append(len(x))
+        return super().geometry(x)
+
+    def radiance(self, x, d, geo):
+        self.radiance_calls.append(len(x))
+        return super().radiance(x, d, geo)

@@ -5,7 +5,7 @@ import math
 
 import pytest
 import torch
-from scenes import SphereField
+from scenes import RecordingSphereField, SphereField
 
 from neural.render import fullray
 from neural.render.composite import transmittance
@@ -18,7 +18,6 @@ from neural.render.fullray import (
     stepped_samples,
     visible_samples,
 )
-from neural.render.neus import neus_alpha
 from neural.render.occupancy import OccupancyConfig, OccupancyGrid
 from neural.render.occupancy_warp import march_occupied
 
@@ -245,25 +244,14 @@ def test_visible_samples_keep_what_one_pass_over_every_sample_keeps(monkeypatch,
     through the sphere are not evaluated far behind its front once rounds are small."""
     monkeypatch.setattr(fullray, "VISIBLE_FIRST_ROUND", first_round)
     monkeypatch.setattr(fullray, "VISIBLE_LAST_ROUND_SAMPLES", last_round)
-    rows = []
-
-    class Counting(SphereField):
-        def geometry(self, x):
-            rows.append(len(x))
-            return super().geometry(x)
-
-    field = Counting(0.6, 200.0)
+    field = RecordingSphereField(0.6, 200.0)
     origins, dirs = random_rays(300, 11, spread=1.1)
     near, far = ray_aabb(origins, dirs, LO, HI)
     samples = stepped_samples(near, far, 0.01, 1024, perturb=True, generator=torch.Generator().manual_seed(4))
-    norm = dirs.norm(dim=1)[samples.ray_indices]
-    geo = SphereField.geometry(field, samples.points(origins, dirs))
-    cos = ((dirs[samples.ray_indices] / norm[:, None]) * geo.normal).sum(1)
-    fronts = (samples.t_mid - samples.t_starts) * norm
-    alpha = neus_alpha(geo.sdf, geo.inv_s, cos, samples.deltas * norm, 1.0, fronts)
+    alpha = render_rays(field, origins, dirs, samples)["alpha"]  # one pass over every sample
     before = transmittance(alpha, samples.ray_indices, samples.n_rays)
     for threshold in (1e-1, 1e-4):
-        rows.clear()
+        field.geometry_calls.clear()
         kept = visible_samples(field, origins, dirs, samples, threshold)
         expected = samples.select(before > threshold)
         assert torch.equal(kept.ray_indices, expected.ray_indices)
@@ -273,9 +261,10 @@ def test_visible_samples_keep_what_one_pass_over_every_sample_keeps(monkeypatch,
             count, k = samples.counts(), kept.counts()
             end = 2 ** (torch.log2((k - 1).clamp_min(1).double()).floor().long() + 1)
             evaluated = torch.where(k < count, end.clamp_max(count), count)
+            rows = field.geometry_calls
             assert len(rows) > 4 and sum(rows) == int(evaluated.sum()) < len(samples.ray_indices)
         if first_round > 1000:
-            assert rows == [len(samples.ray_indices)]
+            assert field.geometry_calls == [len(samples.ray_indices)]
 
 
 @pytest.mark.parametrize("threads", [1, 2, 3])

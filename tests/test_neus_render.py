@@ -3,7 +3,7 @@ brute-force integration of the density, and the vectorised compositor against it
 
 import pytest
 import torch
-from scenes import SphereField
+from scenes import RecordingSphereField, SphereField
 
 from neural.render import fullray
 from neural.render.composite import composite, composite_reference, transmittance
@@ -132,18 +132,7 @@ def test_shading_leaves_out_light_samples_within_its_bound(monkeypatch, toleranc
     46k samples would take a last round after the first: rounds double to the end here.)"""
     monkeypatch.setattr(fullray, "LAST_ROUND_SAMPLES", 0)
 
-    class Counting(SphereField):
-        geometry_rows = radiance_rows = 0
-
-        def geometry(self, x):
-            Counting.geometry_rows += len(x)
-            return super().geometry(x)
-
-        def radiance(self, x, d, geo):
-            Counting.radiance_rows += len(x)
-            return super().radiance(x, d, geo)
-
-    field = Counting(radius=1.0, inv_s=40.0)
+    field = RecordingSphereField(radius=1.0, inv_s=40.0)
     grid = torch.linspace(-1.2, 1.2, 24)
     xy = torch.stack(torch.meshgrid(grid, grid, indexing="ij"), -1)
     origins = torch.cat([xy.reshape(-1, 2), torch.full((576, 1), -3.0)], 1).double()
@@ -155,14 +144,15 @@ def test_shading_leaves_out_light_samples_within_its_bound(monkeypatch, toleranc
     bg = torch.tensor([0.2, 0.9, 0.5], dtype=torch.float64)
     full_out = render_samples(field, points, unit, deltas, fronts, samples, bg)
     full = full_out["color"]
-    Counting.geometry_rows = Counting.radiance_rows = 0
+    field.geometry_calls.clear()
+    field.radiance_calls.clear()
 
     def locate(index):
         return index, points[index], unit[index], deltas[index], fronts[index]
 
     fast, located = shade_samples(field, samples, locate, bg, tolerance=tolerance)
     assert (full - fast).abs().max() <= tolerance + 1e-12
-    assert Counting.geometry_rows == int(located.sum())
+    assert sum(field.geometry_calls) == int(located.sum())
     if tolerance == 0:
         torch.testing.assert_close(fast, full, rtol=0, atol=1e-12)
         assert torch.equal(located, samples.counts())
@@ -173,7 +163,7 @@ def test_shading_leaves_out_light_samples_within_its_bound(monkeypatch, toleranc
         assert bool((located[core] < samples.counts()[core]).all())
         assert float(located[core].double().mean()) < 0.5 * float(samples.counts()[core].double().mean())
         assert torch.equal(located[miss], samples.counts()[miss])
-        assert Counting.radiance_rows < 0.5 * len(points)  # most samples lie before the sphere or behind it
+        assert sum(field.radiance_calls) < 0.5 * len(points)  # most samples lie before the sphere or behind
         assert (full - fast).abs().max() > 0  # weights above 0 were left out
 
 
@@ -187,14 +177,7 @@ def test_shading_takes_a_small_remainder_in_one_round(monkeypatch, last_round, r
     once, and the colours are the composite's. 30 rays of 100 samples pass far from the sphere, so light
     reaches all their samples."""
     monkeypatch.setattr(fullray, "LAST_ROUND_SAMPLES", last_round)
-    sizes = []
-
-    class Recording(SphereField):
-        def geometry(self, x):
-            sizes.append(len(x))
-            return super().geometry(x)
-
-    field = Recording(radius=1.0, inv_s=40.0)
+    field = RecordingSphereField(radius=1.0, inv_s=40.0)
     origins = torch.cat(
         [torch.full((30, 1), 4.0), torch.linspace(-1, 1, 30)[:, None], torch.full((30, 1), -3.0)], 1
     )
@@ -212,7 +195,7 @@ def test_shading_takes_a_small_remainder_in_one_round(monkeypatch, last_round, r
         return index, points[index], unit[index], deltas[index], fronts[index]
 
     fast, located = shade_samples(field, samples, locate, bg, first_round=2)
-    assert sizes == rounds
+    assert field.geometry_calls == rounds
     assert torch.equal(located, samples.counts())
     torch.testing.assert_close(fast, full, rtol=0, atol=1e-6)
 

@@ -13,10 +13,11 @@ N_COEFFS = 16
 
 
 def spherical_harmonics(d: torch.Tensor) -> torch.Tensor:
-    """d (N, 3) unit directions -> (N, 16) real SH basis values (inputs are used as given, not normalised)."""
+    """d (N, 3) unit directions -> (N, 16) real SH basis values (inputs are used as given, not normalised), a
+    transposed view of a (16, N) tensor."""
     if not isinstance(d, torch.Tensor) or d.ndim != 2 or d.shape[1] != 3:
         raise ValueError(f"d: expected a (N, 3) tensor of directions, got {getattr(d, 'shape', type(d))}")
-    x, y, z = d.unbind(dim=1)
+    x, y, z = d.t().contiguous()  # each (N,) contiguous: the products below run on whole vectors
     xy, yz, xz = x * y, y * z, x * z
     x2, y2, z2 = x * x, y * y, z * z
     return torch.stack(
@@ -37,6 +38,5 @@ def spherical_harmonics(d: torch.Tensor) -> torch.Tensor:
             0.45704579946446572 * x * (1.0 - 5.0 * z2),
             1.4453057213202769 * z * (x2 - y2),
             0.59004358992664352 * x * (-x2 + 3.0 * y2),
-        ],
-        dim=1,
-    )
+        ]
+    ).t()

@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from neural.asset import load_asset, load_field
-from neural.device import pick_device
+from neural.device import pick_device, processor
 from shellsim.cage import load_or_build_cage
 from shellsim.render import STAGES, DeformedRenderer, orbit_camera, orbit_framing
 from shellsim.wind import WindSettings, wind_displacement
@@ -67,7 +67,7 @@ def main() -> None:
     print(
         f"asset {asset.name}: {len(renderer.outer.faces)} + {len(renderer.inner.faces)} shell faces, cage "
         f"{len(cage.vertices)} vertices / {len(cage.tets)} tets; {args.size}x{args.size}, {args.motion}, "
-        f"{device}, median of {args.repeats}"
+        f"{device} ({processor(device)}), median of {args.repeats}"
     )
     warm = orbit_camera(center, distance, asset.up, 0.0, args.size, args.size)
     for _ in range(2):  # warm-up: kernel loading, first allocations (the first two frames are slow)

@@ -22,7 +22,7 @@ import torch
 
 from neural.asset import load_asset, load_field
 from neural.data import load_dataset
-from neural.device import pick_device
+from neural.device import pick_device, processor
 from neural.render.view import asset_sampler, fitted_occupancy_grid, full_ray_sampler, occupancy_sampler
 from neural.train import evaluate
 
@@ -58,6 +58,7 @@ def main() -> None:
     report = {
         "asset": str(asset.root),
         "device": device,
+        "processor": processor(device),
         "resolution": [int(data.cameras.width[0]), int(data.cameras.height[0])],
         "views": [int(v) for v in views],
         **{name: {k: round(v, 4) for k, v in r.items() if k != "views"} for name, r in results.items()},

@@ -36,6 +36,7 @@ import time
 import numpy as np
 import warp as wp
 
+from neural.device import processor
 from shellsim.fem import SimSettings, Simulator
 from shellsim.geometry import tet_volumes
 from shellsim.materials import get_material
@@ -173,7 +174,8 @@ def main() -> None:
     wp.init()
     material = get_material(args.material)
     print(
-        f"device {args.device}, {args.material} (E={material.youngs:g} Pa, nu={material.poisson}), "
+        f"device {args.device} ({processor(args.device)}), {args.material} (E={material.youngs:g} Pa, "
+        f"nu={material.poisson}), "
         f"{args.fps:g} fps x {args.substeps} substeps, {args.frames} frames timed"
     )
     vbd_available = not args.no_vbd

@@ -62,6 +62,7 @@ def main() -> None:
     final = meta["metrics"]["stage2_narrow_band"]
     figures = {
         "command": meta["training"]["command"],
+        "processor": meta["training"]["processor"],
         "training_minutes": curve[-1]["minutes"],
         "command_wall_minutes": round(wall, 2),
         "heldout_views": len(final["views"]),

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import functools
+import os
+import platform
+from pathlib import Path
 
 from .errors import InputError
 
@@ -35,6 +38,41 @@ def pick_device(name: str | None = "auto", warp: bool = False) -> str:
             raise InputError("device 'cuda' requested but no CUDA device is available")
         return "cpu"
     return "cuda:0" if warp else "cuda"
+
+
+def processor(device: str = "cpu") -> str:
+    """What a torch ``device`` runs on, for the record next to a timing: the GPU's name on ``cuda``; on the
+    CPU :func:`cpu_description` of this machine's ``/proc/cpuinfo`` (elsewhere ``platform.processor()``)
+    and the cores. Minutes and milliseconds mean little without it: two hosts both sold as "AMD EPYC"
+    with two cores have run the same bench 2x apart."""
+    if str(device).startswith("cuda"):
+        import torch
+
+        return torch.cuda.get_device_name(torch.device(device))
+    cpuinfo = Path("/proc/cpuinfo")
+    name = cpu_description(cpuinfo.read_text()) if cpuinfo.is_file() else platform.processor()
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return f"{name or platform.machine()}, {cores} cores"
+
+
+def cpu_description(cpuinfo: str) -> str:
+    """The first processor of a Linux ``/proc/cpuinfo`` text: its model name with family, model and
+    stepping (a virtual machine's model name alone often says only the vendor's line) and AVX-512 when its
+    flags have ``avx512f``, e.g. ``"AMD EPYC (family 26, model 2, stepping 1; AVX-512)"``; "" without one."""
+    fields = {}
+    for line in cpuinfo.splitlines():
+        key, sep, value = line.partition(":")
+        if not sep:
+            if fields:  # a blank line ends the first processor's block
+                break
+            continue
+        fields.setdefault(key.strip(), value.strip())
+    name = fields.get("model name") or fields.get("vendor_id", "")
+    ids = [f"{k.split()[-1]} {fields[k]}" for k in ("cpu family", "model", "stepping") if k in fields]
+    details = "; ".join(
+        part for part in (", ".join(ids), "AVX-512" * ("avx512f" in fields.get("flags", "").split())) if part
+    )
+    return f"{name} ({details})" if name and details else name
 
 
 def initialised_warp():

@@ -17,6 +17,7 @@ import torch
 from .asset import command_line, save_asset
 from .config import FieldConfig, PipelineConfig
 from .data import SceneData, load_dataset
+from .device import processor
 from .errors import InputError
 from .field import ShellField
 from .shell.from_field import FieldShells, extract_field_shells
@@ -103,6 +104,7 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
             "data": str(data_dir),
             "downscale": config.downscale,
             "device": device,
+            "processor": processor(device),
             "stage1": dataclasses.asdict(config.stage1),
             "stage2": dataclasses.asdict(config.stage2),
             "train_views": len(data.train_idx),

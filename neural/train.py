@@ -292,9 +292,10 @@ def train_stage1(
             )
             history += [final] if final else []
             checkpoints.due(done)
-    except KeyboardInterrupt:
+    except BaseException as err:  # the bar closed before the CLI's one line, not printed after it at exit
         bar.close()
-        checkpoints.interrupted(done, "stage 1")
+        if isinstance(err, KeyboardInterrupt):
+            checkpoints.interrupted(done, "stage 1")
         raise
     if final is None and done == config.steps:  # resumed after the last step, before its evaluation
         final = _periodic_evaluation(
@@ -360,9 +361,10 @@ def train_stage2(
             )
             history += [final] if final else []
             checkpoints.due(done)
-    except KeyboardInterrupt:
+    except BaseException as err:  # the bar closed before the CLI's one line, not printed after it at exit
         bar.close()
-        checkpoints.interrupted(done, "stage 2")
+        if isinstance(err, KeyboardInterrupt):
+            checkpoints.interrupted(done, "stage 2")
         raise
     if final is None and done == config.steps:  # resumed after the last step, before its evaluation
         final = _periodic_evaluation(

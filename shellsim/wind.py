@@ -349,15 +349,18 @@ def animate_wind(
     stats = meta.setdefault("stats", {})
     start, wall = time.perf_counter(), float(stats.get("wall_seconds", 0.0))
     limited = 0
-    for i in tqdm(range(writer.n_frames, frames), desc="wind", unit="frame", disable=not progress):
-        u, scale, ratio = limited_wind_displacement(rest, tets, i / fps, settings)
-        if scale < 1:
-            limited += 1
-            stats["limited_frames"] = stats.get("limited_frames", 0) + 1
-            stats["min_bend_scale"] = min(stats.get("min_bend_scale", 1.0), scale)
-        stats["min_volume_ratio"] = min(stats.get("min_volume_ratio", 1.0), ratio)
-        stats["wall_seconds"] = wall + time.perf_counter() - start
-        writer.append(rest + u, i / fps)
+    todo = range(writer.n_frames, frames)
+    with tqdm(total=len(todo), desc="wind", unit="frame", disable=not progress) as bar:  # closed on Ctrl-C
+        for i in todo:
+            u, scale, ratio = limited_wind_displacement(rest, tets, i / fps, settings)
+            if scale < 1:
+                limited += 1
+                stats["limited_frames"] = stats.get("limited_frames", 0) + 1
+                stats["min_bend_scale"] = min(stats.get("min_bend_scale", 1.0), scale)
+            stats["min_volume_ratio"] = min(stats.get("min_volume_ratio", 1.0), ratio)
+            stats["wall_seconds"] = wall + time.perf_counter() - start
+            writer.append(rest + u, i / fps)
+            bar.update()
     if limited:
         log.warning(
             "the wind would fold the cage in %d frames: their bending was scaled down (to %.0f%% at worst) "

@@ -1,5 +1,6 @@
 """neural.device.pick_device: the one device choice (torch or Warp), its errors speaking of values, and the
-CLI's ``--device`` naming the option; denormals flushed in each torch thread once neural.field is imported."""
+CLI's ``--device`` naming the option; denormals flushed in each torch thread once neural.field is imported;
+the processor a timing is recorded with."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 import torch
 import warp as wp
 
-from neural.device import pick_device
+from neural.device import cpu_description, pick_device, processor
 from neural.errors import InputError
 from shellsim.cli import main
 
@@ -97,3 +98,39 @@ def test_importing_the_field_flushes_denormals_in_every_torch_thread():
 
     assert nonzero("plain") == (2, 1 << 22)
     assert nonzero("field") == (2, 0)
+
+
+CPUINFO_VM = """processor\t: 0
+vendor_id\t: AuthenticAMD
+cpu family\t: 26
+model\t\t: 2
+model name\t: AMD EPYC
+stepping\t: 1
+flags\t\t: fpu sse2 avx2 avx512f avx512_bf16
+
+processor\t: 1
+vendor_id\t: AuthenticAMD
+cpu family\t: 25
+model\t\t: 1
+model name\t: AMD EPYC 7B13
+stepping\t: 0
+flags\t\t: fpu sse2 avx2
+"""
+
+
+def test_the_cpu_is_described_by_its_first_processor_block():
+    """Name, family, model and stepping of processor 0 (not 1's), AVX-512 from its flags (avx512_bf16 alone
+    would not count); a block without those ids is its name alone; an empty text, nothing."""
+    assert cpu_description(CPUINFO_VM) == "AMD EPYC (family 26, model 2, stepping 1; AVX-512)"
+    second = CPUINFO_VM.split("\n\n")[1]
+    assert cpu_description(second) == "AMD EPYC 7B13 (family 25, model 1, stepping 0)"
+    assert cpu_description("processor : 0\nmodel name : Neoverse-N1\nflags : fp asimd\n") == "Neoverse-N1"
+    assert cpu_description("processor : 0\nvendor_id : GenuineIntel\nflags : avx512f\n") == (
+        "GenuineIntel (AVX-512)"
+    )
+    assert cpu_description("") == ""
+
+
+def test_the_processor_names_the_cores_this_process_may_use():
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    assert processor("cpu").endswith(f", {cores} cores") and len(processor("cpu")) > len(f", {cores} cores")

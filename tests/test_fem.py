@@ -312,17 +312,21 @@ def test_serial_pcg_matches_warp_optim_cg():
 
 def test_the_step_that_shows_convergence_is_taken():
     """Newton stops once its step is below tol; taking that step too leaves a spinning, bouncing body far
-    closer to a tightly converged run than tol itself (without it: about 1 tol per substep)."""
+    closer to a tightly converged run than tol itself (without it: about 1 tol per substep).
+
+    The tight run stops at 1e-3 of the default tolerance, where a Newton step still lowers the energy by far
+    more than its float64 rounding. At 1e-7 (steps of ~1e-10 m, whose energy change is of the order of the
+    rounding of the 0.03 J energy) the line search of a substep stalled on one host (a Zen 5 CPU) and not on
+    others; there, that run and the 1e-5 one both ended 0.040 tol from the default run."""
     v, t = box_tets((4, 4, 4), (0.2, 0.2, 0.2), origin=(0.0, 0.0, 0.005))
-    runs = []
-    for newton_tol, cg_tol in ((1e-2, 1e-3), (1e-7, 1e-10)):  # the defaults, then tight
+    runs, unconverged = [], []
+    for newton_tol, cg_tol in ((1e-2, 1e-3), (1e-5, 1e-10)):  # the defaults, then tight
         sim = Simulator(v, t, RUBBER, SimSettings(ground=0.0, newton_tol=newton_tol, cg_tol=cg_tol))
         sim.set_rigid_velocity(linear=(0.3, 0.0, -0.2), angular=(0.0, 0.0, 4.0))
-        for _ in range(2):
-            stats = sim.step()
+        unconverged.append(sum(sim.step().unconverged_substeps for _ in range(2)))
         runs.append(sim.positions)
     tol = 1e-2 * sim.size * sim.settings.dt / sim.settings.substeps  # max |dx| at which Newton stops
-    assert stats.unconverged_substeps == 0
+    assert unconverged == [0, 0]
     assert runs[1][:, 2].min() < 0.005  # the body reached the ground
     assert np.abs(runs[0] - runs[1]).max() < 0.1 * tol
 
@@ -400,23 +404,26 @@ def test_tet_slabs_share_no_vertex():
 
 def test_hessian_assembled_on_threads_equals_one_thread(monkeypatch):
     """Three threads each assembling the Hessian blocks of their slab of tets (then the tets between slabs)
-    give the same steps, with contact, as one thread over every tet."""
+    give the same steps, with contact, as one thread over every tet: the same Newton iterations, every
+    substep converged, positions equal to rounding. (At newton_tol 1e-7 the line search of some substeps
+    stalls on the energy's float64 rounding, and where each run stalls depends on the order of its sums.)"""
     import shellsim.fem as fem
 
     v, t = box_tets((6, 3, 3), (0.3, 0.15, 0.15), origin=(0.0, 0.0, 0.002))
     monkeypatch.setattr(fem, "default_cpu_threads", lambda: 3)
-    results = []
+    results, iterations = [], []
     for threshold in (10**9, 0):
         monkeypatch.setattr(fem, "PARALLEL_HESSIAN_TETS", threshold)
-        settings = SimSettings(ground=0.0, substeps=2, cg_tol=1e-10, cg_forcing=0.0, newton_tol=1e-7)
+        settings = SimSettings(ground=0.0, substeps=2, cg_tol=1e-10, cg_forcing=0.0, newton_tol=1e-6)
         sim = Simulator(v, t, RUBBER, settings)  # every solve exact: only the assembly differs
         assert len(sim._tet_ranges) == (1 if threshold else 4)
         sim.set_rigid_velocity(linear=(0.2, 0.0, -0.1), angular=(0.0, 1.0, 2.0))
-        for _ in range(2):
-            sim.step()
+        stats = [sim.step() for _ in range(2)]
+        iterations.append([(s.newton_iterations, s.unconverged_substeps) for s in stats])
         results.append(sim.positions)
     assert results[0][:, 2].min() < 0  # in contact with the ground
-    np.testing.assert_allclose(results[1], results[0], atol=1e-9)
+    assert iterations[0] == iterations[1] and all(unconverged == 0 for _, unconverged in iterations[0])
+    np.testing.assert_allclose(results[1], results[0], rtol=0, atol=1e-14)  # 6e-9 m is Newton's tol here
 
 
 @pytest.fixture

@@ -14,6 +14,7 @@ import torch
 from scenes import write_fuzzy_scene
 
 from neural.asset import load_asset
+from neural.device import pick_device, processor
 from neural.field import FieldConfig, HashGridConfig
 from neural.pipeline import PipelineConfig, train_asset
 from neural.shell import ShellConfig
@@ -76,6 +77,8 @@ def test_asset_records_training_and_the_narrow_band_renders_well(fuzzy):
     first, last = meta["training"]["curve"]
     assert (first["stage"], first["step"], last["stage"], last["step"]) == (1, 300, 2, 40)
     assert 0 < first["minutes"] < last["minutes"] <= meta["training"]["wall_minutes"]  # both rounded
+    training = meta["training"]
+    assert training["processor"] == processor(training["device"])  # what the minutes were measured on
     assert last["psnr"] == nb["psnr"] and first["psnr"] == meta["metrics"]["stage1_full_ray"]["psnr"]
     assert not (asset_dir / "checkpoints").exists()
 
@@ -94,6 +97,7 @@ def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     report = json.loads(out.read_text())
     recorded = load_asset(asset_dir).meta["metrics"]
     assert recorded["eval"]["narrow_band"] == report["narrow_band"] and "command" in recorded["eval"]
+    assert report["processor"] == processor(pick_device("auto"))  # what its ms_per_frame ran on
     nb, full = report["narrow_band"], report["full_ray"]
     assert nb["samples_per_pixel"] < full["samples_per_pixel"] / 5
     assert abs(nb["psnr"] - full["psnr"]) < 3.0

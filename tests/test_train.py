@@ -183,13 +183,20 @@ def _failing_sampler(monkeypatch, at_call: int, error: BaseException):
 
 
 def test_stage1_checkpoints_by_time_and_on_interrupt(sphere_data, tmp_path, monkeypatch):
+    """Checkpoints by time and on Ctrl-C; on any exception the progress bar is closed first (else tqdm prints
+    it again at exit, after the CLI's one-line error)."""
+    import neural.train
     from neural.checkpoint import load_checkpoint
 
+    bars = []
+    progress = neural.train._progress
+    monkeypatch.setattr(neural.train, "_progress", lambda *a: bars.append(progress(*a)) or bars[-1])
     ckpt = tmp_path / "checkpoints" / "stage1.safetensors"
     config = dataclasses.replace(small_stage1(40), checkpoint_every=10**6, checkpoint_seconds=0.0)
     _failing_sampler(monkeypatch, 7, RuntimeError("killed"))  # no handler runs: only what is on disk counts
     with pytest.raises(RuntimeError):
         train_stage1(build_field(sphere_data, SMALL_FIELD, "cpu"), sphere_data, tmp_path, config, "cpu")
+    assert len(bars) == 1 and bars[0].n == 6 and bars[0].disable  # tqdm.close() disables the bar
     field = build_field(sphere_data, SMALL_FIELD, "cpu")
     assert load_checkpoint(ckpt, field)[0]["step"] == 6  # by time: every step when checkpoint_seconds is 0
 
@@ -198,6 +205,7 @@ def test_stage1_checkpoints_by_time_and_on_interrupt(sphere_data, tmp_path, monk
     with pytest.raises(KeyboardInterrupt):
         train_stage1(field, sphere_data, tmp_path, config, "cpu")
     assert load_checkpoint(ckpt, build_field(sphere_data, SMALL_FIELD, "cpu"))[0]["step"] == 9  # ...on Ctrl-C
+    assert len(bars) == 2 and bars[1].disable
 
 
 def test_a_short_run_scales_stage2_and_the_grids_with_its_steps(tmp_path, monkeypatch, capsys):

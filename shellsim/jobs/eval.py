@@ -7,7 +7,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from neural.device import DEVICES
+from neural.device import DEVICES, processor
 from shellsim.options import SettingError, check_choice, device_setting, option
 
 
@@ -68,6 +68,7 @@ def evaluate(settings: EvalSettings) -> dict:
         "asset": str(asset.root),
         "data": str(settings.data),
         "downscale": downscale,
+        "processor": processor(device),  # what ms_per_frame was measured on
         "heldout_views": [int(v) for v in views],
         "lpips": lpips_status(),
     }

@@ -26,7 +26,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from neural.asset import load_asset, load_field
 from neural.data import load_dataset
@@ -37,6 +36,8 @@ from shellsim.jobs.train import TrainSettings, train
 
 
 def main() -> None:
+    import torch  # here, after neural's import: see neural.OPENMP_SPIN_COUNT
+
     here = Path(__file__).resolve().parents[1]
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

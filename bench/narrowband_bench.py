@@ -13,7 +13,6 @@ import argparse
 import time
 
 import numpy as np
-import torch
 import trimesh
 from skimage.measure import marching_cubes
 
@@ -69,6 +68,8 @@ def best_of(repeats: int, fn):
 
 
 def main():
+    import torch  # here, after neural's import: see neural.OPENMP_SPIN_COUNT
+
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

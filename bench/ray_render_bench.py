@@ -17,13 +17,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import torch
-
 from shellsim.jobs.wind import WindJobSettings, wind
 from shellsim.render import render_motion
 
 
 def main() -> None:
+    import torch  # here, after neural's import: see neural.OPENMP_SPIN_COUNT
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--asset", default="lego")
     parser.add_argument("--frames", type=int, default=24)

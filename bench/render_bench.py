@@ -18,7 +18,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from neural.asset import load_asset, load_field
 from neural.data import load_dataset
@@ -28,6 +27,8 @@ from neural.train import evaluate
 
 
 def main() -> None:
+    import torch  # here, after neural's import: see neural.OPENMP_SPIN_COUNT
+
     here = Path(__file__).resolve().parents[1]
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

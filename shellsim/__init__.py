@@ -2,3 +2,5 @@
 
 ``shellsim.fem``, ``shellsim.wind`` and ``shellsim.motion`` work on plain numpy arrays and do not need torch.
 """
+
+import neural  # noqa: E402, F401 (before torch loads: neural.OPENMP_SPIN_COUNT)

@@ -1,6 +1,6 @@
 """neural.device.pick_device: the one device choice (torch or Warp), its errors speaking of values, and the
 CLI's ``--device`` naming the option; denormals flushed in each torch thread once neural.field is imported;
-the processor a timing is recorded with."""
+the processor a timing is recorded with; the OpenMP spin count set before torch loads."""
 
 from __future__ import annotations
 
@@ -134,3 +134,26 @@ def test_the_cpu_is_described_by_its_first_processor_block():
 def test_the_processor_names_the_cores_this_process_may_use():
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     assert processor("cpu").endswith(f", {cores} cores") and len(processor("cpu")) > len(f", {cores} cores")
+
+
+SPIN_COUNT = """
+import os, sys
+import shellsim.cli  # as the shellsim command starts: torch is not loaded yet
+import neural
+assert "torch" not in sys.modules
+print(os.environ.get("GOMP_SPINCOUNT"), neural.OPENMP_SPIN_COUNT)
+"""
+
+
+@pytest.mark.parametrize(
+    ("env", "expected"),
+    [({}, "30000"), ({"GOMP_SPINCOUNT": "5"}, "5"), ({"OMP_WAIT_POLICY": "ACTIVE"}, "None")],
+)
+def test_the_command_sets_openmp_spinning_unless_the_user_did(env, expected):
+    """Importing the packages sets GOMP_SPINCOUNT (read by torch's libgomp when torch loads) to
+    neural.OPENMP_SPIN_COUNT, but leaves a user's GOMP_SPINCOUNT or OMP_WAIT_POLICY alone."""
+    clean = {k: v for k, v in os.environ.items() if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
+    done = subprocess.run(
+        [sys.executable, "-c", SPIN_COUNT], env={**clean, **env}, capture_output=True, text=True, check=True
+    )
+    assert done.stdout.split() == [expected, "30000"]

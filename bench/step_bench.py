@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import shutil
 import subprocess
@@ -30,9 +31,10 @@ import neural
 from neural.device import processor
 
 
-def train(data_dir: str, out: Path, start: int, steps: int) -> list[float]:
+def train(data_dir: str, out: Path, start: int, steps: int, on_step=None) -> list[float]:
     """Stage 1 of the default lego recipe (downscale 4) in ``out`` up to step ``start + steps``, resuming
-    from ``out``'s checkpoint: the wall time (s) of each step run here."""
+    from ``out``'s checkpoint: the wall time (s) of each step run here. ``on_step()`` is called as each
+    step ends (before the step's checkpoint and the held-out evaluation after the last step)."""
     import neural.train as training
     from neural.config import PipelineConfig
     from neural.data import load_dataset
@@ -45,7 +47,7 @@ def train(data_dir: str, out: Path, start: int, steps: int) -> list[float]:
     def timed_bar(*args):  # the step loop's progress bar, silent, stamping every step's end
         bar = make_bar(*args)
         bar.disable, update = True, bar.update
-        bar.update = lambda n=1: (stamps.append(time.perf_counter()), update(n))[1]
+        bar.update = lambda n=1: (stamps.append(time.perf_counter()), on_step and on_step(), update(n))[2]
         return bar
 
     training._progress = timed_bar
@@ -54,6 +56,21 @@ def train(data_dir: str, out: Path, start: int, steps: int) -> list[float]:
     )
     training.train_stage1(build_field(data, config.field, "cpu", stage1.seed), data, out, stage1, "cpu")
     return np.diff(stamps).tolist()
+
+
+def kept_checkpoint(data_dir: str, base: Path, start: int) -> Path:
+    """``base``, a run holding stage 1's checkpoint at step ``start`` (trained here once if missing)."""
+    from safetensors import safe_open
+
+    checkpoint = base / "checkpoints" / "stage1.safetensors"
+    if not checkpoint.is_file():
+        print(f"training steps 0-{start} into {base} (once)", flush=True)
+        train(data_dir, base, start, 0)
+    with safe_open(str(checkpoint), framework="pt") as f:
+        step = json.loads(f.metadata()["meta"])["step"]
+    if step != start:
+        sys.exit(f"{checkpoint}: a checkpoint of step {step}, not {start}: pass another --base")
+    return base
 
 
 def child_env(spin: str) -> dict:
@@ -81,11 +98,7 @@ def main() -> None:
     bad = [s for s in args.spin if s != "passive" and not s.isdigit()]
     if bad:
         parser.error(f"--spin: expected counts or 'passive', got {bad}")
-    base = Path(args.base)
-    checkpoint = base / "checkpoints" / "stage1.safetensors"
-    if not checkpoint.is_file():
-        print(f"training steps 0-{args.start} into {base} (once)", flush=True)
-        train(args.data, base, args.start, 0)
+    base = kept_checkpoint(args.data, Path(args.base), args.start)
     print(f"{processor('cpu')}; lego stage 1, steps {args.start}-{args.start + args.steps}, ms per step")
     print(f"{'setting':>16} " + " ".join(f"{'round ' + str(r + 1):>9}" for r in range(args.rounds)))
     medians = {spin: [] for spin in args.spin}

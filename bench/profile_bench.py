@@ -38,8 +38,8 @@ from neural.device import pick_device, processor
 
 
 class PartTimers:
-    """Wall-clock seconds spent in patched callables, by label; ``inner`` labels are nested in an outer
-    part (the encoding inside the geometry network), attributed to the outer part running at the time."""
+    """Wall-clock seconds spent in timed callables, by label. A call made while another timed call runs (the
+    encoding inside the geometry network) is filed as ``"OUTER / label"`` under the outermost one."""
 
     def __init__(self, device: str):
         self.seconds: dict[str, float] = defaultdict(float)
@@ -82,6 +82,7 @@ class PartTimers:
         self._originals.append((owner, name, raw))
 
     def snapshot(self) -> dict[str, float]:
+        """The seconds so far, by label (a copy)."""
         return dict(self.seconds)
 
     def restore(self) -> None:

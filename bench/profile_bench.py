@@ -145,20 +145,19 @@ def profile_step(args) -> None:
     from neural.render.occupancy import OccupancyGrid
 
     base = kept_checkpoint(args.data, Path(args.base), args.start)
-    timers = PartTimers("cpu")
-    for owner, name, label in [
-        (OccupancyGrid, "update", "occupancy refresh"),
-        (OccupancyGrid, "sample", "occupancy march"),
-        (training, "visible_samples", "visibility pass"),
-        (training, "render_rays", "forward with gradients"),
-        (training, "regularisers", "regularisers"),
-        (torch.Tensor, "backward", "backward"),
-        (torch.optim.Adam, "step", "optimizer"),
-    ]:
-        timers.patch(owner, name, label)
-    patch_encoding(timers)
-    snapshots = []
+    timers, snapshots = PartTimers("cpu"), []
     with patched(timers), tempfile.TemporaryDirectory() as tmp:
+        for owner, name, label in [
+            (OccupancyGrid, "update", "occupancy refresh"),
+            (OccupancyGrid, "sample", "occupancy march"),
+            (training, "visible_samples", "visibility pass"),
+            (training, "render_rays", "forward with gradients"),
+            (training, "regularisers", "regularisers"),
+            (torch.Tensor, "backward", "backward"),
+            (torch.optim.Adam, "step", "optimizer"),
+        ]:
+            timers.patch(owner, name, label)
+        patch_encoding(timers)
         shutil.copytree(base, tmp, dirs_exist_ok=True)
         times = train(
             args.data, Path(tmp), args.start, args.steps, lambda: snapshots.append(timers.snapshot())

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shellsim.cli import main as shellsim
+from shellsim.cli.main import main as shellsim
 
 BLENDER_IMPORT = """
 import json, sys, bpy
@@ -64,9 +64,9 @@ def main() -> None:
     from pxr import Usd, UsdGeom
 
     from neural.asset import load_asset
-    from shellsim.cage import cage_for_motion
-    from shellsim.deform import deform_points
-    from shellsim.motion import load_motion
+    from shellsim.cage.store import cage_for_motion
+    from shellsim.deform.inverse_map import deform_points
+    from shellsim.motion.format import load_motion
 
     motion = load_motion(motion_path)
     asset = load_asset("lego")

@@ -1,4 +1,4 @@
-"""Cost of the deformed-to-rest map (:class:`shellsim.deform.InverseMap`): per-frame build and queries.
+"""Cost of the deformed-to-rest map (:class:`shellsim.deform.inverse_map.InverseMap`): per-frame build and queries.
 
 Cages: the unit cube split into n^3 cells of 6 tets (n = 12: 10,368 tets; n = 19: 41,154 tets), deformed
 by a smooth non-inverting warp. Queries: random points in the deformed cage's bounding box (most inside)
@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from shellsim.deform import InverseMap
+from shellsim.deform.inverse_map import InverseMap
 
 
 def cube_grid(n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,6 @@
 """Time writing a motion of the LEGO cage: 500, 1000 and 2000 frames, flushed every ``--every`` frames.
 
-The shipped LEGO's cage (``neural.asset.load_asset('lego')`` + :func:`shellsim.cage.load_or_build_cage`)
+The shipped LEGO's cage (``neural.asset.load_asset('lego')`` + :func:`shellsim.cage.store.load_or_build_cage`)
 moved to random positions; a flush every few frames is what a producer slower than the writer's
 ``flush_seconds`` per few frames gets (the simulator on the LEGO). Cost linear in the frame count shows as
 seconds doubling with the frames; quadratic as quadrupling. Runs against either motion writer (format 1,
@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from neural.asset import load_asset
-from shellsim.cage import load_or_build_cage
-from shellsim.motion import MotionWriter, load_motion
+from shellsim.cage.store import load_or_build_cage
+from shellsim.motion.format import MotionWriter, load_motion
 
 
 def write(path: Path, rest: np.ndarray, tets: np.ndarray, frames: int, every: int, seed: int = 0):

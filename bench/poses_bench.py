@@ -22,8 +22,8 @@ import numpy as np
 
 from neural.data.colmap import align_similarity
 from neural.data.datasets import _focus_point
+from shellsim.cli.options import add_options, from_args
 from shellsim.jobs.poses import PosesSettings, poses
-from shellsim.options import add_options, from_args
 
 FOX = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "fox"
 

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from shellsim.jobs.wind import WindJobSettings, wind
-from shellsim.render import render_motion
+from shellsim.render.frames import render_motion
 
 
 def main() -> None:

@@ -1,9 +1,9 @@
-"""Benchmark of the implicit FEM (:mod:`shellsim.fem`): milliseconds per implicit step against tet count.
+"""Benchmark of the implicit FEM (:mod:`shellsim.physics.fem`): milliseconds per implicit step against tet count.
 
 A 0.3 m cube of structured tets (6 per cell) falls 2 cm onto the ground while spinning, so the steps timed
 include contact and friction. For each size it prints the milliseconds per implicit step (one backward-Euler
 substep, Newton solve included), Newton iterations per step, tet Hessians per step (the Newton iterations that
-evaluated the tets' blocks: the others of a substep reuse them, ``shellsim.fem.ELASTIC_HESSIAN_REUSE``), CG
+evaluated the tets' blocks: the others of a substep reuse them, ``shellsim.physics.fem.ELASTIC_HESSIAN_REUSE``), CG
 iterations per Newton iteration and the peak resident memory, then (unless ``--no-vbd``) the same scene with
 the ``newton`` physics package's VBD solver (``newton.solvers.SolverVBD``, a benchmark-only dependency:
 ``pip install newton``) and the time ratio.
@@ -37,9 +37,9 @@ import numpy as np
 import warp as wp
 
 from neural.device import processor
-from shellsim.fem import SimSettings, Simulator
-from shellsim.geometry import tet_volumes
-from shellsim.materials import get_material
+from shellsim.cage.geometry import tet_volumes
+from shellsim.physics.fem import SimSettings, Simulator
+from shellsim.physics.materials import get_material
 
 SIZE = 0.3  # metres
 LIFT = 0.02  # metres above the ground

@@ -49,7 +49,7 @@ def main() -> None:
         *args.train_options,
     ]
     start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "shellsim.cli", *command], check=True)
+    subprocess.run([sys.executable, "-m", "shellsim.cli.main", *command], check=True)
     wall = (time.perf_counter() - start) / 60.0
     meta = json.loads((Path(args.out) / "asset.json").read_text())
     curve = meta["training"]["curve"]

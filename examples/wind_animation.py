@@ -1,7 +1,7 @@
 """Wind animation of a neural asset (paper Sec. 5, Fig. 12 left): analytic wind on the cage, then a clip.
 
 The asset's cage bends like a cantilever in a gusty wind (:mod:`shellsim.jobs.wind`); every frame is
-rendered by deforming the adaptive shells with the cage (:func:`shellsim.render.render_motion`), seen by a
+rendered by deforming the adaptive shells with the cage (:func:`shellsim.render.frames.render_motion`), seen by a
 camera orbiting the asset. Writes ``OUT/wind.npz`` (the motion), ``OUT/frames/00000.png ...`` and
 ``OUT/wind.mp4``. Re-running continues the motion when it was made with the same wind (else it is refused,
 naming what changed, unless ``--overwrite``) and the render where it stopped.
@@ -18,9 +18,9 @@ import logging
 from pathlib import Path
 
 from neural.errors import ShellsimError
+from shellsim.cli.options import options_named
 from shellsim.jobs.wind import WindJobSettings, wind
-from shellsim.options import options_named
-from shellsim.render import render_motion
+from shellsim.render.frames import render_motion
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -15,7 +15,7 @@ import os
 from collections.abc import Callable, Sequence
 
 from neural.errors import InputError
-from shellsim.options import SettingError
+from shellsim.errors import SettingError
 
 log = logging.getLogger(__name__)
 

@@ -81,8 +81,9 @@ def write_asset_dir(root: Path, outer, inner, name: str, center=(0, 0, 0), scale
 def save_embedded_cage(asset, verts, tets):
     """The cage ``verts`` (V, 3), ``tets`` (T, 4) around ``asset``'s shells: both shells embedded in it, saved
     to ``asset.cage_path`` (where ``load_or_build_cage`` finds it). Returns the :class:`Cage`."""
-    from shellsim.cage import Cage, save_cage, shell_digest
-    from shellsim.embed import embed_points
+    from shellsim.cage.build import Cage, shell_digest
+    from shellsim.cage.embed import embed_points
+    from shellsim.cage.store import save_cage
 
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     cage = Cage(

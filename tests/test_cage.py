@@ -7,13 +7,14 @@ import pytest
 import trimesh
 from meshes import kuhn_grid, write_asset_dir
 
-import shellsim.cage as cage_module
+import shellsim.cage.build as cage_build
+import shellsim.cage.store as cage_store
 from neural.asset import load_asset
 from neural.errors import InputError
-from shellsim.cage import (
-    Cage,
-    CageConfig,
-    build_cage,
+from shellsim.cage.build import Cage, CageConfig, build_cage, shell_digest
+from shellsim.cage.embed import interpolate, outside_distance
+from shellsim.cage.geometry import boundary_faces, tet_quality, tet_volumes
+from shellsim.cage.store import (
     cache_dir,
     cached_cage_path,
     cage_for_motion,
@@ -21,12 +22,9 @@ from shellsim.cage import (
     load_cage,
     load_or_build_cage,
     save_cage,
-    shell_digest,
 )
-from shellsim.cli import main
-from shellsim.embed import interpolate, outside_distance
-from shellsim.geometry import boundary_faces, tet_quality, tet_volumes
-from shellsim.motion import Motion
+from shellsim.cli.main import main
+from shellsim.motion.format import Motion
 
 #: Small, quick cages: a coarse dilation grid, one fTetWild run, any count within a factor 3 of 1000.
 QUICK = CageConfig(margin=0.05, target_tets=1000, surface_faces=1000, tolerance=3.0, max_attempts=1)
@@ -161,7 +159,7 @@ def test_load_or_build_reuses_and_rebuilds(sphere_asset, sphere_cage, tmp_path, 
     asset = load_asset(root)
     calls = []
     monkeypatch.setattr(
-        cage_module, "build_cage", lambda outer, inner, config, what: calls.append(config) or sphere_cage
+        cage_build, "build_cage", lambda outer, inner, config, what: calls.append(config) or sphere_cage
     )
     own = (root / "cage.npz").read_bytes()
     assert np.array_equal(load_or_build_cage(asset, QUICK).tets, sphere_cage.tets)
@@ -194,7 +192,7 @@ def test_shipped_assets_are_never_written_to(sphere_asset, sphere_cage, tmp_path
     (shipped / "ball" / "cage.npz").unlink(missing_ok=True)
     monkeypatch.setenv("SHELLSIM_ASSETS", str(shipped))
     before = sorted(p.name for p in (shipped / "ball").iterdir())
-    monkeypatch.setattr(cage_module, "build_cage", lambda outer, inner, config, what: sphere_cage)
+    monkeypatch.setattr(cage_build, "build_cage", lambda outer, inner, config, what: sphere_cage)
     asset = load_asset("ball")
     assert asset.shipped and not load_asset(shipped / "ball").shipped
     cage = load_or_build_cage(asset, QUICK)
@@ -225,7 +223,7 @@ def test_cli_passes_settings(sphere_asset, sphere_cage, tmp_path, capsys, monkey
     shutil.copytree(sphere_asset, root)
     calls = []
     monkeypatch.setattr(
-        cage_module, "build_cage", lambda outer, inner, config, what: calls.append(config) or sphere_cage
+        cage_build, "build_cage", lambda outer, inner, config, what: calls.append(config) or sphere_cage
     )
     assert main(["cage", "--asset", str(root), "--tets", "1500", "--margin", "0.03"]) == 0
     assert calls == [CageConfig(target_tets=1500, margin=0.03)]
@@ -270,8 +268,8 @@ def test_stray_parts_without_shell_vertices_are_dropped(monkeypatch, caplog):
     stray_v = np.array([[5.0, 0, 0], [6.0, 0, 0], [5.0, 1.0, 0], [5.0, 0, 1.0]])
     vertices = np.concatenate([stray_v, grid_v])  # the stray first: every index moves when it goes
     tets = np.concatenate([[[0, 1, 2, 3]], grid_t + 4])
-    monkeypatch.setattr(cage_module, "tetrahedralize", lambda *args: (vertices, tets, True))
-    with caplog.at_level("INFO", logger="shellsim.cage"):
+    monkeypatch.setattr(cage_build, "tetrahedralize", lambda *args: (vertices, tets, True))
+    with caplog.at_level("INFO", logger="shellsim.cage.build"):
         cage = build_cage(outer, inner, QUICK)
     assert "dropped 1 stray part(s) of the tet mesh that hold no shell vertex (1 tets)" in caplog.text
     np.testing.assert_array_equal(cage.vertices, grid_v)
@@ -297,7 +295,7 @@ def test_commands_that_build_cages_take_margin(sphere_asset, monkeypatch, tmp_pa
         configs.append(config)
         raise InputError("recorded")
 
-    monkeypatch.setattr(cage_module, "load_or_build_cage", record)
+    monkeypatch.setattr(cage_store, "load_or_build_cage", record)
     out = str(tmp_path / "m.npz")
     assert main([command, "--asset", str(sphere_asset), "--margin", "0.07", "--out", out]) == 2
     assert configs == [CageConfig(margin=0.07)]
@@ -311,7 +309,7 @@ def test_shipped_lego_cage_is_loaded_not_built(monkeypatch):
     def no_build(*args, **kwargs):
         raise AssertionError("the shipped cage was rebuilt")
 
-    monkeypatch.setattr(cage_module, "build_cage", no_build)
+    monkeypatch.setattr(cage_build, "build_cage", no_build)
     cage = load_or_build_cage(asset)
     assert cage.config == CageConfig()
     summary = cage_summary(cage)

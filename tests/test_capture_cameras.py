@@ -21,7 +21,7 @@ from test_render_deformed import make_asset
 import neural.render.view
 from neural.data import load_camera_file, load_dataset
 from neural.train import PixelSampler
-from shellsim.cli import main
+from shellsim.cli.main import main
 
 W, H = 16, 12
 SHARED = {

@@ -14,10 +14,10 @@ import pytest
 import trimesh
 from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
-from shellsim import cli
-from shellsim.cli import Terminated, main
-from shellsim.motion import load_motion
-from shellsim.outputs import check_writable_dir, check_writable_file
+from shellsim.cli import main as cli
+from shellsim.cli.main import Terminated, main
+from shellsim.io.outputs import check_writable_dir, check_writable_file
+from shellsim.motion.format import load_motion
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -115,12 +115,12 @@ def test_a_cage_that_cannot_be_saved_is_not_built(tmp_path, capsys):
 
 
 def _cli(logs: Path, *args: str) -> subprocess.Popen:
-    """``python -m shellsim.cli ARGS`` in the background, its stdout and stderr going to files in ``logs``
+    """``python -m shellsim.cli.main ARGS`` in the background, its stdout and stderr going to files in ``logs``
     (pipes that nobody reads would fill up with the progress bar and block the command)."""
     env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}
     with open(logs / "stdout.txt", "w") as stdout, open(logs / "stderr.txt", "w") as stderr:
         return subprocess.Popen(
-            [sys.executable, "-m", "shellsim.cli", *args], env=env, stdout=stdout, stderr=stderr
+            [sys.executable, "-m", "shellsim.cli.main", *args], env=env, stdout=stdout, stderr=stderr
         )
 
 
@@ -213,7 +213,7 @@ def test_ctrl_c_still_interrupts_after_a_cage_build(tmp_path):
     code = (
         "import os, signal, time, trimesh\n"
         "signal.signal(signal.SIGINT, signal.default_int_handler)\n"  # as in a terminal, whatever started us
-        "from shellsim.cage import build_cage\n"
+        "from shellsim.cage.build import build_cage\n"
         "m = trimesh.creation.icosphere(subdivisions=2)\n"
         "build_cage(m, m.copy())\n"
         "try:\n"

@@ -1,4 +1,4 @@
-"""Per-vertex terms of the incremental potential (shellsim.contact.vertex_terms): inertia, drag, penalty
+"""Per-vertex terms of the incremental potential (shellsim.physics.contact.vertex_terms): inertia, drag, penalty
 contact with the ground, a sphere and a box, and lagged smoothed friction. The force must be -dE/dx and the
 Hessian block d(-force)/dx less the sphere's curvature term that the module drops on purpose (so that
 every block stays positive definite), both checked by central differences of the kernel's own energy, at
@@ -9,7 +9,15 @@ import numpy as np
 import pytest
 import warp as wp
 
-from shellsim.contact import Box, Sphere, collider_arrays, lag_friction, make_colliders, vec3, vertex_terms
+from shellsim.physics.contact import (
+    Box,
+    Sphere,
+    collider_arrays,
+    lag_friction,
+    make_colliders,
+    vec3,
+    vertex_terms,
+)
 
 wp.init()
 DEVICE = "cpu"

@@ -1,4 +1,4 @@
-"""shellsim.deform: barycentric transfer and the deformed-to-rest map against closed forms on a tet grid.
+"""shellsim.deform.inverse_map: barycentric transfer and the deformed-to-rest map against closed forms on a tet grid.
 
 The grid is the unit cube split into n^3 cells of 6 Kuhn tets each; a rest point's containing tet and
 barycentric coordinates follow in closed form from the sorted fractional coordinates inside its cell.
@@ -11,7 +11,7 @@ import pytest
 import torch
 from meshes import kuhn_grid
 
-from shellsim.deform import (
+from shellsim.deform.inverse_map import (
     InverseMap,
     deform_points,
     map_directions_reference,
@@ -250,14 +250,14 @@ def test_empty_query_and_bad_input(grid):
 
 
 def test_cpu_threads_split_the_query(grid, rng, monkeypatch):
-    import shellsim.deform
+    import shellsim.deform.inverse_map
 
     verts, tets, _ = grid
     deformed_cage = smooth_warp(verts)
     x = deformed_cage.min(0) + np.ptp(deformed_cage, axis=0) * rng.random((1001, 3))
     d = rng.normal(size=x.shape)
     one = InverseMap(deformed_cage, tets, verts, cpu_threads=1).map_samples(x, d)
-    monkeypatch.setattr(shellsim.deform, "_MIN_CHUNK", 100)
+    monkeypatch.setattr(shellsim.deform.inverse_map, "_MIN_CHUNK", 100)
     three = InverseMap(deformed_cage, tets, verts, cpu_threads=3).map_samples(x, d)
     for a, b in zip(one, three, strict=True):
         np.testing.assert_array_equal(a, b)

@@ -15,7 +15,7 @@ import warp as wp
 
 from neural.device import cpu_description, pick_device, processor
 from neural.errors import InputError
-from shellsim.cli import main
+from shellsim.cli.main import main
 
 
 @pytest.mark.parametrize("cuda", [False, True])
@@ -56,7 +56,7 @@ def test_parallel_work_takes_no_more_threads_than_torch_was_given(monkeypatch):
 
     from neural.field.hashgrid import HashGridConfig, HashGridEncoding
     from neural.render.raycast import WarpCaster
-    from shellsim.deform import InverseMap
+    from shellsim.deform.inverse_map import InverseMap
 
     seen = []
     monkeypatch.setattr(
@@ -138,7 +138,7 @@ def test_the_processor_names_the_cores_this_process_may_use():
 
 SPIN_COUNT = """
 import os, sys
-import shellsim.cli  # as the shellsim command starts: torch is not loaded yet
+import shellsim.cli.main  # as the shellsim command starts: torch is not loaded yet
 import neural
 assert "torch" not in sys.modules
 print(os.environ.get("GOMP_SPINCOUNT"), neural.OPENMP_SPIN_COUNT)

@@ -1,4 +1,4 @@
-"""shellsim.embed on a procedural tet mesh of a box (Kuhn subdivision), where containment and the distance
+"""shellsim.cage.embed on a procedural tet mesh of a box (Kuhn subdivision), where containment and the distance
 outside have closed forms."""
 
 import subprocess
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from meshes import kuhn_grid
 
-from shellsim.embed import barycentric, embed_points, interpolate, outside_distance
-from shellsim.geometry import boundary_facets
+from shellsim.cage.embed import barycentric, embed_points, interpolate, outside_distance
+from shellsim.cage.geometry import boundary_facets
 
 LO, HI = np.array([-1.0, -0.5, 0.0]), np.array([1.0, 0.5, 0.75])
 
@@ -127,6 +127,6 @@ def test_api_misuse_is_value_error(box):
 
 def test_cage_modules_do_not_import_torch():
     code = (
-        "import sys, shellsim.cage, shellsim.embed, shellsim.commands.cage\nassert 'torch' not in sys.modules"
+        "import sys, shellsim.cage.build, shellsim.cage.store, shellsim.cage.embed, shellsim.cli.commands.cage\nassert 'torch' not in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[1])

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from shellsim.motion import load_motion
+from shellsim.motion.format import load_motion
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -12,10 +12,10 @@ import pytest
 import trimesh
 from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
-from shellsim.cli import main
-from shellsim.embed import embed_points
-from shellsim.export import up_rotation
-from shellsim.motion import Motion, Surface, save_motion
+from shellsim.cage.embed import embed_points
+from shellsim.cli.main import main
+from shellsim.io.export import up_rotation
+from shellsim.motion.format import Motion, Surface, save_motion
 
 FRAMES = 4
 FPS = 24.0

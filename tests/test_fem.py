@@ -1,17 +1,17 @@
-"""Physics tests of the implicit FEM (:mod:`shellsim.fem`) against closed forms and invariants."""
+"""Physics tests of the implicit FEM (:mod:`shellsim.physics.fem`) against closed forms and invariants."""
 
 import numpy as np
 import pytest
 import warp as wp
 from meshes import kuhn_grid
 
-from shellsim import fem
-from shellsim.contact import Box, Sphere
-from shellsim.elastic import elastic_energy, snh_energy_reference, snh_min_eigenvalue
-from shellsim.fem import Forcing, SimSettings, SimulationError, Simulator, partition_tets, simulate
-from shellsim.geometry import MIN_VOLUME_RATIO, tet_volumes
-from shellsim.materials import Material, get_material
-from shellsim.motion import MotionWriter, load_motion
+from shellsim.cage.geometry import MIN_VOLUME_RATIO, tet_volumes
+from shellsim.motion.format import MotionWriter, load_motion
+from shellsim.physics import fem
+from shellsim.physics.contact import Box, Sphere
+from shellsim.physics.elastic import elastic_energy, snh_energy_reference, snh_min_eigenvalue
+from shellsim.physics.fem import Forcing, SimSettings, SimulationError, Simulator, partition_tets, simulate
+from shellsim.physics.materials import Material, get_material
 
 G = 9.81
 
@@ -407,7 +407,7 @@ def test_hessian_assembled_on_threads_equals_one_thread(monkeypatch):
     give the same steps, with contact, as one thread over every tet: the same Newton iterations, every
     substep converged, positions equal to rounding. (At newton_tol 1e-7 the line search of some substeps
     stalls on the energy's float64 rounding, and where each run stalls depends on the order of its sums.)"""
-    import shellsim.fem as fem
+    import shellsim.physics.fem as fem
 
     v, t = box_tets((6, 3, 3), (0.3, 0.15, 0.15), origin=(0.0, 0.0, 0.002))
     monkeypatch.setattr(fem, "default_cpu_threads", lambda: 3)
@@ -440,12 +440,12 @@ def cube_mesh(tmp_path, monkeypatch):
         verts, tets, _ = kuhn_grid(0.0, 1.0, 2)
         return types.SimpleNamespace(vertices=verts + outer.bounds[0], tets=tets)
 
-    monkeypatch.setattr("shellsim.cage.build_cage", build_cage)
+    monkeypatch.setattr("shellsim.cage.build.build_cage", build_cage)
     return path
 
 
 def _cli_error(argv, capsys):
-    from shellsim.cli import main
+    from shellsim.cli.main import main
 
     capsys.readouterr()
     assert main(argv) == 2

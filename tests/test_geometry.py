@@ -1,4 +1,4 @@
-"""shellsim.geometry against closed forms: the unit tet, a cube cut into tets, two tets sharing a face."""
+"""shellsim.cage.geometry against closed forms: the unit tet, a cube cut into tets, two tets sharing a face."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from shellsim.geometry import (
+from shellsim.cage.geometry import (
     boundary_faces,
     check_points,
     check_tets,

@@ -1,4 +1,4 @@
-"""shellsim.inspect: the shell-width closed form of concentric spheres, the kernel size of an untrained field,
+"""shellsim.viz.inspect: the shell-width closed form of concentric spheres, the kernel size of an untrained field,
 a motion frame moving the drawn cage and shells exactly, the off-screen PNG (size, not blank, translucent
 shell visible), the frame slider, and the CLI's one-line errors."""
 
@@ -10,16 +10,10 @@ from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError, ShellsimError
 from neural.field import FieldConfig, HashGridConfig, ShellField
-from shellsim.cli import main  # noqa: E402
-from shellsim.embed import interpolate  # noqa: E402
-from shellsim.inspect import (  # noqa: E402
-    SCALARS,
-    build_scene,
-    make_plotter,
-    screenshot,
-    shell_width,
-)
-from shellsim.motion import Motion, save_motion
+from shellsim.cage.embed import interpolate  # noqa: E402
+from shellsim.cli.main import main  # noqa: E402
+from shellsim.motion.format import Motion, save_motion
+from shellsim.viz.inspect import SCALARS, build_scene, make_plotter, screenshot, shell_width
 
 
 def box_cage(n: int = 3, half: float = 1.25):
@@ -228,7 +222,7 @@ def test_importing_inspect_loads_no_heavy_module():
     import subprocess
 
     code = (
-        "import sys, shellsim.inspect, shellsim.commands.inspect; "
+        "import sys, shellsim.viz.inspect, shellsim.cli.commands.inspect; "
         "sys.exit(any(m in sys.modules for m in ('pyvista', 'vtk', 'torch', 'warp')))"
     )
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
@@ -242,7 +236,7 @@ def test_screenshot_prints_nothing_from_vtk(ball, tmp_path):
     asset, _ = ball
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     shot = tmp_path / "quiet.png"
-    argv = [sys.executable, "-m", "shellsim.cli", "inspect", "--asset", str(asset.root)]
+    argv = [sys.executable, "-m", "shellsim.cli.main", "inspect", "--asset", str(asset.root)]
     result = subprocess.run(
         [*argv, "--screenshot", str(shot), "--size", "64x48"], env=env, capture_output=True, text=True
     )

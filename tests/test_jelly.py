@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from meshes import kuhn_grid
 
-from shellsim.elastic import elastic_energy, snh_energy_reference
-from shellsim.fem import SimSettings, Simulator
-from shellsim.geometry import MIN_VOLUME_RATIO, tet_volumes
-from shellsim.materials import Material
+from shellsim.cage.geometry import MIN_VOLUME_RATIO, tet_volumes
+from shellsim.physics.elastic import elastic_energy, snh_energy_reference
+from shellsim.physics.fem import SimSettings, Simulator
+from shellsim.physics.materials import Material
 
 GEL = Material("gel", 1.0e4, 0.45, 1050.0)
 

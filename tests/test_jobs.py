@@ -10,8 +10,9 @@ import sys
 import pytest
 
 from neural.errors import InputError
-from shellsim.cli import build_parser, main
-from shellsim.options import SettingError, options_named
+from shellsim.cli.main import build_parser, main
+from shellsim.cli.options import options_named
+from shellsim.errors import SettingError
 
 CONVERTED = ("train", "extract", "cage", "poses", "inspect", "eval", "render")
 
@@ -51,7 +52,7 @@ def test_train_defaults_are_the_pipelines():
     from shellsim.jobs.train import TrainSettings
 
     args = build_parser().parse_args(["train", "--data", "d", "--out", "o"])
-    from shellsim.options import from_args
+    from shellsim.cli.options import from_args
 
     assert from_args(TrainSettings, args).pipeline_config() == PipelineConfig()
     quick = TrainSettings("d", "o", steps=200).pipeline_config()
@@ -59,7 +60,7 @@ def test_train_defaults_are_the_pipelines():
 
 
 def test_cage_defaults_are_the_cage_configs(tmp_path):
-    from shellsim.cage import CageConfig
+    from shellsim.cage.build import CageConfig
     from shellsim.jobs.cage import CageSettings
 
     assert CageSettings("a").cage_config() is None  # the asset's own cage, whatever its settings
@@ -96,7 +97,7 @@ def test_a_job_time_error_names_the_option(tmp_path, capsys):
 def test_library_errors_speak_of_values_not_options(tmp_path):
     from neural.device import pick_device
     from neural.pipeline import PipelineConfig, train_asset
-    from shellsim.fem import WorldMap
+    from shellsim.physics.fem import WorldMap
 
     failing = [
         lambda: pick_device("tpu"),
@@ -114,8 +115,8 @@ def test_jobs_and_the_parser_import_no_heavy_module():
     """``shellsim --help`` builds every parser: the settings and their defaults come without torch, Warp,
     trimesh or pyvista (the library's configs live in the light :mod:`neural.config`)."""
     code = (
-        "import sys, shellsim.cli\n"
-        "shellsim.cli.build_parser()\n"
+        "import sys, shellsim.cli.main\n"
+        "shellsim.cli.main.build_parser()\n"
         "import shellsim.jobs.train, shellsim.jobs.extract, shellsim.jobs.cage, shellsim.jobs.poses\n"
         "import shellsim.jobs.inspect, shellsim.jobs.eval, shellsim.jobs.render\n"
         "heavy = ('torch', 'warp', 'trimesh', 'pyvista', 'vtk', 'pycolmap')\n"

@@ -1,4 +1,4 @@
-"""The Newton steps' linear solvers (shellsim.linsolve) on a known system: a random symmetric positive
+"""The Newton steps' linear solvers (shellsim.physics.linsolve) on a known system: a random symmetric positive
 definite matrix with the stiffness pattern of a tet mesh, assembled from per-tet blocks through
 block_topology, against numpy's dense solve."""
 
@@ -7,7 +7,7 @@ import pytest
 import warp as wp
 from meshes import kuhn_grid
 
-from shellsim.linsolve import SSOR_OMEGA, block_topology, bsr_cg_solver, serial_pcg_solver
+from shellsim.physics.linsolve import SSOR_OMEGA, block_topology, bsr_cg_solver, serial_pcg_solver
 
 wp.init()
 DEVICE = "cpu"
@@ -84,8 +84,8 @@ def test_over_relaxation_saves_cg_steps_on_an_elastic_newton_system():
     """On a backward-Euler Newton system of rubber (the stable Neo-Hookean Hessian of a stretched, twisted
     8^3-cell bar plus M / h^2), SSOR_OMEGA reaches the same solution as symmetric Gauss-Seidel (omega 1) in
     fewer CG steps."""
-    from shellsim.elastic import elastic_energy
-    from shellsim.materials import get_material
+    from shellsim.physics.elastic import elastic_energy
+    from shellsim.physics.materials import get_material
 
     rubber = get_material("rubber")
     rest, tets, _ = kuhn_grid(0.0, 0.1, 8)

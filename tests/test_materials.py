@@ -1,9 +1,9 @@
-"""Material presets and Lamé parameters (:mod:`shellsim.materials`)."""
+"""Material presets and Lamé parameters (:mod:`shellsim.physics.materials`)."""
 
 import pytest
 
 from neural.errors import InputError
-from shellsim.materials import PRESETS, Material, get_material
+from shellsim.physics.materials import PRESETS, Material, get_material
 
 
 def test_lame_parameters_follow_from_youngs_modulus_and_poisson_ratio():

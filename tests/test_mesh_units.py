@@ -10,8 +10,8 @@ import pytest
 import trimesh
 from meshes import kuhn_grid
 
-from shellsim.cli import main
-from shellsim.motion import load_motion
+from shellsim.cli.main import main
+from shellsim.motion.format import load_motion
 
 G = 9.81
 
@@ -89,7 +89,7 @@ def grid_cage(monkeypatch):
         v, t, _ = kuhn_grid(0.0, 1.0, 2)
         return types.SimpleNamespace(vertices=lo + v * (hi - lo), tets=t)
 
-    monkeypatch.setattr("shellsim.cage.build_cage", build_cage)
+    monkeypatch.setattr("shellsim.cage.build.build_cage", build_cage)
     return configs
 
 

@@ -1,4 +1,4 @@
-"""Motion file format 2 (shellsim.motion): round trip, identities, format 1, interruption, append-only."""
+"""Motion file format 2 (shellsim.motion.format): round trip, identities, format 1, interruption, append-only."""
 
 import json
 import os
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from neural.errors import InputError
-from shellsim.cli import main
-from shellsim.motion import MAGIC, MotionWriter, Surface, cage_digest, load_motion, save_motion
+from shellsim.cli.main import main
+from shellsim.motion.format import MAGIC, MotionWriter, Surface, cage_digest, load_motion, save_motion
 
 
 def _cage(n=5):
@@ -184,7 +184,7 @@ def test_chunks_are_appended_never_rewritten(tmp_path):
 
 WRITER = """
 import sys, numpy as np
-from shellsim.motion import MotionWriter
+from shellsim.motion.format import MotionWriter
 rest = np.random.default_rng(0).normal(size=(2000, 3))
 tets = np.array([[0, 1, 2, 3]])
 with MotionWriter(sys.argv[1], rest, tets, flush_seconds=0.0) as w:

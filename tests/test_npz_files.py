@@ -1,4 +1,4 @@
-"""Motion and cage files (shellsim.npz, shellsim.motion): anything that is not one is one line naming the
+"""Motion and cage files (shellsim.io.npz, shellsim.motion.format): anything that is not one is one line naming the
 file, never a traceback and never numpy's advice to unpickle."""
 
 import json
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from neural.errors import InputError
-from shellsim.cli import main
-from shellsim.motion import KEYS, Motion, load_motion, save_motion
-from shellsim.npz import load_npz
+from shellsim.cli.main import main
+from shellsim.io.npz import load_npz
+from shellsim.motion.format import KEYS, Motion, load_motion, save_motion
 
 
 def _motion(n_frames=3):

@@ -10,7 +10,7 @@ from meshes import write_asset_dir
 from test_render_cli import write_cameras
 from test_render_deformed import make_asset
 
-from shellsim.cli import main
+from shellsim.cli.main import main
 
 
 def _error(capsys, argv) -> str:

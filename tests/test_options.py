@@ -8,16 +8,9 @@ import dataclasses
 import pytest
 
 from neural.errors import InputError
-from shellsim.options import (
-    SettingError,
-    add_options,
-    check_range,
-    float_list,
-    floats,
-    from_args,
-    name_list,
-    option,
-)
+from shellsim.cli.options import add_options, from_args
+from shellsim.errors import SettingError
+from shellsim.settings import check_range, float_list, floats, name_list, option
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,7 +108,7 @@ def test_an_option_with_const_takes_an_optional_value_and_lists_parse():
 
 
 def test_an_error_of_the_whole_job_names_settings_as_options_at_the_command_line():
-    from shellsim.options import options_named
+    from shellsim.cli.options import options_named
 
     err = SettingError(None, "frame 3 failed; use more {frames} or a lower {fps}")
     assert str(err) == "frame 3 failed; use more frames or a lower fps"

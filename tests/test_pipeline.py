@@ -19,7 +19,7 @@ from neural.field import FieldConfig, HashGridConfig
 from neural.pipeline import PipelineConfig, train_asset
 from neural.shell import ShellConfig
 from neural.train import Stage1Config, Stage2Config
-from shellsim.cli import main
+from shellsim.cli.main import main
 
 
 @pytest.fixture(scope="module")  # trains for about 40 s on 2 cores: its tests are marked slow

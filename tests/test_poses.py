@@ -23,7 +23,7 @@ from scenes import look_at
 from neural.data import load_dataset
 from neural.data.colmap import align_similarity
 from neural.errors import InputError
-from shellsim.cli import main
+from shellsim.cli.main import main
 
 WIDTH, HEIGHT, FOCAL = 160, 120, 140.0
 BOX = 0.6  # the box is [-BOX, BOX]^3; the ground is the plane z = -BOX

@@ -14,9 +14,9 @@ from PIL import Image
 from test_render_deformed import CENTER, make_asset
 
 from neural.asset import load_asset
-from shellsim.cage import load_cage
-from shellsim.cli import main
-from shellsim.motion import Motion, save_motion
+from shellsim.cage.store import load_cage
+from shellsim.cli.main import main
+from shellsim.motion.format import Motion, save_motion
 
 
 @pytest.fixture(scope="module")
@@ -181,7 +181,7 @@ def test_unbuildable_cage_is_one_error_line(tmp_path, asset_dir, capsys, monkeyp
     def fail(*args, **kwargs):
         raise RuntimeError("fTetWild failed")
 
-    monkeypatch.setattr("shellsim.cage.build_cage", fail)
+    monkeypatch.setattr("shellsim.cage.build.build_cage", fail)
     cams = write_cameras(tmp_path / "cams.json", 1)
     motion = write_motion(tmp_path / "m.npz", asset_dir, 2)
     code = render(broken, tmp_path / "o", motion=motion, cameras=cams)
@@ -278,7 +278,7 @@ def test_wind_example_run_again_at_another_size_renders_again(tmp_path, asset_di
     ):
         example("--strength", "0.2", "--size", "20")
     # another wind with --overwrite: the motion is recomputed, and the orbit that frames it moves
-    from shellsim.motion import load_motion
+    from shellsim.motion.format import load_motion
 
     assert example("--strength", "0.2", "--size", "20", "--overwrite")["rendered"] == 3
     assert load_motion(out / "wind.npz").settings["strength"] == 0.2

@@ -31,11 +31,13 @@ from neural.data import Cameras, look_at
 from neural.field import FieldConfig, ShellField
 from neural.field.hashgrid import HashGridConfig
 from neural.metrics import psnr
-from shellsim.cage import Cage, load_or_build_cage, shell_digest
-from shellsim.deform import InverseMap, deform_points, map_points_reference
-from shellsim.embed import embed_points
-from shellsim.motion import parse_frames
-from shellsim.render import DeformedRenderer, orbit_camera
+from shellsim.cage.build import Cage, shell_digest
+from shellsim.cage.embed import embed_points
+from shellsim.cage.store import load_or_build_cage
+from shellsim.deform.inverse_map import InverseMap, deform_points, map_points_reference
+from shellsim.deform.renderer import DeformedRenderer
+from shellsim.render.cameras import orbit_camera
+from shellsim.settings import parse_frames
 
 CENTER = np.array([0.1, -0.2, 0.3])  # the asset's normalisation centre: the sphere's centre
 SCALE = 2.0  # unit space = (x - CENTER) * SCALE; the unit sphere of radius 0.5 has world radius 0.25
@@ -244,7 +246,7 @@ def test_parse_frames(spec, expected):
 
 @pytest.mark.parametrize("spec", ["a:b", "1:2:3", "5:3", "0:11", "-1:2", "10"])
 def test_parse_frames_rejects_bad_specs(spec):
-    from shellsim.options import SettingError
+    from shellsim.errors import SettingError
 
     with pytest.raises(SettingError, match=f"^frames {spec!r}: ") as err:  # the CLI shows --frames instead
         parse_frames(spec, 10)

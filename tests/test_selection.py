@@ -1,12 +1,12 @@
-"""shellsim.selection: the one vertex-selection grammar of ``simulate --pin`` and ``wind --anchor``."""
+"""shellsim.physics.selection: the one vertex-selection grammar of ``simulate --pin`` and ``wind --anchor``."""
 
 import numpy as np
 import pytest
 from meshes import kuhn_grid
 
 from neural.errors import InputError
-from shellsim.selection import parse_selection, select_vertices
-from shellsim.wind import WindSettings, heights, wind_displacement
+from shellsim.physics.selection import parse_selection, select_vertices
+from shellsim.physics.wind import WindSettings, heights, wind_displacement
 
 
 @pytest.mark.parametrize(
@@ -97,7 +97,7 @@ def test_wind_anchor_takes_the_pin_grammar():
 
 
 def test_cli_names_the_option(tmp_path, capsys):
-    from shellsim.cli import main
+    from shellsim.cli.main import main
 
     for argv, flag in (
         (["wind", "--asset", str(tmp_path / "none"), "--anchor", "z<<1"], "--anchor"),

@@ -7,8 +7,8 @@ import pytest
 import trimesh
 from meshes import kuhn_grid
 
-from shellsim.cli import main
-from shellsim.motion import load_motion
+from shellsim.cli.main import main
+from shellsim.motion.format import load_motion
 
 
 def _fail(argv, capsys):
@@ -45,7 +45,7 @@ def closed_mesh(tmp_path, monkeypatch):
         v, t, _ = kuhn_grid(0.0, 1.0, 2)
         return types.SimpleNamespace(vertices=v + outer.bounds[0], tets=t)
 
-    monkeypatch.setattr("shellsim.cage.build_cage", build_cage)
+    monkeypatch.setattr("shellsim.cage.build.build_cage", build_cage)
     return path, calls
 
 
@@ -239,7 +239,7 @@ def test_a_motion_is_continued_only_with_the_cage_and_mesh_it_was_made_from(
     out = tmp_path / "wind.npz"
     args = _wind_args(asset, out)
     assert main([*args, "--frames", "3"]) == 0
-    from shellsim.cage import cage_for_motion
+    from shellsim.cage.store import cage_for_motion
 
     (asset.root / "field.safetensors").write_bytes(b"retrained")  # same shells and cage, another field
     with caplog.at_level("WARNING"):

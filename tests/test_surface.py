@@ -1,4 +1,4 @@
-"""shellsim.surface: a motion's surface drawn with pyvista, against the pinhole model, and the inspector and
+"""shellsim.viz.surface: a motion's surface drawn with pyvista, against the pinhole model, and the inspector and
 ``render``-style frames of a mesh motion (no neural asset)."""
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from meshes import kuhn_grid
 from PIL import Image
 
 from neural.data import Cameras, look_at
-from shellsim.cli import main  # noqa: E402
-from shellsim.embed import embed_points
-from shellsim.motion import Motion, Surface, save_motion
-from shellsim.surface import SurfaceRenderer, render_surface_motion  # noqa: E402
+from shellsim.cage.embed import embed_points
+from shellsim.cli.main import main  # noqa: E402
+from shellsim.motion.format import Motion, Surface, save_motion
+from shellsim.viz.surface import SurfaceRenderer, render_surface_motion  # noqa: E402
 
 SIZE = 64
 FOV_DEG = 30.0
@@ -117,7 +117,7 @@ def test_render_cli_draws_a_motion_without_an_asset(tmp_path, capsys):
 
 def test_a_torn_surface_is_one_clear_error(tmp_path):
     from neural.errors import InputError
-    from shellsim.motion import load_motion
+    from shellsim.motion.format import load_motion
 
     m = cube_motion([(0, 0, 0)])
     path = tmp_path / "m.npz"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from shellsim.cli import main
-from shellsim.contact_sheet import LABEL_HEIGHT
+from shellsim.cli.main import main
+from shellsim.viz.contact_sheet import LABEL_HEIGHT
 
 ARGS = [
     "--asset",

@@ -26,7 +26,7 @@ from neural.train import (
     train_stage1,
     train_stage2,
 )
-from shellsim.cli import main
+from shellsim.cli.main import main
 
 SMALL_FIELD = FieldConfig(hashgrid=HashGridConfig(log2_table_size=14, max_resolution=256))
 

@@ -45,7 +45,7 @@ def test_wheel_installs_and_simulates_the_shipped_asset_outside_the_repository(t
         [
             sys.executable,
             "-m",
-            "shellsim.cli",
+            "shellsim.cli.main",
             "simulate",
             "--asset",
             "lego",

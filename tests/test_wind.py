@@ -1,4 +1,4 @@
-"""shellsim.wind: invariants (zero wind, fixed anchor, monotone bending), the cantilever closed form, the
+"""shellsim.physics.wind: invariants (zero wind, fixed anchor, monotone bending), the cantilever closed form, the
 inextensible-rod drop, the anchor parser, the motion file and the CLI."""
 
 import dataclasses
@@ -9,16 +9,10 @@ import pytest
 from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError
-from shellsim.geometry import MIN_VOLUME_RATIO
-from shellsim.motion import MotionWriter, load_motion
-from shellsim.selection import parse_selection
-from shellsim.wind import (
-    WindSettings,
-    animate_wind,
-    beam_profile,
-    heights,
-    wind_displacement,
-)
+from shellsim.cage.geometry import MIN_VOLUME_RATIO
+from shellsim.motion.format import MotionWriter, load_motion
+from shellsim.physics.selection import parse_selection
+from shellsim.physics.wind import WindSettings, animate_wind, beam_profile, heights, wind_displacement
 
 
 def column(n_xy: int = 2, n_z: int = 8, width: float = 0.2, height: float = 1.0):
@@ -260,7 +254,7 @@ def _write_asset(root):
 
 
 def test_cli_rejects_a_junk_anchor(tmp_path, capsys):
-    from shellsim.cli import main
+    from shellsim.cli.main import main
 
     asset = _write_asset(tmp_path / "rod")
     assert main(["wind", "--asset", str(asset), "--anchor", "z<__import__('os')"]) == 2
@@ -289,7 +283,7 @@ def test_cli_rejects_a_junk_anchor(tmp_path, capsys):
 )
 def test_cli_refuses_out_of_range_numbers_before_loading(tmp_path, capsys, option, message):
     """Refused with the valid range before the asset is read: the asset does not even exist."""
-    from shellsim.cli import main
+    from shellsim.cli.main import main
 
     assert main(["wind", "--asset", str(tmp_path / "missing"), *option]) == 2
     err = capsys.readouterr().err.strip()
@@ -297,7 +291,7 @@ def test_cli_refuses_out_of_range_numbers_before_loading(tmp_path, capsys, optio
 
 
 def test_cli_direction_along_the_axis_reads_plain_numbers(tmp_path, capsys):
-    from shellsim.cli import main
+    from shellsim.cli.main import main
 
     asset = _write_asset(tmp_path / "rod")
     assert main(["wind", "--asset", str(asset), "--direction", "0,0,1"]) == 2
@@ -308,7 +302,7 @@ def test_cli_direction_along_the_axis_reads_plain_numbers(tmp_path, capsys):
 def test_cli_writes_and_resumes(tmp_path):
     """The CLI on an asset whose cage.npz is a box of Kuhn tets around the shells (no fTetWild run)."""
     from neural.asset import load_asset
-    from shellsim.cli import main
+    from shellsim.cli.main import main
 
     asset = load_asset(_write_asset(tmp_path / "rod"))
     verts, tets = column(n_xy=2, n_z=6, width=0.4, height=1.1)
@@ -332,5 +326,5 @@ def test_wind_does_not_import_torch():
     import subprocess
     import sys
 
-    code = "import sys, shellsim.wind; sys.exit('torch' in sys.modules)"
+    code = "import sys, shellsim.physics.wind; sys.exit('torch' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0

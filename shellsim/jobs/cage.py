@@ -1,6 +1,6 @@
 """Build (or load) the tetrahedral cage of an asset (paper Sec. 5) and describe it.
 
-Where the cage lives and when it is rebuilt: :func:`shellsim.cage.load_or_build_cage`.
+Where the cage lives and when it is rebuilt: :func:`shellsim.cage.store.load_or_build_cage`.
 """
 
 from __future__ import annotations
@@ -8,14 +8,15 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-from shellsim.cage import CageConfig
-from shellsim.options import SettingError, option
+from shellsim.cage.build import CageConfig
+from shellsim.errors import SettingError
+from shellsim.settings import option
 
 
 @dataclass(frozen=True)
 class CageSettings:
     """What ``shellsim cage`` takes. Neither ``tets`` nor ``margin`` set: the asset's own cage whatever its
-    settings; one set: the other takes :class:`~shellsim.cage.CageConfig`'s default."""
+    settings; one set: the other takes :class:`~shellsim.cage.build.CageConfig`'s default."""
 
     asset: str = option(help="asset directory, or the name of a shipped asset", required=True)
     tets: int | None = option(
@@ -42,10 +43,10 @@ class CageSettings:
 
 
 def cage(settings: CageSettings) -> dict:
-    """Load or build the cage of ``settings.asset``; returns :func:`~shellsim.cage.cage_summary` with the
+    """Load or build the cage of ``settings.asset``; returns :func:`~shellsim.cage.store.cage_summary` with the
     asset's ``name``, the cage's ``path`` and ``config`` and ``seconds`` (the wall time)."""
     from neural.asset import load_asset
-    from shellsim.cage import cage_summary, load_or_build_cage
+    from shellsim.cage.store import cage_summary, load_or_build_cage
 
     asset = load_asset(settings.asset)
     start = time.perf_counter()

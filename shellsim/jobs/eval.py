@@ -8,7 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neural.device import DEVICES, processor
-from shellsim.options import SettingError, check_choice, device_setting, option
+from shellsim.errors import SettingError
+from shellsim.settings import check_choice, device_setting, option
 
 
 @dataclass(frozen=True)
@@ -47,7 +48,7 @@ def evaluate(settings: EvalSettings) -> dict:
     from neural.metrics import lpips_status
     from neural.render.view import asset_sampler, full_ray_sampler
     from neural.train import evaluate as evaluate_views
-    from shellsim.outputs import check_writable_dir, check_writable_file
+    from shellsim.io.outputs import check_writable_dir, check_writable_file
 
     if settings.json:
         check_writable_file(settings.json, "json")

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.options import SettingError, option
+from shellsim.errors import SettingError
+from shellsim.settings import option
 
 FORMATS = ("usd", "vtu", "ply")
 
@@ -50,10 +51,10 @@ def _compact(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _meshes(settings: ExportSettings, motion):
     """The moving meshes of ``motion`` (list of AnimatedMesh): the asset's M+ (through its cage), the surface
     a 'simulate --mesh' motion carries, and the cage's boundary last."""
-    from shellsim.cage import cage_for_motion
-    from shellsim.deform import deform_points
-    from shellsim.export import AnimatedMesh
-    from shellsim.geometry import boundary_faces
+    from shellsim.cage.geometry import boundary_faces
+    from shellsim.cage.store import cage_for_motion
+    from shellsim.deform.inverse_map import deform_points
+    from shellsim.io.export import AnimatedMesh
 
     meshes = []
     if settings.asset is not None:
@@ -83,10 +84,11 @@ def export(settings: ExportSettings, progress: bool = True) -> list[Path]:
     """Write the export ``settings`` describe; returns the files written (the index or stage last)."""
     from tqdm import tqdm
 
-    from shellsim.export import require_usd, write_ply_sequence, write_usd, write_vtu_series
-    from shellsim.motion import load_motion, parse_frames
-    from shellsim.outputs import check_writable_dir, check_writable_file
-    from shellsim.render import motion_fps
+    from shellsim.io.export import require_usd, write_ply_sequence, write_usd, write_vtu_series
+    from shellsim.io.outputs import check_writable_dir, check_writable_file
+    from shellsim.motion.format import load_motion
+    from shellsim.render.frames import motion_fps
+    from shellsim.settings import parse_frames
 
     if settings.format == "usd":
         require_usd()

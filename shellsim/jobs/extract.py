@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 from neural.config import ShellConfig
 from neural.device import DEVICES
-from shellsim.options import SettingError, check_choice, device_setting, option
+from shellsim.errors import SettingError
+from shellsim.settings import check_choice, device_setting, option
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +64,7 @@ def extract(settings: ExtractSettings) -> dict:
     statistics (faces of M+ and M-, widths) with ``seconds``, the extraction's wall time."""
     from neural.asset import command_line, load_asset, load_field, refuse_shipped, replace_shells
     from neural.shell.from_field import extract_field_shells
-    from shellsim.outputs import check_writable_dir
+    from shellsim.io.outputs import check_writable_dir
 
     asset = load_asset(settings.asset)
     refuse_shipped(asset, "extract")

@@ -10,9 +10,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neural.errors import ShellsimError
-from shellsim.inspect import DEFAULT_SIZE, SCALARS
-from shellsim.options import SettingError, check_choice, option, pixels, show_pixels
-from shellsim.outputs import check_writable_file
+from shellsim.errors import SettingError
+from shellsim.io.outputs import check_writable_file
+from shellsim.settings import check_choice, option, pixels, show_pixels
+from shellsim.viz.inspect import DEFAULT_SIZE, SCALARS
 
 COLORS = tuple(SCALARS)
 
@@ -58,7 +59,7 @@ class InspectSettings:
 def inspect(settings: InspectSettings) -> Path | None:
     """Open the interactive view (returns None when its window is closed) or, with ``settings.screenshot``,
     write the PNG and return its path. Files and frames are checked before the asset loads."""
-    from shellsim.motion import load_motion
+    from shellsim.motion.format import load_motion
 
     shot = settings.screenshot
     if shot is not None:
@@ -70,7 +71,7 @@ def inspect(settings: InspectSettings) -> Path | None:
     if motion is not None and not -motion.n_frames <= frame < motion.n_frames:
         raise SettingError("frame", f"{settings.motion} has frames 0..{motion.n_frames - 1}, got {frame}")
 
-    from shellsim import inspect as viewer
+    from shellsim.viz import inspect as viewer
 
     if settings.quiet:
         viewer.quiet_vtk()
@@ -80,13 +81,13 @@ def inspect(settings: InspectSettings) -> Path | None:
         except ShellsimError as err:
             raise SettingError("screenshot", f"needed: {err}") from None
     if settings.asset is None:
-        from shellsim.surface import surface_plotter
+        from shellsim.viz.surface import surface_plotter
 
         def plotter(off_screen, slider):
             return surface_plotter(motion, frame, settings.size, off_screen=off_screen, slider=slider)
     else:
         from neural.asset import load_asset
-        from shellsim.cage import cage_for_motion, load_or_build_cage
+        from shellsim.cage.store import cage_for_motion, load_or_build_cage
 
         asset = load_asset(settings.asset)
         cage = (

@@ -10,8 +10,9 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from shellsim.options import SettingError, check_choice, check_range, option
-from shellsim.outputs import check_writable_dir
+from shellsim.errors import SettingError
+from shellsim.io.outputs import check_writable_dir
+from shellsim.settings import check_choice, check_range, option
 
 log = logging.getLogger(__name__)
 

@@ -1,8 +1,8 @@
 """Render an asset to PNG frames (and an MP4): every camera of a camera file at rest, or the frames of a
 motion deformed by its cage (paper Sec. 5), or a motion's own surface without an asset.
 
-The renderers are :func:`shellsim.render.render_views`, :func:`shellsim.render.render_motion` and
-:func:`shellsim.surface.render_surface_motion`; this module checks the settings and outputs first.
+The renderers are :func:`shellsim.render.frames.render_views`, :func:`shellsim.render.frames.render_motion` and
+:func:`shellsim.viz.surface.render_surface_motion`; this module checks the settings and outputs first.
 """
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ import math
 from dataclasses import dataclass
 
 from neural.device import DEVICES
-from shellsim.options import SettingError, check_choice, option
-from shellsim.outputs import check_writable_dir, check_writable_file
+from shellsim.errors import SettingError
+from shellsim.io.outputs import check_writable_dir, check_writable_file
+from shellsim.settings import check_choice, option
 
 ORBIT_SIZE = 400  # pixels a side of the orbit's frames when no size is given
 MOTION_ONLY = ("orbit", "frames", "video", "fps")
@@ -97,13 +98,14 @@ def render(settings: RenderSettings) -> dict:
     if settings.video:
         check_writable_file(settings.video, "video")
     if settings.motion is not None:
-        from shellsim.motion import load_motion, parse_frames
+        from shellsim.motion.format import load_motion
+        from shellsim.settings import parse_frames
 
         parse_frames(settings.frames, load_motion(settings.motion).n_frames, str(settings.motion))
     common = dict(size=settings.size(), overwrite=settings.overwrite)
     if settings.asset is None:
-        from shellsim.inspect import quiet_vtk
-        from shellsim.surface import render_surface_motion
+        from shellsim.viz.inspect import quiet_vtk
+        from shellsim.viz.surface import render_surface_motion
 
         if settings.quiet:
             quiet_vtk()
@@ -111,12 +113,12 @@ def render(settings: RenderSettings) -> dict:
             settings.motion, settings.out, settings.frames, video=settings.video, fps=settings.fps, **common
         )
     if settings.motion is None:
-        from shellsim.render import render_views
+        from shellsim.render.frames import render_views
 
         return render_views(
             settings.asset, settings.cameras, settings.out, device=settings.device, ray=settings.ray, **common
         )
-    from shellsim.render import render_motion
+    from shellsim.render.frames import render_motion
 
     return render_motion(
         settings.asset,

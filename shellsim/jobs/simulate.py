@@ -1,7 +1,7 @@
 """The simulate job: drop an asset's cage (or a closed mesh, tetrahedralised) as an elastic body.
 
-:func:`simulate` builds the cage and the :class:`shellsim.fem.Simulator`, drives :func:`shellsim.fem.simulate`
-into a motion file (:mod:`shellsim.motion`, format 2: its settings are :func:`motion_settings`, its asset
+:func:`simulate` builds the cage and the :class:`shellsim.physics.fem.Simulator`, drives :func:`shellsim.physics.fem.simulate`
+into a motion file (:mod:`shellsim.motion.format`, format 2: its settings are :func:`motion_settings`, its asset
 and cage identified by content digest) and optionally renders it. The world frame is kept: an asset's cage
 is scaled so that its largest extent measures ``size`` metres (default :data:`ASSET_SIZE`); a ``mesh`` is
 the body itself, in metres (or ``units``), not dilated, and scaled only when ``size`` asks. It is simulated
@@ -22,9 +22,18 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.motion import MAX_FPS, MAX_FRAMES, overwrite_option, resume_option
-from shellsim.options import SettingError, check_range, device_setting, floats, option, pixels
-from shellsim.selection import parse_selection, select_vertices, selection_text
+from shellsim.errors import SettingError
+from shellsim.motion.format import MAX_FPS, MAX_FRAMES
+from shellsim.physics.selection import parse_selection, select_vertices, selection_text
+from shellsim.settings import (
+    check_range,
+    device_setting,
+    floats,
+    option,
+    overwrite_option,
+    pixels,
+    resume_option,
+)
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +47,7 @@ NOT_MOTION = ("frames", "out", "resume", "overwrite", "video", "video_size", "de
 
 
 def _presets() -> str:
-    from shellsim.materials import PRESETS
+    from shellsim.physics.materials import PRESETS
 
     return ", ".join(PRESETS)
 
@@ -125,8 +134,8 @@ class SimulateSettings:
     device: str = option("auto", help="auto, cpu or cuda")
 
     def __post_init__(self):
-        from shellsim.fem import SimSettings
-        from shellsim.materials import RANGES, get_material
+        from shellsim.physics.fem import SimSettings
+        from shellsim.physics.materials import RANGES, get_material
 
         if (self.asset is None) == (self.mesh is None):
             raise SettingError("asset", "give exactly one of an asset and a mesh")
@@ -214,7 +223,7 @@ _OPTIONS = {
 
 @dataclass
 class SimulateResult:
-    """out : the motion file; frames : its frame count; history : :class:`shellsim.fem.StepStats` of the
+    """out : the motion file; frames : its frame count; history : :class:`shellsim.physics.fem.StepStats` of the
     frames simulated now; video : the render's summary (None without ``video``)."""
 
     out: Path
@@ -225,11 +234,12 @@ class SimulateResult:
 
 def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResult:
     """Run the simulation ``settings`` describe into ``settings.out_path`` (module docstring)."""
-    from shellsim.fem import SimulationError, Simulator, WorldMap, restore_state
-    from shellsim.fem import simulate as run_frames
-    from shellsim.materials import get_material
-    from shellsim.motion import MotionWriter, describe_changes
-    from shellsim.outputs import check_writable_dir, check_writable_file
+    from shellsim.io.outputs import check_writable_dir, check_writable_file
+    from shellsim.motion.changes import describe_changes
+    from shellsim.motion.format import MotionWriter
+    from shellsim.physics.fem import SimulationError, Simulator, WorldMap, restore_state
+    from shellsim.physics.fem import simulate as run_frames
+    from shellsim.physics.materials import get_material
 
     s = settings
     out = check_writable_file(s.out_path, "out")
@@ -320,7 +330,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
 
 def _check_source(s: SimulateSettings, motion) -> None:
     """An :class:`InputError` unless the motion being continued moves the asset's cage
-    (:meth:`shellsim.motion.Motion.check_against`) or was made from this content of the mesh file."""
+    (:meth:`shellsim.motion.format.Motion.check_against`) or was made from this content of the mesh file."""
     if s.asset:
         motion.check_against(_asset_cage(s)[1])
     elif motion.asset.get("digest") != _file_digest(Path(s.mesh)):
@@ -338,20 +348,20 @@ def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, devic
     """Render the motion ``out`` to ``frames_dir`` and ``video``: the asset, or a mesh's surface (pyvista);
     each frame already there is kept only if it records this motion frame and camera."""
     if s.asset:
-        from shellsim.render import render_motion
+        from shellsim.render.frames import render_motion
 
         return render_motion(
             s.asset, out, frames_dir, orbit=True, size=s.video_size, video=video, device=device
         )
-    from shellsim.surface import render_surface_motion
+    from shellsim.viz.surface import render_surface_motion
 
     return render_surface_motion(out, frames_dir, size=s.video_size, video=video)
 
 
 def _sim_settings(s: SimulateSettings, world, rest_sim: np.ndarray, up: np.ndarray):
-    """The :class:`shellsim.fem.SimSettings` of the run: obstacles and the ground in simulation metres."""
-    from shellsim.contact import Box, Sphere
-    from shellsim.fem import SimSettings
+    """The :class:`shellsim.physics.fem.SimSettings` of the run: obstacles and the ground in simulation metres."""
+    from shellsim.physics.contact import Box, Sphere
+    from shellsim.physics.fem import SimSettings
 
     return SimSettings(
         dt=1.0 / s.fps,
@@ -368,11 +378,12 @@ def _sim_settings(s: SimulateSettings, world, rest_sim: np.ndarray, up: np.ndarr
 def _asset_cage(s: SimulateSettings):
     """(asset, cage): the asset's stored cage when it fits ``tets``/``margin``, else one built and cached."""
     from neural.asset import load_asset
-    from shellsim import cage as cages
+    from shellsim.cage.build import CageConfig
+    from shellsim.cage.store import load_or_build_cage
 
     config = {k: v for k, v in (("target_tets", s.tets), ("margin", s.margin)) if v is not None}
     asset = load_asset(s.asset)
-    return asset, cages.load_or_build_cage(asset, cages.CageConfig(**config) if config else None)
+    return asset, load_or_build_cage(asset, CageConfig(**config) if config else None)
 
 
 def _load_cage(s: SimulateSettings):
@@ -380,31 +391,31 @@ def _load_cage(s: SimulateSettings):
     (:func:`_asset_cage`, surface None), or a mesh tetrahedralised undilated and its surface embedded;
     ``asset`` is the motion's record of what it moves (name or path, and content digest)."""
     from neural.asset import load_mesh
-    from shellsim import cage as cages
+    from shellsim.cage.build import CageConfig, build_cage
 
     if s.asset:
         asset, cage = _asset_cage(s)
         return cage.vertices, cage.tets, asset.up, None, {"name": asset.name, "digest": asset.digest()}
     mesh = load_mesh(Path(s.mesh))
-    config = cages.CageConfig(margin=0.0, **({"target_tets": s.tets} if s.tets else {}))
-    cage = cages.build_cage(mesh, mesh, config, what=str(s.mesh))
+    config = CageConfig(margin=0.0, **({"target_tets": s.tets} if s.tets else {}))
+    cage = build_cage(mesh, mesh, config, what=str(s.mesh))
     record = {"mesh": str(Path(s.mesh).resolve()), "digest": _file_digest(Path(s.mesh))}
     return cage.vertices, cage.tets, np.array([0.0, 0.0, 1.0]), _mesh_surface(mesh, cage), record
 
 
 def _mesh_surface(mesh, cage):
-    """The surface of the trimesh ``mesh`` embedded in its cage: a :class:`shellsim.motion.Surface`."""
-    from shellsim.embed import embed_points
-    from shellsim.motion import Surface
+    """The surface of the trimesh ``mesh`` embedded in its cage: a :class:`shellsim.motion.format.Surface`."""
+    from shellsim.cage.embed import embed_points
+    from shellsim.motion.format import Surface
 
     tet, bary = embed_points(cage.vertices, cage.tets, np.asarray(mesh.vertices, np.float64))
     return Surface(tet, bary, np.asarray(mesh.faces, np.int64))
 
 
 def _world_map(s: SimulateSettings, vertices: np.ndarray):
-    """The :class:`shellsim.fem.WorldMap` of the body (vertices (V, 3), world units) and one line saying how
+    """The :class:`shellsim.physics.fem.WorldMap` of the body (vertices (V, 3), world units) and one line saying how
     it is scaled, logged and kept in the motion's meta."""
-    from shellsim.fem import WorldMap
+    from shellsim.physics.fem import WorldMap
 
     extent = float(np.ptp(vertices, axis=0).max())
     size = s.scale_size
@@ -423,7 +434,7 @@ def _world_map(s: SimulateSettings, vertices: np.ndarray):
 
 
 def _failure(err, out: Path, material) -> SettingError:
-    """The one line for a :class:`shellsim.fem.SimulationError`: the frame, the value, what to change (the
+    """The one line for a :class:`shellsim.physics.fem.SimulationError`: the frame, the value, what to change (the
     settings named as placeholders, which the command line shows as its options)."""
     advice = {
         "collapse": f"use a stiffer material ({{material}}, {{youngs}}; now {material.youngs:g} Pa), a "

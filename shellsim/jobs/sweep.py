@@ -21,8 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from shellsim.motion import MAX_FRAMES
-from shellsim.options import SettingError, check_range, float_list, name_list, option, pixels
+from shellsim.errors import SettingError
+from shellsim.motion.format import MAX_FRAMES
+from shellsim.settings import check_range, float_list, name_list, option, pixels
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,7 @@ class SweepSettings:
     device: str = option("auto", help="auto, cpu or cuda")
 
     def __post_init__(self):
-        from shellsim.materials import get_material
+        from shellsim.physics.materials import get_material
 
         for name in self.material:
             try:
@@ -87,7 +88,7 @@ def simulate_combination(settings: SweepSettings, combo: dict, progress: bool = 
     when it exists with the same settings); returns the (2, 3) corners of the box its cage moves in."""
     from shellsim.jobs.simulate import SimulateSettings, simulate
     from shellsim.jobs.wind import WindJobSettings, wind
-    from shellsim.motion import load_motion
+    from shellsim.motion.format import load_motion
 
     folder = Path(settings.out) / combo["name"]
     folder.mkdir(parents=True, exist_ok=True)
@@ -117,7 +118,7 @@ def render_combination(
     """Render one simulated combination by the orbit that keeps ``framing`` (N, 3) in view (the same for
     every combination); returns its entry of the index: the combination, its files (relative to ``out``)
     and figures."""
-    from shellsim.render import render_motion
+    from shellsim.render.frames import render_motion
 
     out = Path(settings.out)
     folder = out / combo["name"]
@@ -173,8 +174,8 @@ def sweep(settings: SweepSettings, progress: bool = True) -> dict:
     ``OUT/index.json`` as each finishes and ``OUT/contact_sheet.png`` at the end. Returns the index."""
     from tqdm import tqdm
 
-    from shellsim.contact_sheet import contact_sheet
-    from shellsim.outputs import check_writable_dir, write_atomically
+    from shellsim.io.outputs import check_writable_dir, write_atomically
+    from shellsim.viz.contact_sheet import contact_sheet
 
     if settings.ray is not None:
         from shellsim.distributed import require_ray

@@ -23,8 +23,9 @@ from neural.config import (
     scaled_defaults,
 )
 from neural.device import DEVICES
-from shellsim.options import SettingError, check_choice, check_range, device_setting, option
-from shellsim.outputs import check_writable_dir
+from shellsim.errors import SettingError
+from shellsim.io.outputs import check_writable_dir
+from shellsim.settings import check_choice, check_range, device_setting, option
 
 COLOURS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
 

@@ -1,6 +1,6 @@
-"""The wind job: animate an asset's cage with the analytic wind of :mod:`shellsim.wind` into a motion file.
+"""The wind job: animate an asset's cage with the analytic wind of :mod:`shellsim.physics.wind` into a motion file.
 
-:func:`wind` writes ``out`` (format 2 of :mod:`shellsim.motion`: settings :func:`shellsim.wind.wind_settings`,
+:func:`wind` writes ``out`` (format 2 of :mod:`shellsim.motion.format`: settings :func:`shellsim.physics.wind.wind_settings`,
 the asset and cage by content digest). An existing ``out`` made with the same settings and cage is
 continued; one made otherwise is refused (naming what changed) unless ``overwrite``.
 """
@@ -12,10 +12,11 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from shellsim.motion import MAX_FPS, MAX_FRAMES, overwrite_option, resume_option
-from shellsim.options import SettingError, check_range, floats, option
-from shellsim.selection import selection_text
-from shellsim.wind import RANGES, WindSettings, max_frequency
+from shellsim.errors import SettingError
+from shellsim.motion.format import MAX_FPS, MAX_FRAMES
+from shellsim.physics.selection import selection_text
+from shellsim.physics.wind import RANGES, WindSettings, max_frequency
+from shellsim.settings import check_range, floats, option, overwrite_option, resume_option
 
 log = logging.getLogger(__name__)
 
@@ -25,8 +26,8 @@ _W = WindSettings
 
 @dataclass(frozen=True)
 class WindJobSettings:
-    """What :func:`wind` does. The wind's own settings (None: :class:`shellsim.wind.WindSettings`'s default)
-    are those of :class:`~shellsim.wind.WindSettings`; ``margin`` picks a cage other than the stored one."""
+    """What :func:`wind` does. The wind's own settings (None: :class:`shellsim.physics.wind.WindSettings`'s default)
+    are those of :class:`~shellsim.physics.wind.WindSettings`; ``margin`` picks a cage other than the stored one."""
 
     asset: str = option(help="asset directory or shipped asset name", required=True)
     frames: int = option(120, help="number of frames, the first at rest")
@@ -85,7 +86,7 @@ class WindJobSettings:
             raise SettingError("direction", "expected a non-zero vector")
 
     def wind_settings(self, up) -> WindSettings:
-        """The :class:`shellsim.wind.WindSettings` for an asset whose up axis is ``up`` (3,)."""
+        """The :class:`shellsim.physics.wind.WindSettings` for an asset whose up axis is ``up`` (3,)."""
         names = ("strength", "direction", "gust", "frequency", "turbulence", "anchor", "seed")
         given = {k: getattr(self, k) for k in names if getattr(self, k) is not None}
         return WindSettings(up=tuple(float(c) for c in up), **given)
@@ -103,10 +104,11 @@ class WindResult:
 def wind(settings: WindJobSettings, progress: bool = True) -> WindResult:
     """Animate the asset of ``settings`` into its motion file (module docstring)."""
     from neural.asset import load_asset
-    from shellsim.cage import CageConfig, load_or_build_cage
-    from shellsim.motion import MotionWriter
-    from shellsim.outputs import check_writable_file
-    from shellsim.wind import animate_wind, motion_changes, wind_settings
+    from shellsim.cage.build import CageConfig
+    from shellsim.cage.store import load_or_build_cage
+    from shellsim.io.outputs import check_writable_file
+    from shellsim.motion.format import MotionWriter
+    from shellsim.physics.wind import animate_wind, motion_changes, wind_settings
 
     s = settings
     asset = load_asset(s.asset)

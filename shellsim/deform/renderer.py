@@ -1,0 +1,130 @@
+"""Rendering an asset at rest and deformed by a motion of its cage (paper Sec. 5, DESIGN.md step 7).
+
+Images are made by the one pipeline of :mod:`neural.render.view` (sample, optional map to rest space,
+shade); this module supplies, for one frame with cage vertices ``p`` (V, 3), the deformed sampler and the map
+to rest space. :class:`DeformedRenderer`
+
+1. **deforms the shells**: every ``M+`` / ``M-`` vertex is the barycentric interpolation of ``p`` in its
+   rest tet (:func:`shellsim.deform.inverse_map.deform_points`, as :meth:`~neural.render.raycast.WarpCaster.refit_blended`
+   computes it in a Warp kernel); the BVHs of their Warp meshes, built once from the rest shells, are
+   refitted, and meanwhile the inverse map (:class:`shellsim.deform.inverse_map.InverseMap`) is updated to the frame;
+2. **samples**: casts the camera rays against the deformed shells and places samples in the deformed narrow
+   band (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
+3. **maps** every sample back to rest space: ``x_rest = Phi^-1(x)``, the ray direction by finite
+   differences ``d_rest = normalize(Phi^-1(x + eps d) - Phi^-1(x))`` and the local stretch
+   ``|Phi^-1(x + eps d) - Phi^-1(x)| / eps``, which turns a deformed section of length ``delta`` into a
+   rest-space one of length ``stretch * delta`` (:meth:`InverseMap.map_rays`). Samples outside the deformed
+   cage (``inside = False``) are dropped: the cage contains everything the field shows;
+4. **shades** the rest-space samples with the field and composites them along the deformed rays (Eq. 2-3),
+   over the asset's background.
+
+With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
+pipeline without a map, with the asset's rest sampler, exactly what ``shellsim eval`` measures.
+
+:func:`render_motion` renders a motion file frame by frame to ``DIR/00000.png ...`` (frame ``k`` of the
+motion is ``k:05d.png``) and optionally assembles an MP4; :func:`render_views` renders every camera of a
+camera file at rest. Every PNG records what made it (:func:`frame_record`: the motion frame, camera, size,
+asset and renderer settings, as JSON in a PNG text chunk); a PNG already on disk is kept only when its record
+matches, so an interrupted render resumes and frames of another motion, camera or size are rendered again.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+#: Stages of a frame, in :meth:`DeformedRenderer.render`'s ``stats`` as ``<stage>_ms``: building the
+#: deformed frame, then the stages of :data:`neural.render.view.STAGES`.
+STAGES = ("build", "sample", "map", "shade")
+
+
+class DeformedRenderer:
+    """Renders an asset's field through its shells, at rest or with its cage deformed: the pipeline of
+    :mod:`neural.render.view` (sample, map to rest space, shade) with, for a deformed frame, a sampler on the
+    deformed shells and the cage's inverse map as its map to rest space.
+
+    asset : :class:`neural.asset.Asset` (shells, background, narrow-band settings)
+    field : its ``ShellField`` on ``device``
+    cage : :class:`shellsim.cage.build.Cage` embedding the asset's shells; None renders at rest only
+    device : torch device of the field ("cpu", "cuda"); the inverse map runs on the matching Warp device
+    config : narrow-band settings; None takes the asset's ``meta["narrowband"]`` (or the defaults)
+
+    State: the rest sampler (:func:`neural.render.view.asset_sampler`, Embree scenes built once), the field,
+    the cage, Warp meshes of the shells refitted to each deformed frame and the inverse map updated to it
+    (both built on the first one): the renderer draws one frame at a time.
+    """
+
+    def __init__(self, asset, field, cage, device: str = "cpu", config=None):
+        from neural.device import warp_device
+        from neural.render.view import asset_sampler
+
+        self.outer, self.inner = asset.outer_mesh(), asset.inner_mesh()
+        for name, mesh in (("outer", self.outer), ("inner", self.inner)):
+            embedded = len(mesh.vertices) if cage is None else len(getattr(cage, f"{name}_tet"))
+            if embedded != len(mesh.vertices):
+                raise ValueError(
+                    f"cage: embeds {embedded} {name}-shell vertices but the asset's {name} shell has "
+                    f"{len(mesh.vertices)}"
+                )
+        self.field = field
+        self.cage = cage
+        self.device = torch.device(device)
+        self.warp_device = warp_device(str(device))
+        self.config = asset.narrowband_config() if config is None else config
+        self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
+        self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
+        self._deformed = None  # WarpCaster, built for the first deformed frame
+        self._inverse = None  # the InverseMap, built for the first deformed frame and updated for the next
+
+    def _frame(self, positions):
+        """The sampler and the map to rest space (None at rest) of cage vertices ``positions`` (V, 3)."""
+        from neural.device import kept_pool
+        from neural.render.raycast import WarpCaster
+        from neural.render.view import narrow_band_sampler
+        from shellsim.deform.inverse_map import InverseMap
+
+        if positions is None:
+            return self._rest, None
+        if self.cage is None:
+            raise ValueError("positions: this renderer has no cage; it renders at rest only")
+        positions = np.asarray(positions, dtype=np.float64)
+        if positions.shape != self.cage.vertices.shape:
+            raise ValueError(
+                f"positions: expected {self.cage.vertices.shape} like the cage, got {positions.shape}"
+            )
+        if self._deformed is None:
+            c = self.cage
+            self._deformed = WarpCaster(self.outer, self.inner, device=self.warp_device)
+            self._deformed.set_blend(
+                outer=(c.tets[c.outer_tet], c.outer_bary), inner=(c.tets[c.inner_tet], c.inner_bary)
+            )
+
+        def inverse_map():  # of these positions: built for the first frame, then updated
+            if self._inverse is None:
+                return InverseMap(positions, self.cage.tets, self.cage.vertices, self.warp_device)
+            self._inverse.update(positions)
+            return self._inverse
+
+        # on the CPU the inverse map is made ready while the shells' BVHs are refitted (0.7x the time)
+        on_cpu = self.warp_device == "cpu"
+        future = kept_pool(1, "shellsim-frame").submit(inverse_map) if on_cpu else None
+        self._deformed.refit_blended(positions)
+        self._inverse = inverse_map() if future is None else future.result()
+        return narrow_band_sampler(self._deformed, self.config), self._inverse
+
+    def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
+        """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
+        (V, 3) (None: at rest, exactly :func:`neural.render.view.render_camera` with the asset's sampler),
+        and the stats of ``render_camera`` plus ``build_ms`` (shell deformation, refitting their BVHs and
+        updating the inverse map; both built on the first deformed frame) and ``ms`` with it."""
+        from neural.render.view import render_camera
+
+        start = time.perf_counter()
+        sampler, to_rest = self._frame(positions)
+        build = time.perf_counter() - start
+        image, stats = render_camera(self.field, cameras, index, sampler, self.background, to_rest)
+        stats["build_ms"] = 1000.0 * build
+        stats["ms"] = 1000.0 * (time.perf_counter() - start)
+        return image, stats

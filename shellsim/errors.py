@@ -1,0 +1,38 @@
+"""Settings dataclasses as command-line options: one source of truth for names, help and defaults.
+
+A job's settings are a dataclass whose fields are declared with :func:`option`. :func:`add_options` adds
+one argparse option per field (``--field-name`` unless the field names its own flag) whose help ends with
+the dataclass default; :func:`from_args` builds the settings from the parsed namespace. Text values are
+parsed by the field's ``parse`` (strict grammars, never evaluated). The library validates values in
+``__post_init__`` and raises :class:`SettingError`, which names the field; :func:`from_args` turns it into
+an :class:`~neural.errors.InputError` naming the option instead, so the library speaks of values and the
+command line of flags.
+"""
+
+from __future__ import annotations
+
+import re
+import typing
+
+from neural.errors import InputError
+
+
+class SettingError(InputError):
+    """A setting's value is out of its domain: ``name`` is the field, ``message`` says what was expected.
+
+    ``value`` (e.g. a path) is shown after the name: ``"out /tmp/x: cannot write here"``. The message may
+    name other settings as ``{field}``: the library shows the field's name, the command line its option
+    (``"give {overwrite} to replace it"``). ``name`` None: an error of the job as a whole whose message
+    names the settings to change."""
+
+    def __init__(self, name: str | None, message: str, value=None):
+        self.name, self.message, self.value = name, message, value
+        super().__init__(self.render({}))
+
+    def render(self, flags: typing.Mapping[str, str]) -> str:
+        """The message with each setting named by ``flags`` (field -> option) where it has one."""
+        message = re.sub(r"[{]([a-z_]+)[}]", lambda m: flags.get(m[1], m[1]), self.message)
+        if self.name is None:
+            return message
+        where = flags.get(self.name, self.name) + ("" if self.value is None else f" {self.value}")
+        return f"{where}: {message}"

@@ -1,0 +1,177 @@
+"""Animated meshes out to the formats animation tools open: USD (Blender, Omniverse), VTU + PVD (ParaView),
+PLY sequences.
+
+Each writer takes the frames to write as a list of frame numbers and a function giving the points of a
+frame, so a long motion is never held in memory whole. Files are written under a temporary name and renamed
+when complete: an interrupted export leaves no half-written file under the final name.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neural.errors import InputError
+from shellsim.io.outputs import write_atomically
+
+#: The install line for USD export, printed when ``pxr`` is missing.
+USD_HINT = "USD export needs the usd-core package: pip install 'shellsim[usd]'"
+
+
+@dataclass
+class AnimatedMesh:
+    """A triangle mesh whose points move: ``faces`` (F, 3) int, ``points(frame)`` -> (V, 3) float."""
+
+    name: str
+    faces: np.ndarray
+    points: Callable[[int], np.ndarray]
+
+
+def require_usd() -> None:
+    """An :class:`InputError` with the install line unless ``pxr`` (usd-core) can be imported."""
+    try:
+        import pxr  # noqa: F401
+    except ImportError:
+        raise InputError(USD_HINT) from None
+
+
+def up_rotation(up: Sequence[float]) -> tuple[np.ndarray, str]:
+    """(R (3, 3), axis): USD knows only a Y or Z up axis. An up of +Y or +Z is kept (R = I); any other is
+    turned onto +Z by the smallest rotation R (R @ up = +Z)."""
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    for axis, target in (("Y", (0.0, 1.0, 0.0)), ("Z", (0.0, 0.0, 1.0))):
+        if np.allclose(u, target, atol=1e-9):
+            return np.eye(3), axis
+    z = np.array([0.0, 0.0, 1.0])
+    v, c = np.cross(u, z), float(u @ z)
+    if np.linalg.norm(v) < 1e-12:  # up = -Z: half a turn about X
+        return np.diag([1.0, -1.0, -1.0]), "Z"
+    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + k + k @ k / (1.0 + c), "Z"
+
+
+def _usd_name(name: str) -> str:
+    """A valid USD prim name: letters, digits and underscores, not starting with a digit."""
+    clean = "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in name) or "mesh"
+    return clean if not clean[0].isdigit() else "_" + clean
+
+
+def write_usd(
+    path,
+    meshes: Sequence[AnimatedMesh],
+    frames: Sequence[int],
+    fps: float,
+    up: Sequence[float] = (0.0, 0.0, 1.0),
+    metres_per_unit: float = 1.0,
+    progress: Callable[[], None] | None = None,
+) -> Path:
+    """A USD stage (``.usd``/``.usda``/``.usdc``) with each mesh under ``/Root`` and its points sampled at
+    time codes ``0 .. len(frames) - 1`` (the motion's frames ``frames``), ``fps`` time codes per second,
+    the up axis and metres per unit set so that Blender and Omniverse play it at its size."""
+    require_usd()
+    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+
+    rotation, axis = up_rotation(up)
+    path = Path(path)
+
+    def write(tmp: Path) -> None:
+        stage = Usd.Stage.CreateNew(str(tmp))
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if axis == "Y" else UsdGeom.Tokens.z)
+        UsdGeom.SetStageMetersPerUnit(stage, float(metres_per_unit))
+        stage.SetTimeCodesPerSecond(float(fps))
+        stage.SetFramesPerSecond(float(fps))
+        stage.SetStartTimeCode(0)
+        stage.SetEndTimeCode(max(len(frames) - 1, 0))
+        root = UsdGeom.Xform.Define(stage, "/Root")
+        stage.SetDefaultPrim(root.GetPrim())
+        prims = []
+        for mesh in meshes:
+            prim = UsdGeom.Mesh.Define(stage, Sdf.Path("/Root").AppendChild(_usd_name(mesh.name)))
+            faces = np.asarray(mesh.faces, np.int64)
+            prim.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(faces)))
+            prim.CreateFaceVertexIndicesAttr(Vt.IntArray(faces.reshape(-1).tolist()))
+            prim.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+            prims.append((prim, prim.CreatePointsAttr(), prim.CreateExtentAttr()))
+        for code, frame in enumerate(frames):
+            for mesh, (_, points_attr, extent_attr) in zip(meshes, prims, strict=True):
+                points = np.asarray(mesh.points(frame), np.float64) @ rotation.T
+                points_attr.Set(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)), code)
+                lo, hi = points.min(0), points.max(0)
+                extent_attr.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]), code)
+            if progress:
+                progress()
+        stage.GetRootLayer().Save()
+
+    return write_atomically(path, write)
+
+
+def write_vtu_series(
+    path,
+    rest_vertices: np.ndarray,
+    tets: np.ndarray,
+    positions: Callable[[int], np.ndarray],
+    frames: Sequence[int],
+    times: Sequence[float],
+    progress: Callable[[], None] | None = None,
+) -> list[Path]:
+    """A ParaView series: ``path`` (``.pvd``) indexing one ``.vtu`` per frame in ``<stem>_vtu/``; each holds
+    the tet cage at ``positions(frame)`` (V, 3) with point data ``displacement`` (V, 3) from
+    ``rest_vertices`` (V, 3) and cell data ``volume_ratio`` (T,) = deformed / rest tet volume (det F).
+    Returns the files written, the ``.pvd`` last."""
+    import pyvista as pv
+
+    from shellsim.cage.geometry import volume_ratios
+
+    path = Path(path)
+    tets = np.asarray(tets, np.int64)
+    rest = np.asarray(rest_vertices, np.float64)
+    folder = path.with_name(path.stem + "_vtu")
+    written = []
+    collection = ET.Element("Collection")
+    for frame, time in zip(frames, times, strict=True):
+        x = np.asarray(positions(frame), np.float64)
+        grid = pv.UnstructuredGrid({pv.CellType.TETRA: tets}, x)
+        grid.point_data["displacement"] = x - rest
+        grid.cell_data["volume_ratio"] = volume_ratios(rest, x, tets)
+        name = f"frame_{frame:05d}.vtu"
+        written.append(write_atomically(folder / name, lambda tmp, g=grid: g.save(str(tmp), binary=True)))
+        ET.SubElement(
+            collection,
+            "DataSet",
+            timestep=repr(float(time)),
+            group="",
+            part="0",
+            file=f"{folder.name}/{name}",
+        )
+        if progress:
+            progress()
+    document = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
+    document.append(collection)
+    ET.indent(document)
+    written.append(write_atomically(path, lambda tmp: ET.ElementTree(document).write(tmp, "utf-8", True)))
+    return written
+
+
+def write_ply_sequence(
+    directory,
+    mesh: AnimatedMesh,
+    frames: Sequence[int],
+    progress: Callable[[], None] | None = None,
+) -> list[Path]:
+    """One binary PLY per frame, ``directory/<name>_NNNNN.ply``, of ``mesh`` at that frame."""
+    import trimesh
+
+    directory = Path(directory)
+    written = []
+    for frame in frames:
+        surface = trimesh.Trimesh(np.asarray(mesh.points(frame), np.float64), mesh.faces, process=False)
+        target = directory / f"{mesh.name}_{frame:05d}.ply"
+        written.append(write_atomically(target, lambda tmp, s=surface: s.export(str(tmp), file_type="ply")))
+        if progress:
+            progress()
+    return written

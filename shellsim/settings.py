@@ -1,0 +1,191 @@
+"""Settings of jobs as dataclass fields that are also command-line options (the library side).
+
+A job's settings are a frozen dataclass whose fields are declared with :func:`option`: its name, help,
+default and text grammar (``parse``) are written once, here in the library; :mod:`shellsim.cli.options`
+derives the command line from them. ``__post_init__`` validates values with :func:`check_range` and
+:func:`check_choice` and raises :class:`~shellsim.errors.SettingError`, which names the field; the command
+line shows it as the option. Text values are parsed by strict grammars (:func:`floats`, :func:`pixels`,
+:func:`parse_frames`), never evaluated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from collections.abc import Callable
+
+from neural.errors import InputError
+from shellsim.errors import SettingError
+
+
+def resume_option():
+    """The ``resume`` field of a producer's settings (:mod:`shellsim.settings`): continue OUT."""
+    return option(
+        False,
+        help="continue OUT after its last frame (what happens anyway when OUT exists and was made with the "
+        "same settings; other settings are refused)",
+        group="again",
+    )
+
+
+def overwrite_option():
+    """The ``overwrite`` field of a producer's settings (:mod:`shellsim.settings`): start OUT anew."""
+    return option(False, help="start OUT anew even if it was made with other settings", group="again")
+
+
+def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
+    """The setting ``frames``: ``"a:b"`` (b exclusive; either may be left out), ``"k"`` or None (all) -> the
+    frame indices, checked against ``n_frames``; a malformed or out-of-range spec is a
+    :class:`~shellsim.errors.SettingError` of ``frames``."""
+    if spec is None:
+        return range(n_frames)
+    text = str(spec).strip()
+    parts = text.split(":")
+    try:
+        if len(parts) == 1:
+            a = int(parts[0])
+            b = a + 1
+        elif len(parts) == 2:
+            a = int(parts[0]) if parts[0].strip() else 0
+            b = int(parts[1]) if parts[1].strip() else n_frames
+        else:
+            raise ValueError
+    except ValueError:
+        raise SettingError(
+            "frames",
+            "expected START:END (END exclusive, either optional) or one frame number, e.g. 0:60",
+            repr(text),
+        ) from None
+    if not 0 <= a < b <= n_frames:
+        raise SettingError(
+            "frames",
+            f"{source} has {n_frames} frames (0..{n_frames - 1}); need 0 <= START < END <= {n_frames}",
+            repr(text),
+        )
+    return range(a, b)
+
+
+def option(
+    default=None,
+    *,
+    help: str,
+    flag: str | None = None,
+    parse: Callable[[str], object] | None = None,
+    metavar: str | None = None,
+    choices: typing.Sequence[str] | None = None,
+    repeat: bool = False,
+    negate: bool = False,
+    shown_default: str | None = None,
+    group: str | None = None,
+    required: bool = False,
+    const: str | None = None,
+) -> typing.Any:
+    """A dataclass field that is also a command-line option.
+
+    ``parse`` turns the option's text (each text with ``repeat``) into the field's value and raises
+    ``ValueError`` with what it expected. ``repeat``: the option may be given several times (a tuple).
+    ``negate``: a ``True``-by-default bool set off by ``flag`` (e.g. ``--no-ground``). ``shown_default``
+    replaces the default in the help (e.g. "the asset's"); ``group`` names a mutually exclusive group, which
+    is ``required`` when any of its fields says so. ``const``: the option may be given without a value,
+    which then is ``const`` (``--ray`` alone, or ``--ray ADDRESS``).
+    """
+    meta = dict(
+        help=help,
+        flag=flag,
+        parse=parse,
+        metavar=metavar,
+        choices=tuple(choices) if choices else None,
+        repeat=repeat,
+        negate=negate,
+        shown_default=shown_default,
+        group=group,
+        required=required,
+        const=const,
+    )
+    if repeat:
+        return dataclasses.field(default=tuple(default or ()), metadata={"option": meta})
+    return dataclasses.field(default=default, metadata={"option": meta})
+
+
+def device_setting(name: str, warp: bool = False) -> str:
+    """:func:`neural.device.pick_device` for the setting ``device``: its refusal is a :class:`SettingError`
+    (so the command line names ``--device``)."""
+    from neural.device import pick_device
+
+    try:
+        return pick_device(name, warp)
+    except InputError as err:
+        raise SettingError("device", str(err)) from None
+
+
+def _finite_numbers(text: str) -> tuple[float, ...]:
+    """The comma-separated numbers of ``text``; () when one is not a finite number."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        return ()
+    return values if all(math.isfinite(v) for v in values) else ()
+
+
+def floats(count: int) -> Callable[[str], tuple[float, ...]]:
+    """A parser of ``count`` comma-separated finite numbers: ``"1,0,0.5"`` -> (1.0, 0.0, 0.5)."""
+
+    def parse(text: str) -> tuple[float, ...]:
+        values = _finite_numbers(text)
+        if len(values) != count:
+            raise ValueError(f"expected {count} comma-separated numbers")
+        return values
+
+    return parse
+
+
+def float_list(text: str) -> tuple[float, ...]:
+    """``"0.1,0.3"`` -> (0.1, 0.3): one or more comma-separated finite numbers."""
+    values = _finite_numbers(text)
+    if not values:
+        raise ValueError("expected comma-separated numbers")
+    return values
+
+
+def name_list(text: str) -> tuple[str, ...]:
+    """``"rubber, jelly"`` -> ("rubber", "jelly"): one or more comma-separated names."""
+    names = tuple(v.strip() for v in text.split(","))
+    if not all(names):
+        raise ValueError("expected comma-separated names")
+    return names
+
+
+def pixels(text: str) -> tuple[int, int]:
+    """A parser of an image size ``"800x600"`` -> (800, 600), each side in 1..16384."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() and 0 < int(p) <= 16384 for p in parts):
+        raise ValueError("expected WIDTHxHEIGHT in pixels (e.g. 800x600)")
+    return int(parts[0]), int(parts[1])
+
+
+def show_pixels(size: tuple[int, int]) -> str:
+    """``(800, 600)`` -> ``"800x600"``, as :func:`pixels` reads it."""
+    return "x".join(map(str, size))
+
+
+def check_range(name: str, value, low: float, high: float, what: str = "a number", open_ends: str = "[]"):
+    """:class:`SettingError` for ``name`` unless ``low <= value <= high`` (NaN never is); ``open_ends`` "()",
+    "(]" or "[)" excludes an end. Returns ``value``."""
+    above = value > low if open_ends[0] == "(" else value >= low
+    below = value < high if open_ends[1] == ")" else value <= high
+    if not (above and below):
+
+        def plain(x):
+            return str(x) if isinstance(x, int) else f"{x:g}"
+
+        span = f"{open_ends[0]}{plain(low)}, {plain(high)}{open_ends[1]}"
+        raise SettingError(name, f"expected {what} in {span}, got {plain(value)}")
+    return value
+
+
+def check_choice(name: str, value, choices: typing.Sequence):
+    """:class:`SettingError` for ``name`` unless ``value`` is one of ``choices``. Returns ``value``."""
+    if value not in choices:
+        raise SettingError(name, f"expected one of {', '.join(map(str, choices))}, got {value!r}")
+    return value

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .files import write_atomically, write_bytes_atomically, write_text_atomically
 
 FORMAT = "shellsim-asset"
 FORMAT_VERSION = 1
@@ -233,14 +234,11 @@ def _check_optional_keys(meta_path: Path, meta: dict) -> None:
 
 
 def write_safetensors(path, tensors: dict, metadata: dict[str, str] | None = None) -> None:
-    """Write ``tensors`` to ``path`` as safetensors, atomically (temporary file + rename), with the usual
+    """Write ``tensors`` to ``path`` as safetensors, atomically (:mod:`neural.files`), with the usual
     permissions (0666 less the umask; safetensors' own ``save_file`` makes 0600 files)."""
     from safetensors.torch import save
 
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(save(tensors, metadata=metadata))
-    os.replace(tmp, path)
+    write_bytes_atomically(path, save(tensors, metadata=metadata))
 
 
 def save_asset(root, field, outer, inner, meta: dict) -> Path:
@@ -303,10 +301,7 @@ def replace_shells(asset: Asset, outer, inner, shell_meta: dict) -> None:
     """Swap in new shells (written to temporary files, then renamed) and record their settings; metrics that
     depend on the shells (all but ``stage1_full_ray``) move to ``metrics["earlier_shells"]``."""
     for key, mesh in (("shell_outer", outer), ("shell_inner", inner)):
-        target = asset.file(key)
-        tmp = target.with_name(target.stem + ".tmp.ply")
-        mesh.export(tmp)
-        os.replace(tmp, target)
+        write_atomically(asset.file(key), lambda tmp, m=mesh: m.export(tmp))
     asset.meta["shell"] = shell_meta
     metrics = asset.meta.setdefault("metrics", {})
     stale = {k: metrics.pop(k) for k in list(metrics) if k not in ("stage1_full_ray", "earlier_shells")}
@@ -322,6 +317,4 @@ def command_line() -> str:
 
 def write_meta(root: Path, meta: dict) -> None:
     """Write ``asset.json`` atomically."""
-    tmp = Path(root) / "asset.json.tmp"
-    tmp.write_text(json.dumps(meta, indent=1))
-    os.replace(tmp, Path(root) / "asset.json")
+    write_text_atomically(Path(root) / "asset.json", json.dumps(meta, indent=1))

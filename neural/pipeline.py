@@ -20,6 +20,7 @@ from .data import SceneData, load_dataset
 from .device import processor
 from .errors import InputError
 from .field import ShellField
+from .files import write_text_atomically
 from .shell.from_field import FieldShells, extract_field_shells
 from .train import train_stage1, train_stage2
 
@@ -158,9 +159,7 @@ def _read_runs(ckpt_dir: Path) -> dict:
 
 
 def _write_runs(ckpt_dir: Path, seconds: float, runs: int) -> None:
-    tmp = ckpt_dir / "runs.json.tmp"
-    tmp.write_text(json.dumps({"seconds": seconds, "runs": runs}))
-    tmp.replace(ckpt_dir / "runs.json")
+    write_text_atomically(ckpt_dir / "runs.json", json.dumps({"seconds": seconds, "runs": runs}))
 
 
 def _shell_key(config: PipelineConfig) -> dict:

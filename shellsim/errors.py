@@ -1,12 +1,8 @@
-"""Settings dataclasses as command-line options: one source of truth for names, help and defaults.
+"""Errors of settings, below every layer that raises them (the library, the jobs and the command line).
 
-A job's settings are a dataclass whose fields are declared with :func:`option`. :func:`add_options` adds
-one argparse option per field (``--field-name`` unless the field names its own flag) whose help ends with
-the dataclass default; :func:`from_args` builds the settings from the parsed namespace. Text values are
-parsed by the field's ``parse`` (strict grammars, never evaluated). The library validates values in
-``__post_init__`` and raises :class:`SettingError`, which names the field; :func:`from_args` turns it into
-an :class:`~neural.errors.InputError` naming the option instead, so the library speaks of values and the
-command line of flags.
+:class:`SettingError` names the setting (a dataclass field) whose value is out of its domain; the command
+line (:mod:`shellsim.cli.options`) shows the field as its option. The other errors a user can act on are
+:class:`neural.errors.ShellsimError` and :class:`neural.errors.InputError`.
 """
 
 from __future__ import annotations

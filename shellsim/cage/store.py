@@ -1,33 +1,11 @@
-"""The tetrahedral cage of an asset (paper Sec. 5, DESIGN.md step 5).
+"""Where cages are kept: the cage file (``cage.npz``), an asset's own cage and the user cache.
 
-"We first dilate and tetrahedralize the outer mesh M+ with Fast-TetWild to produce a tetrahedral mesh that
-encapsulates the scene [...] any deformation is transferred to M+ and M- via barycentric interpolation,
-using precomputed barycentric coordinates generated as a pre-process."
-
-:func:`build_cage`:
-
-1. **dilate** ``M+`` by ``margin`` (relative to its bounding-box diagonal): marching cubes of its signed
-   distance on a grid of cell ``margin / 2`` at the level ``+margin`` (``igl.offset_surface``), which is a
-   closed surface by construction, then quadric-error decimation to ``surface_faces`` triangles, since
-   fTetWild's time grows with its input;
-   ``margin=0`` skips this: a closed mesh that is the body itself is tetrahedralised as it is;
-2. **tetrahedralize** it with fTetWild (:func:`shellsim.cage.tetwild.tetrahedralize`: seeded, one thread, a
-   fresh process per run, so the same shells and settings give the same cage), steering the ideal edge
-   length until the tet count is within a factor ``tolerance`` of ``target_tets`` (at most
-   ``max_attempts`` runs; the closest is kept). fTetWild's envelope (how far its boundary may stray from the
-   dilated surface) is ``envelope * margin`` (:data:`UNDILATED_EPSILON` of the diagonal when undilated);
-3. **embed** every ``M+`` and ``M-`` vertex (:func:`shellsim.cage.embed.embed_points`) and drop the connected
-   parts of the tet mesh that hold none of them (fTetWild's stray tets), with a log line;
-4. **validate** (:func:`check_tet_mesh`): every tet positively oriented and not degenerate, and one solid
-   connected through shared faces. A shell whose parts lie farther apart than twice the margin gives a
-   cage in pieces, which is an :class:`~neural.errors.InputError` (raise the margin, or remove the floaters).
-
-``cage.npz`` (format version 1, no pickle): ``vertices`` (V, 3) float64, ``tets`` (T, 4) int64,
-optionally ``outer_tet`` (Vo,) int64, ``outer_bary`` (Vo, 4) float64, ``inner_tet`` (Vi,), ``inner_bary``
-(Vi, 4) (:func:`load_or_build_cage` leaves them out: for the 250k shell vertices of the LEGO they are 10
-MB against 0.3 MB for the cage, and embedding again takes half a second), ``shell_digest`` (sha256 of the
-shells' vertex and face arrays as loaded), ``config`` (JSON of :class:`CageConfig`), ``format``,
-``format_version``.
+A cage file holds the rest cage (vertices (V, 3) float64, tets (T, 4) int64), the embedding of the shells'
+vertices (optional), the :func:`~shellsim.cage.build.shell_digest` of the shells it was built for and its
+:class:`~shellsim.cage.build.CageConfig`. :func:`load_or_build_cage` returns an asset's own cage when it
+fits, else a cached one keyed by the shells and the settings, else builds one
+(:func:`shellsim.cage.build.build_cage`) and caches it; :func:`cage_for_motion` finds the cage a motion was
+made with.
 """
 
 from __future__ import annotations

@@ -1,12 +1,10 @@
 """Settings dataclasses as command-line options: one source of truth for names, help and defaults.
 
-A job's settings are a dataclass whose fields are declared with :func:`option`. :func:`add_options` adds
-one argparse option per field (``--field-name`` unless the field names its own flag) whose help ends with
-the dataclass default; :func:`from_args` builds the settings from the parsed namespace. Text values are
-parsed by the field's ``parse`` (strict grammars, never evaluated). The library validates values in
-``__post_init__`` and raises :class:`SettingError`, which names the field; :func:`from_args` turns it into
-an :class:`~neural.errors.InputError` naming the option instead, so the library speaks of values and the
-command line of flags.
+:func:`add_options` adds one argparse option per field declared with :func:`shellsim.settings.option`
+(``--field-name`` unless the field names its own flag) whose help ends with the dataclass default;
+:func:`from_args` builds the settings from the parsed namespace and turns a
+:class:`~shellsim.errors.SettingError`, which names the field, into an :class:`~neural.errors.InputError`
+naming the option instead: the library speaks of values, the command line of flags.
 """
 
 from __future__ import annotations

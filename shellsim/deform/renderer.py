@@ -1,4 +1,4 @@
-"""Rendering an asset at rest and deformed by a motion of its cage (paper Sec. 5, DESIGN.md step 7).
+"""One frame of an asset at rest or deformed by its cage (paper Sec. 5, DESIGN.md step 7).
 
 Images are made by the one pipeline of :mod:`neural.render.view` (sample, optional map to rest space,
 shade); this module supplies, for one frame with cage vertices ``p`` (V, 3), the deformed sampler and the map
@@ -20,12 +20,6 @@ to rest space. :class:`DeformedRenderer`
 
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
 pipeline without a map, with the asset's rest sampler, exactly what ``shellsim eval`` measures.
-
-:func:`render_motion` renders a motion file frame by frame to ``DIR/00000.png ...`` (frame ``k`` of the
-motion is ``k:05d.png``) and optionally assembles an MP4; :func:`render_views` renders every camera of a
-camera file at rest. Every PNG records what made it (:func:`frame_record`: the motion frame, camera, size,
-asset and renderer settings, as JSON in a PNG text chunk); a PNG already on disk is kept only when its record
-matches, so an interrupted render resumes and frames of another motion, camera or size are rendered again.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.io.outputs import write_atomically
+from neural.files import write_atomically
 
 #: The install line for USD export, printed when ``pxr`` is missing.
 USD_HINT = "USD export needs the usd-core package: pip install 'shellsim[usd]'"

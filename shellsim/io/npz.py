@@ -8,16 +8,13 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
+from neural.files import write_atomically
 
 
 def save_npz(path: str | os.PathLike, **arrays) -> None:
     """Write ``arrays`` to ``path`` atomically (a temporary file, then a rename): readers see the old file or
-    the new one, never a torn one. Creates the parent directory."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)
+    the new one, never a torn one (:mod:`neural.files`). Creates the parent directory."""
+    write_atomically(path, lambda tmp: np.savez(tmp, **arrays))
 
 
 def load_npz(path: str | os.PathLike, keys, what: str, optional=()) -> dict[str, np.ndarray]:

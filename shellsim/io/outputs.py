@@ -68,17 +68,3 @@ def check_writable_file(path, flag: str | None = None) -> Path:
     _check(path, path.parent, flag)
     return path
 
-
-def write_atomically(path, write) -> Path:
-    """Call ``write(tmp)`` for a temporary file beside ``path`` (same suffix, so writers that go by it
-    work), then rename it to ``path``: readers see the old file or the new one, never a torn one. Returns
-    the Path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path

@@ -10,6 +10,7 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+from neural.files import write_text_atomically
 from shellsim.errors import SettingError
 from shellsim.io.outputs import check_writable_dir
 from shellsim.settings import check_choice, check_range, option
@@ -88,9 +89,7 @@ def poses(settings: PosesSettings) -> Path:
         {"file_path": Path(os.path.relpath(images / name, out)).as_posix(), "reason": reasons[name]}
         for name in sorted(reasons)
     ]
-    tmp = target.with_name(target.name + ".tmp")
-    tmp.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
-    tmp.replace(target)
+    write_text_atomically(target, json.dumps(meta, indent=2) + "\n")
     log.info(
         "%s: %d posed frames, %s camera %dx%d fl %.1f, %.1f, k1 %.3g k2 %.3g, aabb_scale %s; "
         "train with: shellsim train --data %s --out ASSET",

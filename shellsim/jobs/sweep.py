@@ -174,7 +174,8 @@ def sweep(settings: SweepSettings, progress: bool = True) -> dict:
     ``OUT/index.json`` as each finishes and ``OUT/contact_sheet.png`` at the end. Returns the index."""
     from tqdm import tqdm
 
-    from shellsim.io.outputs import check_writable_dir, write_atomically
+    from neural.files import write_atomically
+    from shellsim.io.outputs import check_writable_dir
     from shellsim.viz.contact_sheet import contact_sheet
 
     if settings.ray is not None:

@@ -1,31 +1,4 @@
-"""The motion file: per-frame cage vertex positions written by the simulator and the wind animator.
-
-**Format 2** (written by :class:`MotionWriter` and :func:`save_motion`): the line :data:`MAGIC`, then
-records, each ``b"SSMR"``, its length (8 bytes, little-endian) and an ``.npz`` archive (no pickle):
-
-- the **header** (first record): ``format`` ("shellsim-motion"), ``format_version`` (2), ``rest_vertices``
-  (V, 3) float64 (the rest cage, in the asset's world frame), ``tets`` (T, 4) int64, ``header``: JSON of
-  ``producer`` (what made it: "shellsim simulate", ...), ``settings`` (the producer's settings),
-  ``asset`` (``name`` and content ``digest`` of the asset, or the mesh simulated) and ``cage`` (the
-  :func:`cage_digest` of the rest cage: the identity :meth:`Motion.check_against` compares), and optionally
-  the surface of what moves (``simulate --mesh``: the mesh), embedded in the cage: ``surface_tet`` (S,)
-  int64, ``surface_bary`` (S, 4) float64 and ``surface_faces`` (F, 3) int64;
-- **chunks** of frames, in order: ``positions`` (n, V, 3) float32, ``times`` (n,) float64 (seconds),
-  ``meta`` (JSON of facts: world scale, statistics, wall time; the last chunk's holds) and the producer's
-  state after the chunk's last frame as arrays ``state/NAME`` (the simulator's velocities).
-
-:class:`MotionWriter` appends a chunk at most every ``flush_seconds`` (the first one creates the file
-atomically: temporary file + rename) and merges them into one when it is closed, so writing N frames costs
-O(N) and a killed run keeps the frames of every complete chunk: an incomplete last record (a write cut
-short) is dropped on reading, and a writer continuing the file (:meth:`MotionWriter.resume`) cuts it off
-first.
-
-**Format 1** (a single ``.npz`` of ``rest_vertices``, ``tets``, ``positions``, ``times``, ``meta`` and the
-optional surface arrays) is still read, for rendering and viewing; it cannot be continued.
-
-Loading never unpickles anything. :func:`parse_frames` reads a ``--frames`` range of a motion;
-:func:`describe_changes` names the settings that differ between a file's and a new run's.
-"""
+"""The settings that differ between a motion file's producer and a new run's, named for the user."""
 
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from shellsim.io.outputs import write_atomically
+from neural.files import write_atomically
 
 #: Height in pixels of the label strip under each still.
 LABEL_HEIGHT = 16

@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from neural.device import configure_process
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 PEDESTAL_TOP = -0.57  # world z of the pedestal's top face (see the module docstring)
@@ -276,4 +278,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

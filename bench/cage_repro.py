@@ -1,9 +1,9 @@
 """Reproducibility of the cage builder: rebuild an asset's cage N times with the same settings.
 
-Each run builds the cage from the asset's shells (:func:`shellsim.cage.build.build_cage`, default settings unless
-given) and prints its tet count, seconds, whether it succeeded and a sha256 of the cage (vertices, tets and
-the embedding); the last line says whether every successful run gave the same cage. CPU-heavy (about 45 s a
-run for the LEGO on 2 busy cores): run it alone.
+Each run builds the cage from the asset's shells (:func:`~shellsim.cage.build.build_cage`, default settings
+unless given) and prints its tet count, seconds, whether it succeeded and a sha256 of the cage (vertices,
+tets and the embedding); the last line says whether every successful run gave the same cage. CPU-heavy
+(about 45 s a run for the LEGO on 2 busy cores): run it alone.
 
     python bench/cage_repro.py                      # 20 rebuilds of assets/lego
     python bench/cage_repro.py --asset lego --runs 5 --tets 3000
@@ -19,6 +19,7 @@ import time
 import numpy as np
 
 from neural.asset import load_asset
+from neural.device import configure_process
 from neural.errors import InputError
 from shellsim.cage.build import CageConfig, build_cage
 
@@ -71,4 +72,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

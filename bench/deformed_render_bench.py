@@ -7,8 +7,9 @@ median milliseconds per frame of each and their split (build: shell deformation 
 map's update; sample: casting; map: the inverse map; shade: the field), and the ratio deformed / rest as the
 median over back-to-back pairs (rest and deformed renders alternate, so a slow moment of a shared machine
 slows both alike; target: at most 1.5).
-The deformation is a frame of the analytic wind (``--motion wind``, :mod:`shellsim.physics.wind`) or a twist of the
-cage about the up axis growing with height (``--motion twist``). Wall times: run on a quiet machine.
+The deformation is a frame of the analytic wind (``--motion wind``, :mod:`~shellsim.physics.wind`) or a
+twist of the cage about the up axis growing with height (``--motion twist``). Wall times: run on a quiet
+machine.
 
     python bench/deformed_render_bench.py                          # assets/lego, 200x200, 4 views
     python bench/deformed_render_bench.py --asset PATH --size 100 --views 2 --motion twist
@@ -22,9 +23,8 @@ import math
 import numpy as np
 
 from neural.asset import load_asset, load_field
-from neural.device import pick_device, processor
+from neural.device import configure_process, pick_device, processor
 from shellsim.cage.store import load_or_build_cage
-from shellsim.deform.renderer import STAGES, DeformedRenderer
 from shellsim.physics.wind import WindSettings, wind_displacement
 from shellsim.render.cameras import orbit_camera, orbit_framing
 
@@ -42,6 +42,8 @@ def twist(vertices: np.ndarray, up: np.ndarray, turns: float = 0.15) -> np.ndarr
 
 
 def main() -> None:
+    from shellsim.deform.renderer import STAGES, DeformedRenderer  # loads torch, after configure_process
+
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -109,4 +111,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neural.device import configure_process
 from shellsim.cli.main import main as shellsim
 
 BLENDER_IMPORT = """
@@ -66,7 +67,7 @@ def main() -> None:
     from neural.asset import load_asset
     from shellsim.cage.store import cage_for_motion
     from shellsim.deform.inverse_map import deform_points
-    from shellsim.motion.format import load_motion
+    from shellsim.motion.read import load_motion
 
     motion = load_motion(motion_path)
     asset = load_asset("lego")
@@ -100,4 +101,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

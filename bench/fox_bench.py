@@ -28,15 +28,17 @@ from pathlib import Path
 import numpy as np
 
 from neural.asset import load_asset, load_field
-from neural.data import load_dataset
-from neural.device import pick_device
-from neural.render.view import asset_sampler, full_ray_sampler
-from neural.train import evaluate
+from neural.device import configure_process, pick_device
 from shellsim.jobs.train import TrainSettings, train
 
 
 def main() -> None:
-    import torch  # here, after neural's import: see neural.OPENMP_SPIN_COUNT
+    # here, after configure_process (run first): torch loads with them
+    import torch
+
+    from neural.data import load_dataset
+    from neural.render.view import asset_sampler, full_ray_sampler
+    from neural.train import evaluate
 
     here = Path(__file__).resolve().parents[1]
     parser = argparse.ArgumentParser(
@@ -83,4 +85,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

@@ -18,6 +18,8 @@ import subprocess
 import sys
 import time
 
+from neural.device import configure_process
+
 VARIANTS = {
     "torch": {"backend": "torch", "cpu_threads": 1},
     "warp, 1 thread": {"backend": "warp", "cpu_threads": 1},
@@ -106,4 +108,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

@@ -1,4 +1,4 @@
-"""Cost of the deformed-to-rest map (:class:`shellsim.deform.inverse_map.InverseMap`): per-frame build and queries.
+"""Cost of the deformed-to-rest map (:class:`~shellsim.deform.inverse_map.InverseMap`): build and queries.
 
 Cages: the unit cube split into n^3 cells of 6 tets (n = 12: 10,368 tets; n = 19: 41,154 tets), deformed
 by a smooth non-inverting warp. Queries: random points in the deformed cage's bounding box (most inside)
@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from neural.device import configure_process
 from shellsim.deform.inverse_map import InverseMap
 
 
@@ -91,4 +92,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

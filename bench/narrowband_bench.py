@@ -16,14 +16,8 @@ import numpy as np
 import trimesh
 from skimage.measure import marching_cubes
 
-from neural.render.narrowband import (
-    NarrowBandConfig,
-    intervals_from_hits,
-    narrow_band_samples,
-    samples_from_intervals,
-    samples_per_interval,
-)
-from neural.render.raycast import EmbreeCaster
+from neural.config import NarrowBandConfig
+from neural.device import configure_process
 
 
 def bumpy_shells(grid: int) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
@@ -68,7 +62,16 @@ def best_of(repeats: int, fn):
 
 
 def main():
-    import torch  # here, after neural's import: see neural.OPENMP_SPIN_COUNT
+    # here, after configure_process (run first): torch loads with them
+    import torch
+
+    from neural.render.narrowband import (
+        intervals_from_hits,
+        narrow_band_samples,
+        samples_from_intervals,
+        samples_per_interval,
+    )
+    from neural.render.raycast import EmbreeCaster
 
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -132,4 +135,5 @@ def main():
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

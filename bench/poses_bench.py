@@ -20,8 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neural.data.colmap import align_similarity
-from neural.data.datasets import _focus_point
+from neural.device import configure_process
 from shellsim.cli.options import add_options, from_args
 from shellsim.jobs.poses import PosesSettings, poses
 
@@ -29,6 +28,9 @@ FOX = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "fox"
 
 
 def run(args: argparse.Namespace) -> None:
+    from neural.data.colmap import align_similarity  # loads torch, after configure_process
+    from neural.data.datasets import _focus_point
+
     reference = json.loads(Path(args.reference).read_text())
     truth = {Path(f["file_path"]).name: np.asarray(f["transform_matrix"], float) for f in reference["frames"]}
     photos = sorted(p.name for p in Path(args.images).iterdir() if p.name in truth)
@@ -75,6 +77,7 @@ def run(args: argparse.Namespace) -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neural.device import pick_device, processor
+from neural.device import configure_process, pick_device, processor
 
 
 class PartTimers:
@@ -229,4 +229,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

@@ -17,12 +17,15 @@ import tempfile
 import time
 from pathlib import Path
 
+from neural.device import configure_process
 from shellsim.jobs.wind import WindJobSettings, wind
-from shellsim.render.frames import render_motion
 
 
 def main() -> None:
-    import torch  # here, after neural's import: see neural.OPENMP_SPIN_COUNT
+    # here, after configure_process (run first): torch loads with them
+    import torch
+
+    from shellsim.render.frames import render_motion
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--asset", default="lego")
@@ -48,14 +51,14 @@ def main() -> None:
     times = {}
     for name, ray in (("serial", None), ("ray", args.address)):
         start = time.perf_counter()
-        summary = render_motion(
+        result = render_motion(
             args.asset, motion, out / name, orbit=True, size=size, overwrite=True, progress=False, ray=ray
         )
         times[name] = time.perf_counter() - start
         print(
-            f"{name:6s} {summary['rendered']} frames in {times[name]:.1f} s "
-            f"({1e3 * times[name] / summary['rendered']:.0f} ms per frame wall; "
-            f"{summary['ms']:.0f} ms per frame in the renderer)"
+            f"{name:6s} {result.rendered} frames in {times[name]:.1f} s "
+            f"({1e3 * times[name] / result.rendered:.0f} ms per frame wall; "
+            f"{result.ms:.0f} ms per frame in the renderer)"
         )
     same = [
         (out / "serial" / p.name).read_bytes() == p.read_bytes() for p in sorted((out / "ray").glob("*.png"))
@@ -67,4 +70,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

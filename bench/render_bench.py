@@ -20,14 +20,16 @@ from pathlib import Path
 import numpy as np
 
 from neural.asset import load_asset, load_field
-from neural.data import load_dataset
-from neural.device import pick_device, processor
-from neural.render.view import asset_sampler, fitted_occupancy_grid, full_ray_sampler, occupancy_sampler
-from neural.train import evaluate
+from neural.device import configure_process, pick_device, processor
 
 
 def main() -> None:
-    import torch  # here, after neural's import: see neural.OPENMP_SPIN_COUNT
+    # here, after configure_process (run first): torch loads with them
+    import torch
+
+    from neural.data import load_dataset
+    from neural.render.view import asset_sampler, fitted_occupancy_grid, full_ray_sampler, occupancy_sampler
+    from neural.train import evaluate
 
     here = Path(__file__).resolve().parents[1]
     parser = argparse.ArgumentParser(
@@ -71,4 +73,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import torch
 from fullray_samplers import importance_samples, uniform_samples  # bench/, beside this script
 
-from neural.device import pick_device
+from neural.device import configure_process, pick_device
 from neural.render.fullray import ray_aabb, render_rays, stepped_samples
 from neural.render.occupancy import OccupancyGrid
 from neural.render.samples import RaySamples
@@ -153,4 +153,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

@@ -17,6 +17,8 @@ import subprocess
 import sys
 import time
 
+from neural.device import configure_process
+
 S_SHARP, S_FUZZY = 0.001, 0.03  # kernel sizes in unit space (the sphere spans [-0.6, 0.6])
 
 
@@ -111,4 +113,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

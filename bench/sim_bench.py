@@ -1,10 +1,12 @@
-"""Benchmark of the implicit FEM (:mod:`shellsim.physics.fem`): milliseconds per implicit step against tet count.
+"""Benchmark of the implicit FEM (:mod:`shellsim.physics.solver`, driven by :mod:`shellsim.physics.driver`):
+milliseconds per implicit step against tet count.
 
 A 0.3 m cube of structured tets (6 per cell) falls 2 cm onto the ground while spinning, so the steps timed
 include contact and friction. For each size it prints the milliseconds per implicit step (one backward-Euler
 substep, Newton solve included), Newton iterations per step, tet Hessians per step (the Newton iterations that
-evaluated the tets' blocks: the others of a substep reuse them, ``shellsim.physics.fem.ELASTIC_HESSIAN_REUSE``), CG
-iterations per Newton iteration and the peak resident memory, then (unless ``--no-vbd``) the same scene with
+evaluated the tets' blocks: the others of a substep reuse them,
+``shellsim.physics.solver.ELASTIC_HESSIAN_REUSE``), CG iterations per Newton iteration and the peak resident
+memory, then (unless ``--no-vbd``) the same scene with
 the ``newton`` physics package's VBD solver (``newton.solvers.SolverVBD``, a benchmark-only dependency:
 ``pip install newton``) and the time ratio.
 VBD runs a fixed number of local iterations per step and does not converge the step, so the ratio compares
@@ -36,10 +38,12 @@ import time
 import numpy as np
 import warp as wp
 
-from neural.device import processor
+from neural.device import configure_process, processor
 from shellsim.cage.geometry import tet_volumes
-from shellsim.physics.fem import SimSettings, Simulator
+from shellsim.physics.control import Control
+from shellsim.physics.driver import FrameDriver
 from shellsim.physics.materials import get_material
+from shellsim.physics.model import Model, SimSettings
 
 SIZE = 0.3  # metres
 LIFT = 0.02  # metres above the ground
@@ -72,27 +76,28 @@ def peak_rss_mb() -> float:
 def bench_fem(vertices, tets, material, args, **tolerances) -> dict:
     """Times the default solver, or the one with ``tolerances`` (SimSettings fields) instead."""
     settings = SimSettings(dt=1.0 / args.fps, substeps=args.substeps, ground=0.0, **tolerances)
-    sim = Simulator(vertices, tets, material, settings, device=args.device)
-    sim.set_rigid_velocity(linear=(0.3, 0.0, 0.0), angular=(0.0, 0.0, 4.0))
-    sim.step()  # compile and warm up
+    model = Model(vertices, tets, material, settings, device=args.device)
+    state, control, driver = model.state((0.3, 0.0, 0.0), (0.0, 0.0, 4.0)), Control(model), FrameDriver(model)
+    driver.step(state, control)  # compile and warm up
     steps = newton_its = cg_its = hessians = 0
     start = time.perf_counter()
     for _ in range(args.frames):
-        stats = sim.step()
+        stats = driver.step(state, control)
         steps += stats.substeps
         newton_its += stats.newton_iterations
         cg_its += stats.cg_iterations
         hessians += stats.hessians
-    wp.synchronize_device(sim.device)
+    wp.synchronize_device(model.device)
     seconds = time.perf_counter() - start
+    positions = state.positions.numpy()
     return {
         "ms_per_step": 1e3 * seconds / steps,
         "newton_per_step": newton_its / steps,
         "hessians_per_step": hessians / steps,
         "cg_per_newton": cg_its / max(newton_its, 1),
-        "z_min": float(sim.positions[:, 2].min()),
-        "positions": sim.positions,
-        "tol_mm": 1e3 * settings.newton_tol * sim.size * settings.dt / settings.substeps,
+        "z_min": float(positions[:, 2].min()),
+        "positions": positions,
+        "tol_mm": 1e3 * settings.newton_tol * model.size * settings.dt / settings.substeps,
     }
 
 
@@ -224,4 +229,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

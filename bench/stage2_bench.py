@@ -30,11 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from neural.asset import load_asset, load_field
-from neural.checkpoint import load_checkpoint
 from neural.config import Stage2Config
-from neural.data import load_dataset
-from neural.device import pick_device
-from neural.train import train_stage2
+from neural.device import configure_process, pick_device
 
 
 def stage2_config(recorded: dict, steps: int | None, every: int | None, settings: list[str]) -> Stage2Config:
@@ -58,6 +55,11 @@ def stage2_config(recorded: dict, steps: int | None, every: int | None, settings
 
 
 def main() -> None:
+    # here, after configure_process (run first): torch loads with them
+    from neural.checkpoint import load_checkpoint
+    from neural.data import load_dataset
+    from neural.train import train_stage2
+
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -108,4 +110,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

@@ -6,7 +6,7 @@ process and times steps ``--start`` to ``--start + --steps`` (the median of the 
 step 256 the occupancy grid is refreshed in part, as in the rest of a run). Settings alternate within a
 round, so a slow moment of a shared machine slows them alike. A ``--spin`` value is libgomp's
 ``GOMP_SPINCOUNT`` for the child (how long an idle thread of torch's pool spins before it sleeps; 300000 is
-libgomp's own default, ``shellsim``'s is ``neural.OPENMP_SPIN_COUNT``), or ``passive``
+libgomp's own default, ``shellsim``'s is ``neural.device.OPENMP_SPIN_COUNT``), or ``passive``
 (``OMP_WAIT_POLICY=PASSIVE``: no spinning). Run it on a quiet machine.
 
     python bench/step_bench.py [--spin 300000 30000 10000 passive] [--rounds 2] [--data DIR] [--base DIR]
@@ -27,8 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-import neural
-from neural.device import processor
+from neural.device import OPENMP_SPIN_COUNT, configure_process, processor
 
 
 def train(data_dir: str, out: Path, start: int, steps: int, on_step=None) -> list[float]:
@@ -88,7 +87,7 @@ def main() -> None:
     parser.add_argument("--start", type=int, default=300, help="the checkpoint's step")
     parser.add_argument("--steps", type=int, default=80, help="steps timed from it")
     parser.add_argument("--rounds", type=int, default=2)
-    parser.add_argument("--spin", nargs="+", default=["300000", neural.OPENMP_SPIN_COUNT, "passive"])
+    parser.add_argument("--spin", nargs="+", default=["300000", OPENMP_SPIN_COUNT, "passive"])
     parser.add_argument("--child", help=argparse.SUPPRESS)  # a copy of the base run to time, in a child
     args = parser.parse_args()
     if args.child:
@@ -121,4 +120,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

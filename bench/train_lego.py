@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 from neural.config import Stage1Config
+from neural.device import configure_process
 
 
 def crossing(curve: list[dict], level: float) -> float | None:
@@ -76,4 +77,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

@@ -17,12 +17,14 @@ import argparse
 import logging
 from pathlib import Path
 
+from neural.device import configure_process
 from neural.errors import ShellsimError
 from shellsim.jobs.simulate import SimulateSettings, simulate
+from shellsim.render.result import RenderResult
 
 
-def main(argv: list[str] | None = None) -> dict:
-    """Run the example; returns the render's summary."""
+def main(argv: list[str] | None = None) -> RenderResult:
+    """Run the example; returns the render's result."""
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -56,10 +58,10 @@ def main(argv: list[str] | None = None) -> dict:
         )
     except ShellsimError as err:
         raise SystemExit(f"drop_on_ground: error: {err}") from None
-    print(
-        f"{result.frames} frames in {out}: {result.video['rendered']} rendered, video {result.video['video']}"
-    )
+    print(f"{result.frames} frames in {out}: {result.video.rendered} rendered, video {result.video.video}")
+    return result.video
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

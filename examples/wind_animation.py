@@ -1,8 +1,8 @@
 """Wind animation of a neural asset (paper Sec. 5, Fig. 12 left): analytic wind on the cage, then a clip.
 
 The asset's cage bends like a cantilever in a gusty wind (:mod:`shellsim.jobs.wind`); every frame is
-rendered by deforming the adaptive shells with the cage (:func:`shellsim.render.frames.render_motion`), seen by a
-camera orbiting the asset. Writes ``OUT/wind.npz`` (the motion), ``OUT/frames/00000.png ...`` and
+rendered by deforming the adaptive shells with the cage (:func:`shellsim.render.frames.render_motion`), seen
+by a camera orbiting the asset. Writes ``OUT/wind.npz`` (the motion), ``OUT/frames/00000.png ...`` and
 ``OUT/wind.mp4``. Re-running continues the motion when it was made with the same wind (else it is refused,
 naming what changed, unless ``--overwrite``) and the render where it stopped.
 
@@ -17,14 +17,17 @@ import argparse
 import logging
 from pathlib import Path
 
+from neural.device import configure_process
 from neural.errors import ShellsimError
 from shellsim.cli.options import options_named
 from shellsim.jobs.wind import WindJobSettings, wind
-from shellsim.render.frames import render_motion
+from shellsim.render.result import RenderResult
 
 
-def main(argv: list[str] | None = None) -> dict:
-    """Run the example; returns the render's summary."""
+def main(argv: list[str] | None = None) -> RenderResult:
+    """Run the example; returns the render's result."""
+    from shellsim.render.frames import render_motion  # loads torch, after configure_process
+
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -55,7 +58,7 @@ def main(argv: list[str] | None = None) -> dict:
                     **settings,
                 )
             )
-        summary = render_motion(
+        rendered = render_motion(
             args.asset,
             result.out,
             out / "frames",
@@ -66,9 +69,10 @@ def main(argv: list[str] | None = None) -> dict:
         )
     except ShellsimError as err:
         raise SystemExit(f"wind_animation: error: {err}") from None
-    print(f"{result.frames} frames in {out}: {summary['rendered']} rendered, video {summary['video']}")
-    return summary
+    print(f"{result.frames} frames in {out}: {rendered.rendered} rendered, video {rendered.video}")
+    return rendered
 
 
 if __name__ == "__main__":
+    configure_process()
     main()

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .config import NarrowBandConfig
 from .errors import InputError
 from .files import write_atomically, write_bytes_atomically, write_text_atomically
 
@@ -116,9 +117,7 @@ class Asset:
         return int(self.meta.get("training", {}).get("downscale", 1))
 
     def narrowband_config(self):
-        """The :class:`~neural.render.narrowband.NarrowBandConfig` stored with the asset (world units)."""
-        from .render.narrowband import NarrowBandConfig
-
+        """The :class:`~neural.config.NarrowBandConfig` stored with the asset (world units)."""
         try:
             return NarrowBandConfig(**self.meta.get("narrowband", {}))
         except (TypeError, ValueError) as err:

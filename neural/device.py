@@ -1,15 +1,69 @@
-"""Device choice shared by torch and Warp code: ``cuda`` when present, else ``cpu``."""
+"""Device choice shared by torch and Warp code (``cuda`` when present, else ``cpu``), and the process-wide
+settings a program's entry point makes first (:func:`configure_process`)."""
 
 from __future__ import annotations
 
 import functools
+import logging
 import os
 import platform
+import sys
 from pathlib import Path
 
 from .errors import InputError
 
 DEVICES = ("auto", "cpu", "cuda")
+
+#: Spins (``GOMP_SPINCOUNT``) an idle thread of torch's OpenMP pool (GNU libgomp, read when torch loads it)
+#: makes before it sleeps, unless the environment sets ``GOMP_SPINCOUNT`` or ``OMP_WAIT_POLICY``. libgomp's
+#: 300,000 kept torch's threads spinning after each of its operations, taking the cores from the Warp and
+#: Embree threads that run between them: on the 2-core CPU a lego stage-1 step took 148-154 ms at 10,000 and
+#: 148-161 ms at 30,000 against 184-185 ms at 300,000 and 183-208 ms at PASSIVE's none (threads that sleep at
+#: once are slow to wake), and orbit frames of the lego 32-33 ms at rest and 46-47 deformed against 40-42
+#: and 57-63 ms.
+OPENMP_SPIN_COUNT = "30000"
+
+log = logging.getLogger(__name__)
+
+
+def configure_process(verbose: bool = False) -> None:
+    """Make the process-wide settings of a program that runs this library; its entry point (the ``shellsim``
+    command, each example and bench) calls this first, before torch is imported. Importing :mod:`neural` or
+    :mod:`shellsim` makes none of them.
+
+    - ``GOMP_SPINCOUNT`` = :data:`OPENMP_SPIN_COUNT` unless the environment sets it or ``OMP_WAIT_POLICY``
+      (torch's libgomp reads it when torch loads: a warning says when torch came first);
+    - float denormals flushed to zero (:func:`flush_denormals`) on this thread and so on every thread torch
+      starts later;
+    - Warp initialised with its banner, its "Module ... load" lines (``warp.config.log_level``) and the
+      "Could not find or load the NVIDIA CUDA driver" of its CUDA probe hidden, unless ``verbose``.
+    """
+    if "GOMP_SPINCOUNT" not in os.environ and "OMP_WAIT_POLICY" not in os.environ:
+        if "torch" in sys.modules:
+            log.warning("torch was imported before configure_process: GOMP_SPINCOUNT does not apply to it")
+        os.environ["GOMP_SPINCOUNT"] = OPENMP_SPIN_COUNT
+    flush_denormals()
+    import warp
+
+    # warp 1.19 reads config.log_level (it has no config.quiet): LOG_WARNING hides the banner and the
+    # "Module ... load" lines that it prints on stdout
+    warp.config.log_level = warp.LOG_INFO if verbose else warp.LOG_WARNING
+    if not verbose:
+        _init_warp_quietly(warp)
+
+
+def _init_warp_quietly(warp) -> None:
+    """Initialise Warp with file descriptor 2 silenced: its native CUDA probe writes "Could not find or load
+    the NVIDIA CUDA driver" straight to stderr on every machine without a GPU, whatever the log level."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            warp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def pick_device(name: str | None = "auto", warp: bool = False) -> str:
@@ -99,7 +153,7 @@ def flush_denormals() -> bool:
     pass of a lego step from one checkpoint took 170 instead of 260 ms. Values that small change nothing
     that is rendered or learned. The setting holds for this thread and for the threads started after it
     (POSIX threads inherit the floating-point environment), so call it before torch starts its thread pool:
-    :mod:`neural.field` does on import."""
+    :func:`configure_process` does."""
     import torch
 
     return torch.set_flush_denormal(True)

@@ -22,7 +22,7 @@ def temporary_name(path: Path) -> Path:
 
 
 def fsync_directory(directory: Path) -> None:
-    """Flush ``directory``'s entries (a rename into it) to disk; a no-op where directories cannot be opened."""
+    """Flush ``directory``'s entries (a rename into it) to disk (a no-op where they cannot be opened)."""
     try:
         fd = os.open(directory, os.O_RDONLY)
     except OSError:

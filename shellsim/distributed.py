@@ -35,9 +35,13 @@ def require_ray():
 
 
 def _run(recipe: Callable, payload, threads: int):
-    """In a worker: limit threads, build ``recipe()`` once per process, run it on ``payload``."""
+    """In a worker: limit threads, flush denormals (:func:`neural.device.flush_denormals`, as the entry point
+    of a program would), build ``recipe()`` once per process, run it on ``payload``."""
     import torch
 
+    from neural.device import flush_denormals
+
+    flush_denormals()
     if torch.get_num_threads() != threads:
         torch.set_num_threads(threads)
     key = repr(recipe)

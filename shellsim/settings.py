@@ -4,17 +4,20 @@ A job's settings are a frozen dataclass whose fields are declared with :func:`op
 default and text grammar (``parse``) are written once, here in the library; :mod:`shellsim.cli.options`
 derives the command line from them. ``__post_init__`` validates values with :func:`check_range` and
 :func:`check_choice` and raises :class:`~shellsim.errors.SettingError`, which names the field; the command
-line shows it as the option. Text values are parsed by strict grammars (:func:`floats`, :func:`pixels`,
-:func:`parse_frames`), never evaluated.
+line shows it as the option. Settings that set a field of a library config (:mod:`neural.config`) take its
+bound from there (:func:`config_bounds`). Text values are parsed by strict grammars (:func:`floats`,
+:func:`pixels`, :func:`parse_frames`), never evaluated.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import typing
 from collections.abc import Callable
 
+from neural.config import ConfigError
 from neural.errors import InputError
 from shellsim.errors import SettingError
 
@@ -182,6 +185,36 @@ def check_range(name: str, value, low: float, high: float, what: str = "a number
         span = f"{open_ends[0]}{plain(low)}, {plain(high)}{open_ends[1]}"
         raise SettingError(name, f"expected {what} in {span}, got {plain(value)}")
     return value
+
+
+def check_required(settings) -> None:
+    """:class:`SettingError` naming the first field of the settings dataclass ``settings`` that its
+    :func:`option` marks ``required`` (outside a group) and that is None."""
+    for field in dataclasses.fields(settings):
+        meta = field.metadata.get("option")
+        if meta and meta["required"] and not meta["group"] and getattr(settings, field.name) is None:
+            raise SettingError(field.name, "needed")
+
+
+@contextlib.contextmanager
+def config_bounds(settings, fields: typing.Mapping[tuple[type, str], str]):
+    """Within (where ``settings`` build the library's configs): a :class:`~neural.config.ConfigError` of a
+    config field that ``fields`` maps ((config class, field) -> setting) becomes a :class:`SettingError` of
+    that setting, with the config's bound and the setting's value; so each bound is written once, in the
+    config."""
+    try:
+        yield
+    except ConfigError as err:
+        name = fields.get((err.config, err.field))
+        if name is None:
+            raise
+        value = getattr(settings, name)
+        shown = ",".join(map(_plain, value)) if isinstance(value, tuple) else _plain(value)
+        raise SettingError(name, f"expected {err.expected}, got {shown}") from None
+
+
+def _plain(x) -> str:
+    return f"{x:g}" if isinstance(x, float) else str(x)
 
 
 def check_choice(name: str, value, choices: typing.Sequence):

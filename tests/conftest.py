@@ -1,4 +1,5 @@
-"""Shared test settings: small thread counts, deterministic seeds, and a cage cache of the test run's own."""
+"""Shared test settings: small thread counts, deterministic seeds, a cage cache of the test run's own, and
+the process-wide settings that the entry points make (:func:`neural.device.configure_process`)."""
 
 import os
 import tempfile
@@ -9,6 +10,10 @@ os.environ["SHELLSIM_CACHE"] = tempfile.mkdtemp(prefix="shellsim-test-cache-")  
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+
+from neural.device import configure_process  # noqa: E402
+
+configure_process()
 
 
 @pytest.fixture

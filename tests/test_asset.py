@@ -11,8 +11,8 @@ import torch
 import trimesh
 
 from neural.asset import FORMAT, FORMAT_VERSION, load_asset, load_field, save_asset
+from neural.config import NarrowBandConfig
 from neural.field import FieldConfig, HashGridConfig, ShellField
-from neural.render.narrowband import NarrowBandConfig
 
 #: Every field setting away from its default, so that a setting dropped on the way reads back different.
 CONFIG = FieldConfig(

@@ -1,4 +1,4 @@
-"""Per-vertex terms of the incremental potential (shellsim.physics.contact.vertex_terms): inertia, drag, penalty
+"""Per-vertex terms of the incremental potential (physics.contact.vertex_terms): inertia, drag, penalty
 contact with the ground, a sphere and a box, and lagged smoothed friction. The force must be -dE/dx and the
 Hessian block d(-force)/dx less the sphere's curvature term that the module drops on purpose (so that
 every block stays positive definite), both checked by central differences of the kernel's own energy, at

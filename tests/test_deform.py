@@ -1,4 +1,5 @@
-"""shellsim.deform.inverse_map: barycentric transfer and the deformed-to-rest map against closed forms on a tet grid.
+"""shellsim.deform.inverse_map: barycentric transfer and the deformed-to-rest map against closed forms on
+a tet grid.
 
 The grid is the unit cube split into n^3 cells of 6 Kuhn tets each; a rest point's containing tet and
 barycentric coordinates follow in closed form from the sorted fractional coordinates inside its cell.

@@ -1,11 +1,13 @@
 """neural.device.pick_device: the one device choice (torch or Warp), its errors speaking of values, and the
-CLI's ``--device`` naming the option; denormals flushed in each torch thread once neural.field is imported;
-the processor a timing is recorded with; the OpenMP spin count set before torch loads."""
+CLI's ``--device`` naming the option; the processor a timing is recorded with; the process-wide settings
+(OpenMP spin count, denormals flushed in each torch thread, Warp quiet) made by the entry points'
+neural.device.configure_process and never by importing the packages."""
 
 from __future__ import annotations
 
 import os
 import platform
+import re
 import subprocess
 import sys
 
@@ -13,7 +15,7 @@ import pytest
 import torch
 import warp as wp
 
-from neural.device import cpu_description, pick_device, processor
+from neural.device import OPENMP_SPIN_COUNT, cpu_description, pick_device, processor
 from neural.errors import InputError
 from shellsim.cli.main import main
 
@@ -74,32 +76,6 @@ def test_parallel_work_takes_no_more_threads_than_torch_was_given(monkeypatch):
     assert seen == [2, 1]
 
 
-DENORMALS_KEPT = """
-import sys, torch
-if sys.argv[1] == "field":
-    import neural.field
-x = torch.full((1 << 22,), 1e-39)  # a denormal float32; the product runs on every thread of torch's pool
-print(torch.get_num_threads(), int(torch.count_nonzero(x * 1.0)))
-"""
-
-
-@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="FTZ/DAZ are x86 settings")
-def test_importing_the_field_flushes_denormals_in_every_torch_thread():
-    """After ``import neural.field`` a product of 4M denormals is all zeros (DAZ), on each of torch's threads,
-    which inherit the setting as they start; without that import none is zero (the check can fail)."""
-    env = {**os.environ, "OMP_NUM_THREADS": "2"}
-
-    def nonzero(mode: str) -> tuple[int, int]:
-        done = subprocess.run(
-            [sys.executable, "-c", DENORMALS_KEPT, mode], env=env, capture_output=True, text=True, check=True
-        )
-        threads, count = map(int, done.stdout.split())
-        return threads, count
-
-    assert nonzero("plain") == (2, 1 << 22)
-    assert nonzero("field") == (2, 0)
-
-
 CPUINFO_VM = """processor\t: 0
 vendor_id\t: AuthenticAMD
 cpu family\t: 26
@@ -136,24 +112,111 @@ def test_the_processor_names_the_cores_this_process_may_use():
     assert processor("cpu").endswith(f", {cores} cores") and len(processor("cpu")) > len(f", {cores} cores")
 
 
-SPIN_COUNT = """
-import os, sys
-import shellsim.cli.main  # as the shellsim command starts: torch is not loaded yet
-import neural
-assert "torch" not in sys.modules
-print(os.environ.get("GOMP_SPINCOUNT"), neural.OPENMP_SPIN_COUNT)
+def _python(code: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    """``code`` run in a fresh interpreter with torch's pool at 2 threads, without the spin settings of this
+    test run (``env`` adds some)."""
+    clean = {k: v for k, v in os.environ.items() if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        env={**clean, "OMP_NUM_THREADS": "2", **(env or {})},
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+
+
+#: Prints the spin count, torch's threads, how many of 4M denormal products are not flushed to zero (the
+#: product runs on every thread of torch's pool) and Warp's log level.
+SETTINGS = """
+import os
+import torch, warp
+x = torch.full((1 << 22,), 1e-39)
+print(os.environ.get("GOMP_SPINCOUNT"), torch.get_num_threads(), int(torch.count_nonzero(x * 1.0)),
+      warp.config.log_level == warp.LOG_INFO)
 """
+
+IMPORT_ALL = """
+import importlib, pkgutil
+import neural, shellsim
+for package in (neural, shellsim):
+    for module in pkgutil.walk_packages(package.__path__, package.__name__ + "."):
+        importlib.import_module(module.name)
+"""
+
+ENTRY_POINT = """
+from neural.device import configure_process
+configure_process()
+"""
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="FTZ/DAZ are x86 settings")
+def test_importing_the_packages_changes_nothing_process_wide():
+    """Every module of neural and shellsim imported: no spin count, denormals kept on every thread, Warp's log
+    level as it was; after the entry point's call (the check can fail): all set."""
+    assert _python(IMPORT_ALL + SETTINGS).stdout.split() == ["None", "2", str(1 << 22), "True"]
+    assert _python(ENTRY_POINT + SETTINGS).stdout.split() == ["30000", "2", "0", "False"]
 
 
 @pytest.mark.parametrize(
     ("env", "expected"),
     [({}, "30000"), ({"GOMP_SPINCOUNT": "5"}, "5"), ({"OMP_WAIT_POLICY": "ACTIVE"}, "None")],
 )
-def test_the_command_sets_openmp_spinning_unless_the_user_did(env, expected):
-    """Importing the packages sets GOMP_SPINCOUNT (read by torch's libgomp when torch loads) to
-    neural.OPENMP_SPIN_COUNT, but leaves a user's GOMP_SPINCOUNT or OMP_WAIT_POLICY alone."""
-    clean = {k: v for k, v in os.environ.items() if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
-    done = subprocess.run(
-        [sys.executable, "-c", SPIN_COUNT], env={**clean, **env}, capture_output=True, text=True, check=True
-    )
-    assert done.stdout.split() == [expected, "30000"]
+def test_the_entry_point_sets_openmp_spinning_unless_the_user_did(env, expected):
+    """configure_process sets GOMP_SPINCOUNT (read by torch's libgomp when torch loads) to
+    neural.device.OPENMP_SPIN_COUNT, but leaves a user's GOMP_SPINCOUNT or OMP_WAIT_POLICY alone."""
+    done = _python(ENTRY_POINT + "import os; print(os.environ.get('GOMP_SPINCOUNT'))", env)
+    assert done.stdout.split() == [expected] and OPENMP_SPIN_COUNT == "30000"
+
+
+def test_torch_loaded_first_is_a_warning():
+    """The spin count cannot reach a torch that is already loaded: configure_process says so."""
+    assert "GOMP_SPINCOUNT does not apply" not in _python(ENTRY_POINT + "import torch").stderr
+    assert "GOMP_SPINCOUNT does not apply" in _python("import torch\n" + ENTRY_POINT).stderr
+
+
+def test_the_command_makes_the_settings_first(monkeypatch, tmp_path, capsys):
+    """``shellsim`` calls configure_process once per run, verbose as asked."""
+    calls = []
+    monkeypatch.setattr("shellsim.cli.main.configure_process", lambda verbose: calls.append(verbose))
+    for argv, verbose in ((["simulate"], False), (["-v", "simulate"], True)):
+        assert main([*argv, "--mesh", str(tmp_path / "none.ply")]) == 2
+        assert calls[-1] is verbose and len(calls) == 1 + verbose
+
+
+WARP_KERNEL = """
+import sys
+import warp as wp
+if sys.argv[1] == "configured":
+    from neural.device import configure_process
+    configure_process()
+
+@wp.kernel
+def double(x: wp.array(dtype=float)):
+    x[wp.tid()] = 2.0 * x[wp.tid()]
+
+wp.launch(double, 4, inputs=[wp.zeros(4, dtype=float, device="cpu")], device="cpu")
+wp.synchronize()
+"""
+
+#: What Warp prints unless told not to: its banner, its CUDA probe (on machines without a GPU) and a line per
+#: module loaded.
+WARP_NOISE = re.compile(
+    r"^Warp \d|Could not find or load the NVIDIA CUDA driver|^Module .* load on device", re.M
+)
+
+
+def test_the_entry_point_keeps_warp_quiet(tmp_path):
+    """A kernel built and run after configure_process prints nothing; without it Warp's lines appear (the
+    check can fail). The kernel cache is fresh, so the module is built, not only loaded."""
+    script = tmp_path / "kernel.py"
+    script.write_text(WARP_KERNEL)
+
+    def printed(mode: str) -> str:
+        env = {**os.environ, "WARP_CACHE_PATH": str(tmp_path / f"cache-{mode}")}
+        done = subprocess.run(
+            [sys.executable, str(script), mode], env=env, capture_output=True, text=True, check=True
+        )
+        return done.stdout + done.stderr
+
+    assert WARP_NOISE.search(printed("plain"))
+    assert not WARP_NOISE.search(printed("configured")), printed("configured")

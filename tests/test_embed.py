@@ -1,4 +1,5 @@
-"""shellsim.cage.embed on a procedural tet mesh of a box (Kuhn subdivision), where containment and the distance
+"""shellsim.cage.embed on a procedural tet mesh of a box (Kuhn subdivision), where containment and the
+distance
 outside have closed forms."""
 
 import subprocess
@@ -127,6 +128,8 @@ def test_api_misuse_is_value_error(box):
 
 def test_cage_modules_do_not_import_torch():
     code = (
-        "import sys, shellsim.cage.build, shellsim.cage.store, shellsim.cage.embed, shellsim.cli.commands.cage\nassert 'torch' not in sys.modules"
+        "import sys, shellsim.cage.build, shellsim.cage.store, shellsim.cage.embed\n"
+        "import shellsim.cli.commands.cage\n"
+        "assert 'torch' not in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[1])

@@ -1,4 +1,5 @@
-"""The examples run on a tiny setting (the shipped LEGO, 2 frames of 16x16 pixels) and write what they say."""
+"""The examples run on a tiny setting (the shipped LEGO, 2 frames of 16x16 pixels), write what they say and
+print none of Warp's lines (its banner, CUDA probe and module loads)."""
 
 import os
 import subprocess
@@ -8,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from test_device import WARP_NOISE
 
-from shellsim.motion.format import load_motion
+from shellsim.motion.read import load_motion
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -24,6 +26,8 @@ def _run(script: str, *argv: str) -> str:
         timeout=600,
     )
     assert done.returncode == 0, done.stderr[-3000:]
+    noise = WARP_NOISE.search(done.stdout + done.stderr)
+    assert noise is None, noise
     return done.stdout
 
 

@@ -1,4 +1,5 @@
-"""Physics tests of the implicit FEM (:mod:`shellsim.physics.fem`) against closed forms and invariants."""
+"""Physics tests of the implicit FEM (:mod:`shellsim.physics`: model, state, control, solver, driver) against
+closed forms and invariants."""
 
 import numpy as np
 import pytest
@@ -6,12 +7,16 @@ import warp as wp
 from meshes import kuhn_grid
 
 from shellsim.cage.geometry import MIN_VOLUME_RATIO, tet_volumes
-from shellsim.motion.format import MotionWriter, load_motion
-from shellsim.physics import fem
+from shellsim.motion.read import load_motion
+from shellsim.motion.writer import MotionWriter
+from shellsim.physics import solver as solver_module
 from shellsim.physics.contact import Box, Sphere
+from shellsim.physics.control import Control
+from shellsim.physics.driver import FrameDriver, SimulationError, simulate
 from shellsim.physics.elastic import elastic_energy, snh_energy_reference, snh_min_eigenvalue
-from shellsim.physics.fem import Forcing, SimSettings, SimulationError, Simulator, partition_tets, simulate
 from shellsim.physics.materials import Material, get_material
+from shellsim.physics.model import Model, SimSettings
+from shellsim.physics.solver import Forcing, ImplicitSolver, partition_tets
 
 G = 9.81
 
@@ -22,8 +27,30 @@ def box_tets(cells=(2, 2, 2), size=(0.1, 0.1, 0.1), origin=(0.0, 0.0, 0.0)):
     return verts + origin, tets
 
 
-def com(sim):
-    return sim.masses @ sim.positions / sim.masses.sum()
+class Run:
+    """A model, its state (at rest, moving rigidly by ``linear``, ``angular``), its control (``pinned``) and a
+    frame driver; ``step()`` advances one frame."""
+
+    def __init__(self, v, t, material, s=None, pinned=None, linear=(0.0, 0.0, 0.0), angular=(0.0, 0.0, 0.0)):
+        self.model = Model(v, t, material, s, device="cpu")
+        self.state = self.model.state(linear, angular)
+        self.control = Control(self.model, pinned=pinned)
+        self.driver = FrameDriver(self.model)
+
+    def step(self):
+        return self.driver.step(self.state, self.control)
+
+    @property
+    def positions(self):
+        return self.state.positions.numpy().copy()
+
+    @property
+    def velocities(self):
+        return self.state.velocities.numpy().copy()
+
+
+def com(run):
+    return run.model.masses @ run.positions / run.model.masses.sum()
 
 
 def settings(**kw):
@@ -39,8 +66,8 @@ SOFT = Material("soft", 1.0e4, 0.3, 1000.0)
 def test_rest_mesh_is_consistent():
     v, t = box_tets((2, 3, 2), (0.2, 0.3, 0.1))
     assert np.isclose(tet_volumes(v, t).sum(), 0.2 * 0.3 * 0.1)
-    sim = Simulator(v, t, RUBBER, settings(), device="cpu")
-    assert np.isclose(sim.masses.sum(), RUBBER.density * 0.2 * 0.3 * 0.1)
+    model = Model(v, t, RUBBER, settings(), device="cpu")
+    assert np.isclose(model.masses.sum(), RUBBER.density * 0.2 * 0.3 * 0.1)
 
 
 @pytest.mark.parametrize("shift_limit", [0.1, 0.0])
@@ -119,7 +146,7 @@ def test_hessian_is_positive_semidefinite_under_large_deformation(rng, shift_lim
 def test_free_fall_matches_the_discrete_and_continuous_solutions():
     v, t = box_tets((2, 2, 2))
     s = settings(gravity=G, up=(0.0, 1.0, 0.0), dt=1 / 30, substeps=4)
-    sim = Simulator(v, t, RUBBER, s, device="cpu")
+    sim = Run(v, t, RUBBER, s)
     c0 = com(sim)
     frames = 6
     for _ in range(frames):
@@ -136,25 +163,26 @@ def test_free_fall_matches_the_discrete_and_continuous_solutions():
 
 def test_rigid_motion_keeps_shape_and_linear_momentum():
     v, t = box_tets((2, 2, 2))
-    sim = Simulator(v, t, RUBBER, settings(dt=1 / 60, substeps=4), device="cpu")
-    sim.set_rigid_velocity(linear=(0.3, -0.2, 0.1), angular=(2.0, 1.0, -3.0))
-    p0 = sim.masses @ sim.velocities
+    sim = Run(
+        v, t, RUBBER, settings(dt=1 / 60, substeps=4), linear=(0.3, -0.2, 0.1), angular=(2.0, 1.0, -3.0)
+    )
+    p0 = sim.model.masses @ sim.velocities
     for _ in range(10):
         sim.step()
     x = sim.positions
     dist = np.linalg.norm(x[:, None] - x[None], axis=-1)
     dist0 = np.linalg.norm(v[:, None] - v[None], axis=-1)
     np.testing.assert_allclose(dist, dist0, atol=2e-4 * dist0.max())
-    np.testing.assert_allclose(sim.masses @ sim.velocities, p0, atol=1e-9)
+    np.testing.assert_allclose(sim.model.masses @ sim.velocities, p0, atol=1e-9)
     # the centre of mass moves uniformly
-    np.testing.assert_allclose(com(sim), v.mean(0) + np.array([0.3, -0.2, 0.1]) * sim.time, atol=1e-9)
+    np.testing.assert_allclose(com(sim), v.mean(0) + np.array([0.3, -0.2, 0.1]) * sim.state.time, atol=1e-9)
 
 
 def test_stretched_bar_relaxes_toward_rest():
     v, t = box_tets((4, 1, 1), (0.4, 0.1, 0.1))
-    sim = Simulator(v, t, SOFT, settings(damping=0.05, newton_tol=1e-4, cg_tol=1e-6), device="cpu")
+    sim = Run(v, t, SOFT, settings(damping=0.05, newton_tol=1e-4, cg_tol=1e-6))
     stretched = v * np.array([1.2, 1.0, 1.0])
-    sim.set_state(positions=stretched)
+    sim.state.set(positions=stretched)
     e0, _, _ = elastic_energy(v, t, stretched, SOFT, device="cpu")
     for _ in range(30):
         sim.step()
@@ -166,11 +194,12 @@ def test_stretched_bar_relaxes_toward_rest():
 
 def _total_energy(sim, mat, ground):
     x, vel = sim.positions, sim.velocities
-    kinetic = 0.5 * sim.masses @ np.sum(vel * vel, axis=1)
-    potential = G * sim.masses @ x[:, 2]
-    elastic, _, _ = elastic_energy(sim.rest_vertices, sim.tets, x, mat, device="cpu")
+    m = sim.model
+    kinetic = 0.5 * m.masses @ np.sum(vel * vel, axis=1)
+    potential = G * m.masses @ x[:, 2]
+    elastic, _, _ = elastic_energy(m.rest_vertices, m.tets, x, mat, device="cpu")
     pen = np.maximum(ground - x[:, 2], 0.0)
-    contact = 0.5 * sim.settings.contact_stiffness * sim.masses @ pen**2
+    contact = 0.5 * m.settings.contact_stiffness * m.masses @ pen**2
     return kinetic + potential + elastic + contact
 
 
@@ -178,7 +207,7 @@ def test_body_resting_on_the_ground_settles_without_drift():
     v, t = box_tets((3, 3, 2), (0.1, 0.1, 0.05))
     mat = get_material("rubber")
     s = SimSettings(ground=0.0, dt=1 / 30, substeps=4, newton_tol=1e-5, cg_tol=1e-6)
-    sim = Simulator(v, t, mat, s, device="cpu")
+    sim = Run(v, t, mat, s)
     energies = [_total_energy(sim, mat, 0.0)]
     for frame in range(20):
         sim.step()
@@ -201,7 +230,7 @@ def test_body_resting_on_the_ground_settles_without_drift():
 def test_pinned_vertices_hold_and_the_free_end_sags():
     v, t = box_tets((4, 1, 1), (0.4, 0.05, 0.05))
     pinned = v[:, 0] < 1e-9
-    sim = Simulator(v, t, SOFT, SimSettings(ground=None, damping=0.02), pinned=pinned, device="cpu")
+    sim = Run(v, t, SOFT, SimSettings(ground=None, damping=0.02), pinned=pinned)
     for _ in range(10):
         sim.step()
     x = sim.positions
@@ -218,7 +247,7 @@ def test_obstacles_stop_a_falling_body(obstacle):
         if obstacle == "sphere"
         else dict(boxes=(Box((0.0, 0.0, -0.1), (0.2, 0.2, 0.1)),))
     )
-    sim = Simulator(v, t, RUBBER, SimSettings(ground=None, **collider), device="cpu")
+    sim = Run(v, t, RUBBER, SimSettings(ground=None, **collider))
     for _ in range(15):
         sim.step()
     x = sim.positions
@@ -234,11 +263,11 @@ def test_runaway_simulation_is_retried_then_raises_keeping_the_frames(tmp_path):
     v, t = box_tets((2, 2, 2), (0.1, 0.1, 0.1))
     # an absurd gravity (40 g) accelerates past max_speed after about 7 frames; more substeps cannot help
     s = SimSettings(ground=None, gravity=400.0, substeps=2, retry_factors=(2, 4), max_speed=100.0)
-    sim = Simulator(v, t, RUBBER, s, device="cpu")
+    sim = Run(v, t, RUBBER, s)
     path = tmp_path / "motion.npz"
     writer = MotionWriter(path, v, t, {"producer": "test"}, flush_seconds=1e9)
     with pytest.raises(SimulationError, match="max_speed") as err:
-        simulate(sim, 60, writer, progress=False)
+        simulate(sim.driver, sim.state, sim.control, 60, writer, progress=False)
     assert "with 2, 4, 8 substeps" in str(err.value)  # it was retried
     motion = load_motion(path)
     assert motion.n_frames == 8  # frame 0 and the 7 frames below max_speed
@@ -266,12 +295,12 @@ def test_a_collapsing_body_stops_before_the_first_crushed_frame(tmp_path):
     inverts). That frame is refused; every frame written before it is a valid cage."""
     v, t = box_tets((4, 3, 2), (0.3, 0.2, 0.15), origin=(0.0, 0.0, 0.1))
     s = SimSettings(ground=0.0, substeps=2, retry_factors=(2,))
-    sim = Simulator(v, t, Material("limp", 1.0e2, 0.45, 1100.0), s, device="cpu")
+    sim = Run(v, t, Material("limp", 1.0e2, 0.45, 1100.0), s)
     path = tmp_path / "motion.npz"
     writer = MotionWriter(path, v, t, {"producer": "test"}, flush_seconds=1e9)
     collapse = r"smallest tet volume ratio \(det F\) fell to 0\.\d+, below 0\.2"
     with pytest.raises(SimulationError, match=collapse) as err:
-        simulate(sim, 60, writer, progress=False)
+        simulate(sim.driver, sim.state, sim.control, 60, writer, progress=False)
     motion = load_motion(path)
     assert err.value.kind == "collapse" and err.value.frame == motion.n_frames > 2
     assert err.value.value < MIN_VOLUME_RATIO and err.value.substeps == (2, 4)
@@ -288,11 +317,30 @@ def test_settings_and_inputs_are_validated():
         SimSettings(dt=0.0)
     with pytest.raises(ValueError, match="linear_solver"):
         SimSettings(linear_solver="magic")
+    with pytest.raises(ValueError, match="max_stretch"):
+        SimSettings(max_stretch=1.0)
     v, t = box_tets((1, 1, 1))
     with pytest.raises(ValueError, match="orientation"):
-        Simulator(v, t[:, [1, 0, 2, 3]], RUBBER, device="cpu")
+        Model(v, t[:, [1, 0, 2, 3]], RUBBER, device="cpu")
     with pytest.raises(ValueError, match="tets"):
-        Simulator(v, t + 100, RUBBER, device="cpu")
+        Model(v, t + 100, RUBBER, device="cpu")
+    model = Model(v, t, RUBBER, device="cpu")
+    with pytest.raises(AttributeError, match="immutable"):
+        model.masses = None
+    with pytest.raises(ValueError, match="read-only"):
+        model.rest_vertices[0, 0] = 1.0
+    with pytest.raises(ValueError, match="pinned"):
+        Control(model, pinned=np.ones(3, bool))
+    with pytest.raises(ValueError, match="forces"):
+        Control(model, forces=np.full((len(v), 3), np.nan))
+    state = model.state()
+    with pytest.raises(ValueError, match="positions"):
+        state.set(positions=np.zeros((3, 3)))
+    solver = ImplicitSolver(model)
+    with pytest.raises(ValueError, match="state_out"):
+        solver.step(model, state, state, Control(model), 0.01)
+    with pytest.raises(ValueError, match="model"):
+        solver.step(Model(v, t, RUBBER, device="cpu"), state, model.state(), Control(model), 0.01)
 
 
 @pytest.mark.slow
@@ -302,8 +350,7 @@ def test_serial_pcg_matches_warp_optim_cg():
     results = []
     for solver in ("serial", "cg"):
         s = SimSettings(ground=0.0, substeps=2, cg_tol=1e-8, newton_tol=1e-5, linear_solver=solver)
-        sim = Simulator(v, t, RUBBER, s, device="cpu")
-        sim.set_rigid_velocity(linear=(0.2, 0.0, 0.0), angular=(0.0, 0.0, 2.0))
+        sim = Run(v, t, RUBBER, s, linear=(0.2, 0.0, 0.0), angular=(0.0, 0.0, 2.0))
         sim.step()
         results.append(sim.positions)
     assert results[0][:, 2].min() < 0  # in contact with the ground
@@ -321,11 +368,11 @@ def test_the_step_that_shows_convergence_is_taken():
     v, t = box_tets((4, 4, 4), (0.2, 0.2, 0.2), origin=(0.0, 0.0, 0.005))
     runs, unconverged = [], []
     for newton_tol, cg_tol in ((1e-2, 1e-3), (1e-5, 1e-10)):  # the defaults, then tight
-        sim = Simulator(v, t, RUBBER, SimSettings(ground=0.0, newton_tol=newton_tol, cg_tol=cg_tol))
-        sim.set_rigid_velocity(linear=(0.3, 0.0, -0.2), angular=(0.0, 0.0, 4.0))
+        s = SimSettings(ground=0.0, newton_tol=newton_tol, cg_tol=cg_tol)
+        sim = Run(v, t, RUBBER, s, linear=(0.3, 0.0, -0.2), angular=(0.0, 0.0, 4.0))
         unconverged.append(sum(sim.step().unconverged_substeps for _ in range(2)))
         runs.append(sim.positions)
-    tol = 1e-2 * sim.size * sim.settings.dt / sim.settings.substeps  # max |dx| at which Newton stops
+    tol = 1e-2 * sim.model.size * s.dt / s.substeps  # max |dx| at which Newton stops
     assert unconverged == [0, 0]
     assert runs[1][:, 2].min() < 0.005  # the body reached the ground
     assert np.abs(runs[0] - runs[1]).max() < 0.1 * tol
@@ -351,33 +398,33 @@ def test_loose_first_solves_save_cg_steps_and_keep_the_accuracy():
     runs = {}
     for name, extra in (("forcing", {}), ("tight cg", {"cg_forcing": 0.0}), ("reference", None)):
         kw = {"newton_tol": 1e-7, "cg_tol": 1e-10} if extra is None else extra
-        sim = Simulator(v, t, RUBBER, SimSettings(ground=0.0, **kw))
-        sim.set_rigid_velocity(linear=(0.3, 0.0, -0.2), angular=(0.0, 0.0, 4.0))
+        s = SimSettings(ground=0.0, **kw)
+        sim = Run(v, t, RUBBER, s, linear=(0.3, 0.0, -0.2), angular=(0.0, 0.0, 4.0))
         cg = sum(sim.step().cg_iterations for _ in range(3))
         runs[name] = (sim.positions, cg)
-    tol = 1e-2 * sim.size * sim.settings.dt / sim.settings.substeps
+    tol = 1e-2 * sim.model.size * s.dt / s.substeps
     error = {name: np.abs(runs[name][0] - runs["reference"][0]).max() for name in ("forcing", "tight cg")}
     assert runs["forcing"][1] < 0.85 * runs["tight cg"][1]
     assert error["forcing"] < min(1.5 * error["tight cg"], 0.5 * tol)
 
 
 def test_later_newton_iterations_reuse_the_tets_hessian_and_keep_the_accuracy(monkeypatch):
-    """Newton iterations close to their substep's first keep its tets' Hessian blocks (fem's
+    """Newton iterations close to their substep's first keep its tets' Hessian blocks (the solver's
     ELASTIC_HESSIAN_REUSE): fewer tet Hessians than Newton iterations, no more iterations than with a fresh
     Hessian at each, and positions as close to a tightly converged run."""
     v, t = box_tets((5, 5, 5), (0.2, 0.2, 0.2), origin=(0.0, 0.0, 0.005))
     runs = {}
     for name, reuse, kw in (
-        ("reuse", fem.ELASTIC_HESSIAN_REUSE, {}),
+        ("reuse", solver_module.ELASTIC_HESSIAN_REUSE, {}),
         ("fresh", 0.0, {}),
         ("reference", 0.0, {"newton_tol": 1e-7, "cg_tol": 1e-10}),
     ):
-        monkeypatch.setattr(fem, "ELASTIC_HESSIAN_REUSE", reuse)
-        sim = Simulator(v, t, RUBBER, SimSettings(ground=0.0, **kw))
-        sim.set_rigid_velocity(linear=(0.3, 0.0, -0.2), angular=(0.0, 0.0, 4.0))
+        monkeypatch.setattr(solver_module, "ELASTIC_HESSIAN_REUSE", reuse)
+        s = SimSettings(ground=0.0, **kw)
+        sim = Run(v, t, RUBBER, s, linear=(0.3, 0.0, -0.2), angular=(0.0, 0.0, 4.0))
         stats = [sim.step() for _ in range(3)]
         runs[name] = (sim.positions, sum(s.newton_iterations for s in stats), sum(s.hessians for s in stats))
-    tol = 1e-2 * sim.size * sim.settings.dt / sim.settings.substeps
+    tol = 1e-2 * sim.model.size * s.dt / s.substeps
     error = {name: np.abs(runs[name][0] - runs["reference"][0]).max() for name in ("reuse", "fresh")}
     assert runs["reuse"][2] < 0.7 * runs["fresh"][2]
     assert runs["reuse"][1] <= runs["fresh"][1]
@@ -407,17 +454,15 @@ def test_hessian_assembled_on_threads_equals_one_thread(monkeypatch):
     give the same steps, with contact, as one thread over every tet: the same Newton iterations, every
     substep converged, positions equal to rounding. (At newton_tol 1e-7 the line search of some substeps
     stalls on the energy's float64 rounding, and where each run stalls depends on the order of its sums.)"""
-    import shellsim.physics.fem as fem
-
     v, t = box_tets((6, 3, 3), (0.3, 0.15, 0.15), origin=(0.0, 0.0, 0.002))
-    monkeypatch.setattr(fem, "default_cpu_threads", lambda: 3)
+    monkeypatch.setattr(solver_module, "default_cpu_threads", lambda: 3)
     results, iterations = [], []
     for threshold in (10**9, 0):
-        monkeypatch.setattr(fem, "PARALLEL_HESSIAN_TETS", threshold)
+        monkeypatch.setattr(solver_module, "PARALLEL_HESSIAN_TETS", threshold)
         settings = SimSettings(ground=0.0, substeps=2, cg_tol=1e-10, cg_forcing=0.0, newton_tol=1e-6)
-        sim = Simulator(v, t, RUBBER, settings)  # every solve exact: only the assembly differs
-        assert len(sim._tet_ranges) == (1 if threshold else 4)
-        sim.set_rigid_velocity(linear=(0.2, 0.0, -0.1), angular=(0.0, 1.0, 2.0))
+        # every solve exact: only the assembly differs
+        sim = Run(v, t, RUBBER, settings, linear=(0.2, 0.0, -0.1), angular=(0.0, 1.0, 2.0))
+        assert len(sim.driver.solver._tet_ranges) == (1 if threshold else 4)
         stats = [sim.step() for _ in range(2)]
         iterations.append([(s.newton_iterations, s.unconverged_substeps) for s in stats])
         results.append(sim.positions)
@@ -467,6 +512,26 @@ def test_cli_reports_the_collapsing_frame_in_one_line_keeping_the_frames_before(
     assert "--youngs; now 200 Pa" in err and "--size" in err
 
 
+def test_cli_reports_the_stretched_frame_and_goes_on_when_allowed(tmp_path, cube_mesh, capsys, caplog):
+    """A 1 m jelly cube held by one face and thrown at 30 m/s from it: frame 2 stretches a tet past 3 (the
+    run stops, keeping frames 0-1); given allow_stretch, the same command continues the file (the switch does
+    not change the motion), warning once."""
+    from shellsim.cli.main import main
+
+    out = tmp_path / "pulled.npz"
+    argv = ["simulate", "--mesh", str(cube_mesh), "--material", "jelly", "--pin", "x<-0.49", "--no-ground"]
+    argv += ["--velocity", "30,0,0", "--substeps", "2", "--frames", "10", "--out", str(out)]
+    argv += ["--device", "cpu"]
+    err = _cli_error(argv, capsys)
+    assert err.startswith("frame 2 (t = 0.033 s) is invalid with 2, 4, 8 substeps: a tet was stretched to 4.")
+    assert f"above 3; frames 0-1 are kept in {out}" in err
+    assert err.endswith("raise --max-stretch, or give --allow-stretch to only warn")
+    with caplog.at_level("WARNING", logger="shellsim.physics.driver"):
+        assert main([*argv, "--allow-stretch"]) == 0
+    assert load_motion(out).n_frames == 10
+    assert len([r for r in caplog.records if "stretched to" in r.getMessage()]) == 1
+
+
 @pytest.mark.parametrize(
     "option, message",
     [
@@ -482,11 +547,12 @@ def test_cli_reports_the_collapsing_frame_in_one_line_keeping_the_frames_before(
         (["--drop-height", "-1"], "--drop-height: expected a height in metres in [0, 100], got -1"),
         (["--friction", "inf"], "--friction: expected a Coulomb coefficient in [0, 10], got inf"),
         (["--damping", "-0.1"], "--damping: expected a time in seconds in [0, 10], got -0.1"),
+        (["--max-stretch", "1"], "--max-stretch: expected a principal stretch in (1, inf], got 1"),
         (["--tets", "5"], "--tets: expected an integer in [10, 1000000], got 5"),
         (["--velocity", "300,0,0"], "--velocity: expected a speed in m/s"),
         (
             ["--spin", "0,0,1000", "--size", "0.3"],
-            "--spin: expected an angular speed in rad/s at --size 0.3 in [0, 333.333)",
+            "--spin: expected an angular speed in rad/s at --size 0.3 m in [0, 333.333)",
         ),
         (["--sphere", "0,0,0,-1"], "--sphere: expected a radius in (0, inf), got -1"),
         (["--box", "0,0,0,1,0,1"], "--box: expected half extents in (0, inf), got 0"),

@@ -1,4 +1,5 @@
-"""shellsim.cage.geometry against closed forms: the unit tet, a cube cut into tets, two tets sharing a face."""
+"""shellsim.cage.geometry against closed forms: the unit tet, a cube cut into tets, two tets sharing a
+face."""
 
 from __future__ import annotations
 

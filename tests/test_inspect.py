@@ -1,4 +1,5 @@
-"""shellsim.viz.inspect: the shell-width closed form of concentric spheres, the kernel size of an untrained field,
+"""shellsim.viz.inspect: the shell-width closed form of concentric spheres, the kernel size of an untrained
+field,
 a motion frame moving the drawn cage and shells exactly, the off-screen PNG (size, not blank, translucent
 shell visible), the frame slider, and the CLI's one-line errors."""
 

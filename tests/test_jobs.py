@@ -1,5 +1,5 @@
-"""The job layer (:mod:`shellsim.jobs`): the CLI's options, defaults and help come from the settings, the
-settings' defaults from the library's configs, and the library's errors speak of values, not options."""
+"""The job layer (:mod:`shellsim.jobs`): the CLI's options, defaults and help come from the settings, and the
+settings' defaults from the library's configs (that library errors name no option: tests/test_layers.py)."""
 
 import argparse
 import dataclasses
@@ -92,23 +92,6 @@ def test_a_job_time_error_names_the_option(tmp_path, capsys):
     assert (
         capsys.readouterr().err.strip() == f"shellsim: error: --images {tmp_path / 'none'}: no such directory"
     )
-
-
-def test_library_errors_speak_of_values_not_options(tmp_path):
-    from neural.device import pick_device
-    from neural.pipeline import PipelineConfig, train_asset
-    from shellsim.physics.fem import WorldMap
-
-    failing = [
-        lambda: pick_device("tpu"),
-        lambda: WorldMap.fit([[0.0, 0, 0], [1.0, 1, 1]], -1.0),
-    ]
-    (tmp_path / "asset.json").write_text("{}")
-    failing.append(lambda: train_asset(tmp_path / "data", tmp_path, PipelineConfig(), "cpu"))
-    for call in failing:
-        with pytest.raises(InputError) as raised:
-            call()
-        assert "--" not in str(raised.value), raised.value
 
 
 def test_jobs_and_the_parser_import_no_heavy_module():

@@ -11,7 +11,7 @@ import trimesh
 from meshes import kuhn_grid
 
 from shellsim.cli.main import main
-from shellsim.motion.format import load_motion
+from shellsim.motion.read import load_motion
 
 G = 9.81
 
@@ -46,7 +46,7 @@ def test_clamped_rubber_beam_sags_as_euler_bernoulli(tmp_path, caplog):
         str(density),
         "--no-ground",
         "--pin",
-        "x<0.02",
+        "x<-0.48",
         "--tets",
         "1500",
         "--fps",
@@ -67,9 +67,9 @@ def test_clamped_rubber_beam_sags_as_euler_bernoulli(tmp_path, caplog):
     motion = load_motion(out)
     rest = motion.rest_vertices
     assert np.ptp(rest, axis=0) == pytest.approx([length, side, side], rel=0.01)  # metres, not dilated
-    assert motion.meta["world"]["scale"] == 1.0
-    assert "not rescaled" in motion.meta["world"]["scaling"] and "not rescaled" in caplog.text
-    tip = rest[:, 0] > length - 0.02
+    assert motion.placement["scale"] == 1.0  # the mesh's own metres, centred over the origin
+    assert "extent 1.000 x 0.100 x 0.100 m" in caplog.text and "1 m per asset unit" in caplog.text
+    tip = rest[:, 0] > length / 2 - 0.02
     last_second = (rest[tip, 2] - motion.positions[-10:, tip, 2]).mean(axis=1)  # (10,) tip sag per frame
     sag = float(last_second.mean())
     assert np.ptp(last_second) < 0.1 * sag  # at rest
@@ -107,8 +107,9 @@ def test_units_scale_the_mesh_and_say_so(tmp_path, grid_cage, caplog):
     with caplog.at_level("INFO"):
         code, motion = run_box(tmp_path, "--units", "mm")
     assert code == 0
-    assert motion.meta["world"]["scale"] == 0.001
-    assert "largest extent 0.2 m" in motion.meta["world"]["scaling"] and "in mm" in caplog.text
+    assert motion.placement["scale"] == 0.001
+    assert np.ptp(motion.rest_vertices, axis=0) == pytest.approx([0.2, 0.1, 0.1])
+    assert "extent 0.200 x 0.100 x 0.100 m" in caplog.text and "0.001 m per asset unit" in caplog.text
     assert grid_cage[0].margin == 0.0  # tetrahedralised as it is, not dilated
 
 
@@ -116,8 +117,8 @@ def test_size_rescales_a_mesh_and_says_so(tmp_path, grid_cage, caplog):
     with caplog.at_level("INFO"):
         code, motion = run_box(tmp_path, "--size", "0.5")
     assert code == 0
-    assert motion.meta["world"]["scale"] == pytest.approx(0.5 / 200)
-    assert "--size 0.5 m" in motion.meta["world"]["scaling"] and "--size 0.5 m" in caplog.text
+    assert motion.placement["scale"] == pytest.approx(0.5 / 200)
+    assert "extent 0.500 x 0.250 x 0.250 m" in caplog.text
 
 
 @pytest.mark.parametrize(

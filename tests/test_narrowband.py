@@ -5,8 +5,8 @@ import pytest
 import torch
 import trimesh
 
+from neural.config import NarrowBandConfig
 from neural.render.narrowband import (
-    NarrowBandConfig,
     intervals_from_hits,
     narrow_band_samples,
     narrow_band_samples_reference,

@@ -1,5 +1,5 @@
-"""Motion and cage files (shellsim.io.npz, shellsim.motion.format): anything that is not one is one line naming the
-file, never a traceback and never numpy's advice to unpickle."""
+"""Motion and cage files (shellsim.io.npz, shellsim.motion): anything that is not one is one line naming the
+file, never a traceback and never numpy's advice to unpickle; npz archives written block by block."""
 
 import json
 import re
@@ -10,8 +10,9 @@ import pytest
 
 from neural.errors import InputError
 from shellsim.cli.main import main
-from shellsim.io.npz import load_npz
-from shellsim.motion.format import KEYS, Motion, load_motion, save_motion
+from shellsim.io.npz import Blocks, load_npz, write_npz
+from shellsim.motion.format import FORMAT1_KEYS, KEYS, Motion, save_motion
+from shellsim.motion.read import load_motion, read_frames, read_motion_info
 
 
 def _motion(n_frames=3):
@@ -76,7 +77,7 @@ JUNK = {
     "json": (lambda p: p.write_text('{"frames": []}'), "not an .npz archive"),
     "truncated": (_truncated, "damaged archive"),
     "bit flipped": (_bit_flipped, "damaged archive: Bad CRC-32"),
-    "other zip": (_zip_of_other_things, "missing the arrays rest_vertices, tets, positions, times, meta"),
+    "other zip": (_zip_of_other_things, "missing the arrays rest_vertices, tets, positions, times, header"),
     "missing key": (lambda p: np.savez(p, **_arrays(times=None)), "missing the array times"),
     "positions as text": (
         lambda p: np.savez(p, **_arrays(positions=np.full((3, 4, 3), "x"))),
@@ -121,13 +122,23 @@ def test_junk_motion_is_one_line_naming_the_file(tmp_path, kind):
     assert message.startswith(f"{path}: not a shellsim motion file (") and message.endswith(")"), message
     assert re.search(reason, message), message
     assert "\n" not in message and "pickle" not in message
+    # the header alone: the same error, unless the problem is in the frames it does not read
+    if kind != "NaN frame":
+        with pytest.raises(InputError, match=f"^{re.escape(message)}$"):
+            read_motion_info(path)
+    # frames: read, or one line (they check what they read: the frames and the positions' headers)
+    try:
+        read_frames(path, [2])
+    except InputError as lazy:
+        assert str(lazy).startswith(f"{path}: not a shellsim motion file (") and "\n" not in str(lazy)
 
 
 def test_pickled_objects_are_refused_before_they_are_read(tmp_path):
     path, marker = tmp_path / "evil.npz", tmp_path / "unpickled"
     _write_pickled(path, marker)
-    with pytest.raises(InputError, match=r"not a shellsim motion file \('meta' holds Python objects"):
-        load_motion(path)
+    for read in (load_motion, read_motion_info):
+        with pytest.raises(InputError, match=r"not a shellsim motion file \('meta' holds Python objects"):
+            read(path)
     assert not marker.exists()
 
 
@@ -142,9 +153,26 @@ def test_a_good_motion_round_trips(tmp_path):
     path = tmp_path / "m.npz"
     save_motion(path, _motion())
     loaded = load_motion(path)
-    assert set(KEYS) == {"rest_vertices", "tets", "positions", "times", "meta"}
+    assert set(FORMAT1_KEYS) == {"rest_vertices", "tets", "positions", "times", "meta"}
+    assert set(KEYS) == {"rest_vertices", "tets", "positions", "times", "header"}
     np.testing.assert_array_equal(loaded.positions, _motion().positions.astype(np.float32))
     assert loaded.meta == {"fps": 10.0}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]  # no temporary file left
+
+
+def test_blocks_are_written_as_one_array_numpy_reads(tmp_path):
+    rng = np.random.default_rng(0)
+    whole = rng.normal(size=(7, 4, 3)).astype(np.float32)
+    path = tmp_path / "a.npz"
+    blocks = Blocks((7, 4, 3), np.float32, [whole[:2], whole[2:3], whole[3:]])
+    write_npz(path, {"a": np.arange(3), "b": blocks})
+    with np.load(path) as data:
+        assert data.files == ["a", "b"] and data["b"].tobytes() == whole.tobytes()
+        np.testing.assert_array_equal(data["a"], np.arange(3))
+    with pytest.raises(ValueError, match="blocks of 6 rows in all, expected 7"):
+        write_npz(tmp_path / "c.npz", {"b": Blocks((7, 4, 3), np.float32, [whole[:6]])})
+    with pytest.raises(ValueError, match=r"expected blocks \(n, \(4, 3\)\)"):
+        write_npz(tmp_path / "d.npz", {"b": Blocks((7, 4, 3), np.float32, [whole[:, :2]])})
 
 
 @pytest.mark.parametrize(

@@ -18,9 +18,9 @@ from test_render_deformed import CENTER, EYE, camera, make_asset
 
 import neural.train
 from neural.asset import load_asset, load_field
+from neural.config import NarrowBandConfig
 from neural.data import load_dataset
 from neural.metrics import psnr
-from neural.render.narrowband import NarrowBandConfig
 from neural.render.raycast import EmbreeCaster
 from neural.render.view import asset_sampler, narrow_band_sampler, render_camera
 from shellsim.cage.store import load_or_build_cage

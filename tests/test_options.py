@@ -115,3 +115,48 @@ def test_an_error_of_the_whole_job_names_settings_as_options_at_the_command_line
     with pytest.raises(InputError) as raised, options_named(Toy):
         raise err
     assert str(raised.value) == "frame 3 failed; use more --frames or a lower --fps"
+
+
+def test_an_option_that_takes_one_value_refuses_a_second():
+    """Given twice it used to keep the last value silently; a group's option too. A flag given twice changes
+    nothing and a repeat option collects its values."""
+    for argv, message in (
+        (["--name", "a", "--frames", "5", "--frames", "6"], "--frames given twice (5, then 6)"),
+        (["--mesh", "m.ply", "--mesh", "n.ply"], "--mesh given twice (m.ply, then n.ply)"),
+        (
+            ["--name", "a", "--fps", "1", "--fps", "2.5", "--fps", "3"],
+            "--fps given 3 times (1, then 2.5, then 3)",
+        ),
+    ):
+        _, args = _parse(argv)
+        with pytest.raises(InputError) as raised:
+            from_args(Toy, args)
+        assert str(raised.value) == f"{message}; it takes one value"
+    _, args = _parse(["--name", "a", "--no-ground", "--no-ground", "--pin", "z<1", "--pin", "x>2"])
+    toy = from_args(Toy, args)
+    assert toy.ground is False and toy.pin == ("z<1", "x>2")
+
+
+def test_the_command_refuses_an_option_given_twice_in_one_line(capsys):
+    from shellsim.cli.main import main
+
+    assert main(["cage", "--asset", "lego", "--asset", "furry_bunny"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "shellsim: error: --asset given twice (lego, then furry_bunny); it takes one value"
+    ]
+
+
+def test_repeat_options_say_so_in_their_help():
+    """Every option of every command that may be repeated says so, and no other one does."""
+    from shellsim.cli.main import build_parser
+
+    parser, _ = _parse(["--name", "a"])
+    assert "a rule (repeat for several)" in " ".join(parser.format_help().split())
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    repeated = []
+    for name, command in commands.items():
+        for action in command._actions:
+            says = "(repeat for several)" in (action.help or "")
+            assert says == isinstance(action, argparse._AppendAction), (name, action.option_strings)
+            repeated += [action.option_strings[0]] * says
+    assert {"--pin", "--sphere", "--box"} <= set(repeated)

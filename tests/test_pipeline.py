@@ -114,7 +114,7 @@ def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     assert "stage2_narrow_band" in metrics["earlier_shells"]
     assert len(asset.outer_mesh().vertices) != len(before)
     assert main(["extract", "--asset", str(asset_dir), "--v-max", "-1"]) == 2
-    assert "shell parameters" in capsys.readouterr().err
+    assert "--v-max: expected a number > 0, got -1" in capsys.readouterr().err
     assert main(["extract", "--asset", str(asset_dir), "--max-peel", "0"]) == 2
     assert "--max-peel" in capsys.readouterr().err
 

@@ -264,21 +264,21 @@ def test_wind_example_run_again_at_another_size_renders_again(tmp_path, asset_di
     def example(*extra):
         return example_module.main([*argv, *extra])
 
-    assert example("--strength", "0.1", "--size", "16")["rendered"] == 3
+    assert example("--strength", "0.1", "--size", "16").rendered == 3
     again = example("--strength", "0.1", "--size", "20")  # same wind: the motion file is kept
-    assert again["rendered"] == 3 and again["replaced"] == 3
+    assert again.rendered == 3 and again.replaced == 3
     assert all(Image.open(p).size == (20, 20) for p in (out / "frames").iterdir())
     import imageio.v2 as imageio
 
     with imageio.get_reader(out / "wind.mp4") as reader:
         assert all(frame.shape[:2] == (20, 20) for frame in reader)
-    assert example("--strength", "0.1", "--size", "20")["skipped"] == 3
+    assert example("--strength", "0.1", "--size", "20").skipped == 3
     with pytest.raises(
         SystemExit, match=r"wind_animation: error: .*made with other settings \(--strength: 0.1 -> 0.2"
     ):
         example("--strength", "0.2", "--size", "20")
     # another wind with --overwrite: the motion is recomputed, and the orbit that frames it moves
-    from shellsim.motion.format import load_motion
+    from shellsim.motion.read import load_motion
 
-    assert example("--strength", "0.2", "--size", "20", "--overwrite")["rendered"] == 3
+    assert example("--strength", "0.2", "--size", "20", "--overwrite").rendered == 3
     assert load_motion(out / "wind.npz").settings["strength"] == 0.2

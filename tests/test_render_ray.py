@@ -16,7 +16,7 @@ def test_ray_frames_equal_serial_frames_and_resume(tmp_path):
     serial = render_motion("lego", motion, tmp_path / "serial", orbit=True, size=(24, 24), progress=False)
     orbit = ["render", "--asset", "lego", "--motion", str(motion), "--orbit", "--width", "24"]
     assert main([*orbit, "--out", str(tmp_path / "ray"), "--ray"]) == 0  # a local Ray instance
-    assert serial["rendered"] == 3
+    assert serial.rendered == 3
     for k in range(3):
         name = f"{k:05d}.png"
         assert (tmp_path / "ray" / name).read_bytes() == (tmp_path / "serial" / name).read_bytes(), name
@@ -24,7 +24,7 @@ def test_ray_frames_equal_serial_frames_and_resume(tmp_path):
     again = render_motion(
         "lego", motion, tmp_path / "ray", orbit=True, size=(24, 24), progress=False, ray="local"
     )
-    assert (again["rendered"], again["skipped"]) == (1, 2)
+    assert (again.rendered, again.skipped) == (1, 2)
     assert (tmp_path / "ray" / "00001.png").read_bytes() == (tmp_path / "serial" / "00001.png").read_bytes()
 
 
@@ -54,10 +54,10 @@ def test_a_worker_killed_mid_render_loses_no_frame(tmp_path, monkeypatch):
     summary = render_motion(
         "lego", motion, tmp_path / "ray", orbit=True, size=(24, 24), progress=False, ray="local"
     )
-    assert killed and summary["rendered"] == 6
+    assert killed and summary.rendered == 6
     monkeypatch.setattr(render, "save_png", save)
     serial = render_motion("lego", motion, tmp_path / "serial", orbit=True, size=(24, 24), progress=False)
-    assert serial["rendered"] == 6
+    assert serial.rendered == 6
     for k in range(6):
         name = f"{k:05d}.png"
         assert (tmp_path / "ray" / name).read_bytes() == (tmp_path / "serial" / name).read_bytes(), name

@@ -1,4 +1,5 @@
-"""shellsim.physics.selection: the one vertex-selection grammar of ``simulate --pin`` and ``wind --anchor``."""
+"""shellsim.physics.selection: the one vertex-selection grammar of ``simulate --pin`` and
+``wind --anchor``."""
 
 import numpy as np
 import pytest

@@ -8,7 +8,8 @@ import trimesh
 from meshes import kuhn_grid
 
 from shellsim.cli.main import main
-from shellsim.motion.format import load_motion
+from shellsim.motion.read import load_motion
+from shellsim.world import Placement
 
 
 def _fail(argv, capsys):
@@ -78,8 +79,11 @@ def test_run_writes_a_motion_file_and_resume_extends_it(tmp_path, closed_mesh, c
     assert motion.n_frames == 3 and np.allclose(motion.times, [0, 1 / 30, 2 / 30])
     v0 = motion.rest_vertices
     np.testing.assert_allclose(motion.positions[0], v0, atol=1e-6)
-    assert motion.meta["world"]["scale"] == pytest.approx(0.1)  # a 1-unit cube measures 0.1 m
-    # it falls (and moves along +x) in world units
+    # a 1-unit cube placed in the world: 0.1 m wide, its lowest point 0.01 m above the ground, centred
+    np.testing.assert_allclose(np.ptp(v0, axis=0), 0.1, rtol=1e-12)
+    assert v0[:, 2].min() == pytest.approx(0.01) and np.abs(v0.min(0) + v0.max(0))[:2].max() < 1e-12
+    assert motion.placement["scale"] == pytest.approx(0.1) and motion.meta["up"] == [0, 0, 1]
+    # it falls (and moves along +x) in world metres
     assert motion.positions[-1][:, 2].mean() < v0[:, 2].mean() - 0.01
     assert motion.positions[-1][:, 0].mean() > v0[:, 0].mean()
 
@@ -88,9 +92,9 @@ def test_run_writes_a_motion_file_and_resume_extends_it(tmp_path, closed_mesh, c
     assert resumed.n_frames == 5
     np.testing.assert_array_equal(resumed.positions[:3], motion.positions)
     # resuming continues the same trajectory, up to the Newton tolerance (newton_tol x size per second:
-    # 1.7e-3 m/s, ~3e-4 world units per substep) and float32 storage; the frames move ~100x more
-    np.testing.assert_allclose(resumed.positions, straight.positions, atol=3e-4)
-    assert np.abs(np.diff(straight.positions, axis=0)).max() > 100 * 3e-4
+    # 1.7e-3 m/s, ~3e-5 m per substep) and float32 storage; the frames move ~100x more
+    np.testing.assert_allclose(resumed.positions, straight.positions, atol=3e-5)
+    assert np.abs(np.diff(straight.positions, axis=0)).max() > 100 * 3e-5
     np.testing.assert_allclose(resumed.times, straight.times)
 
     err = _fail([*base, "--frames", "6", "--out", str(part), "--resume", "--material", "jelly"], capsys)
@@ -220,7 +224,8 @@ def test_mesh_simulation_video_shows_the_mesh_moving(tmp_path, closed_mesh):
     argv += ["--velocity", "20,0,0", "--video", str(video), "--video-size", "32x24", "--device", "cpu"]
     assert main(argv) == 0
     motion = load_motion(out)
-    np.testing.assert_allclose(motion.surface_points(0), trimesh.load(mesh).vertices, atol=1e-9)
+    placed = Placement.from_dict(motion.placement, str(out)).to_world(trimesh.load(mesh).vertices)
+    np.testing.assert_allclose(motion.surface_points(0), placed, atol=1e-9)  # in metres, on the ground
     assert len(motion.surface.faces) == 12
     frames = [np.asarray(Image.open(tmp_path / "cube_frames" / f"{k:05d}.png")) for k in range(3)]
     assert all(f.shape == (24, 32, 3) and (f.min(axis=2) < 200).sum() > 20 for f in frames)
@@ -259,3 +264,41 @@ def test_a_motion_is_continued_only_with_the_cage_and_mesh_it_was_made_from(
     err = _fail([*base, "--frames", "3"], capsys)
     assert f"{out}: made from another content of {mesh} (changed since)" in err
     assert load_motion(out).n_frames == 2
+
+
+def _cube(mesh, *options):
+    """A 0.1 m rubber cube (the 1-unit mesh at --size 0.1), its lowest point 0.1 m above the ground."""
+    return ["simulate", "--mesh", str(mesh), "--size", "0.1", "--substeps", "4", "--device", "cpu", *options]
+
+
+def test_an_obstacle_overlapping_the_body_at_frame_0_is_named(tmp_path, closed_mesh, capsys):
+    """The cube spans z 0.1..0.2 m and x, y -0.05..0.05 m: a box reaching up to z = 0.11 holds some of its
+    cage vertices; a small sphere at its centre holds none, but its centre lies inside the body."""
+    mesh, _ = closed_mesh
+    out = tmp_path / "cube.npz"
+    err = _fail(_cube(mesh, "--box", "0,0,0.05,0.2,0.2,0.06", "--out", str(out)), capsys)
+    assert "--box: box 1 (0,0,0.05,0.2,0.2,0.06) overlaps the body at frame 0" in err
+    assert "9 cage vertices lie inside it" in err and "z 0.100..0.200 m" in err
+    err = _fail(
+        _cube(mesh, "--sphere", "0.3,0,0.1,0.05", "--sphere", "0.02,0.02,0.13,0.005", "--out", str(out)),
+        capsys,
+    )
+    assert (
+        "--sphere: sphere 2 (0.02,0.02,0.13,0.005) overlaps the body at frame 0 (its centre lies inside"
+        in err
+    )
+    assert not out.exists()  # refused before anything is written
+
+
+def test_a_box_placed_in_metres_catches_the_body(tmp_path, closed_mesh):
+    """Without a ground, the cube (lowest point at z = 0.1 m) falls onto a box whose top is at z = 0.05 m
+    and rests on it: its lowest point ends at 0.05 m (up to the penalty's few millimetres), not below."""
+    mesh, _ = closed_mesh
+    out = tmp_path / "cube.npz"
+    argv = _cube(mesh, "--no-ground", "--box", "0,0,0,0.2,0.2,0.05", "--frames", "20", "--out", str(out))
+    assert main([*argv, "--damping", "0.01"]) == 0
+    motion = load_motion(out)
+    assert motion.rest_vertices[:, 2].min() == pytest.approx(0.1)
+    lowest = motion.positions[:, :, 2].min(axis=1)
+    assert lowest[-1] == pytest.approx(0.05, abs=0.004)
+    assert lowest.min() > 0.05 - 0.01  # never through the box

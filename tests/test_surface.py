@@ -1,5 +1,5 @@
-"""shellsim.viz.surface: a motion's surface drawn with pyvista, against the pinhole model, and the inspector and
-``render``-style frames of a mesh motion (no neural asset)."""
+"""shellsim.viz.surface: a motion's surface drawn with pyvista, against the pinhole model, and the inspector
+and ``render``-style frames of a mesh motion (no neural asset)."""
 
 from __future__ import annotations
 
@@ -75,7 +75,7 @@ def test_mesh_motion_frames_and_video(tmp_path):
     save_motion(path, motion)
     out, video = tmp_path / "frames", tmp_path / "cube.mp4"
     summary = render_surface_motion(path, out, size=(32, 24), video=video, progress=False)
-    assert summary["rendered"] == 3
+    assert summary.rendered == 3 and summary.video == video
     images = [np.asarray(Image.open(out / f"{k:05d}.png")) for k in range(3)]
     assert all(image.shape == (24, 32, 3) and image.min() < 200 for image in images)
     assert not np.array_equal(images[0], images[2])
@@ -83,9 +83,9 @@ def test_mesh_motion_frames_and_video(tmp_path):
 
     with imageio.get_reader(video) as reader:
         assert sum(1 for _ in reader) == 3
-    assert render_surface_motion(path, out, size=(32, 24), progress=False)["skipped"] == 3  # same: kept
+    assert render_surface_motion(path, out, size=(32, 24), progress=False).skipped == 3  # same: kept
     again = render_surface_motion(path, out, size=(40, 30), progress=False)
-    assert again["rendered"] == 3 and again["replaced"] == 3
+    assert again.rendered == 3 and again.replaced == 3
 
 
 def test_inspect_shows_a_mesh_motion_without_an_asset(tmp_path, capsys):
@@ -117,7 +117,7 @@ def test_render_cli_draws_a_motion_without_an_asset(tmp_path, capsys):
 
 def test_a_torn_surface_is_one_clear_error(tmp_path):
     from neural.errors import InputError
-    from shellsim.motion.format import load_motion
+    from shellsim.motion.read import load_motion
 
     m = cube_motion([(0, 0, 0)])
     path = tmp_path / "m.npz"

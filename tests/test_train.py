@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import types
 
 import numpy as np
 import pytest
@@ -11,10 +12,10 @@ import torch
 import trimesh
 from scenes import write_sphere_scene
 
+from neural.config import NarrowBandConfig
 from neural.data import load_dataset
 from neural.field import FieldConfig, HashGridConfig, ShellField
 from neural.pipeline import build_field
-from neural.render.narrowband import NarrowBandConfig
 from neural.render.view import field_occupancy_grid, occupancy_sampler
 from neural.train import (
     GRID_PARAMETERS,
@@ -215,8 +216,10 @@ def test_a_short_run_scales_stage2_and_the_grids_with_its_steps(tmp_path, monkey
 
     configs = []
     monkeypatch.setattr(
-        neural.pipeline, "train_asset", lambda data, out, config, *a, **k: configs.append(config)
+        neural.pipeline, "train_asset", lambda data, out, config, *a, **k: configs.append(config) or out
     )
+    trained = types.SimpleNamespace(meta={"training": {"wall_minutes": 0.0}})  # what the job reports
+    monkeypatch.setattr("neural.asset.load_asset", lambda root: trained)
     base = ["train", "--data", str(tmp_path), "--out", str(tmp_path / "out")]
     assert main([*base, "--steps", "200", "--checkpoint-minutes", "0.5"]) == 0
     assert main([*base, "--steps", "200", "--stage2-steps", "7", "--shell-resolution", "64"]) == 0

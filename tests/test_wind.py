@@ -1,4 +1,5 @@
-"""shellsim.physics.wind: invariants (zero wind, fixed anchor, monotone bending), the cantilever closed form, the
+"""shellsim.physics.wind: invariants (zero wind, fixed anchor, monotone bending), the cantilever closed form,
+the
 inextensible-rod drop, the anchor parser, the motion file and the CLI."""
 
 import dataclasses
@@ -10,9 +11,11 @@ from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError
 from shellsim.cage.geometry import MIN_VOLUME_RATIO
-from shellsim.motion.format import MotionWriter, load_motion
+from shellsim.motion.read import load_motion
+from shellsim.motion.writer import MotionWriter
 from shellsim.physics.selection import parse_selection
 from shellsim.physics.wind import WindSettings, animate_wind, beam_profile, heights, wind_displacement
+from shellsim.world import Placement
 
 
 def column(n_xy: int = 2, n_z: int = 8, width: float = 0.2, height: float = 1.0):
@@ -314,10 +317,19 @@ def test_cli_writes_and_resumes(tmp_path):
     assert main([*args, "--frames", "5", "--resume"]) == 0
     motion = load_motion(out)
     assert motion.n_frames == 5 and motion.asset["name"] == "rod" and motion.producer == "shellsim wind"
-    np.testing.assert_allclose(motion.rest_vertices, verts)
+    # the rod stands on the ground in metres: 1.1 units tall scaled to 0.3 m, centred over the origin
+    rest = motion.rest_vertices
+    assert np.ptp(rest, axis=0) == pytest.approx(np.ptp(verts, axis=0) * 0.3 / 1.1)
+    assert rest[:, 2].min() == pytest.approx(0.0) and motion.placement["scale"] == pytest.approx(0.3 / 1.1)
+    np.testing.assert_allclose(Placement.from_dict(motion.placement, "m").to_asset(rest), verts, atol=1e-12)
     np.testing.assert_allclose(motion.times, np.arange(5) / 10)
-    assert np.array_equal(motion.positions[0], verts.astype(np.float32))
-    assert np.abs(motion.positions[4] - verts).max() > 1e-3
+    assert np.array_equal(motion.positions[0], rest.astype(np.float32))
+    anchored = rest[:, 2] < 0.1
+    np.testing.assert_array_equal(
+        motion.positions[:, anchored],
+        np.broadcast_to(rest[anchored], (5, anchored.sum(), 3)).astype(np.float32),
+    )
+    assert np.abs(motion.positions[4] - rest).max() > 1e-3
     assert main([*args, "--frames", "6", "--resume", "--strength", "0.2"]) == 2  # other settings
     assert load_motion(out).n_frames == 5
 

@@ -23,48 +23,15 @@ not closed and nested) are followed alike by :func:`narrow_band_samples` and its
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 import trimesh
 
+from neural.config import NarrowBandConfig
 from neural.render.raycast import ShellCaster, as_rays, ray_lengths, ray_triangle_hits
 from neural.render.samples import RaySamples
-
-
-@dataclass(frozen=True)
-class NarrowBandConfig:
-    """Narrow-band sampling settings (Procedure 3), lengths in world units.
-
-    The paper gives no numbers for ``delta_s`` and ``w_s``; the defaults suit a scene scaled to the unit
-    cube ``[-1, 1]^3``: a band thinner than 0.03 (a solid surface, up to ~4 voxels of a 256^3 extraction)
-    gets one sample, a fuzzy band 0.1 wide gets eight. Use :meth:`scaled` for scenes of another size.
-    ``n_max = 16`` is the paper's cap (Fig. 6). The paper gives no ``dp_max``: 16 M+ hits (8 intervals) are
-    needed on lego, whose studs and treads a ray crosses many times; with 8 hits its held-out narrow band
-    lost 0.46 dB (28.18 against 28.64 dB at 2.70 samples per pixel), 32 gain nothing more.
-    """
-
-    delta_s: float = 0.01  # target spacing between samples
-    w_s: float = 0.03  # intervals narrower than this get a single sample at their centre
-    n_max: int = 16  # most samples per interval (N_max)
-    max_peel: int = 16  # most M+ hits taken per ray (dp_max)
-
-    def __post_init__(self):
-        if not self.delta_s > 0:
-            raise ValueError(f"delta_s must be > 0, got {self.delta_s}")
-        if not self.w_s >= 0:
-            raise ValueError(f"w_s must be >= 0, got {self.w_s}")
-        if int(self.n_max) != self.n_max or self.n_max < 1:
-            raise ValueError(f"n_max must be an integer >= 1, got {self.n_max}")
-        if int(self.max_peel) != self.max_peel or self.max_peel < 1:
-            raise ValueError(f"max_peel must be an integer >= 1, got {self.max_peel}")
-
-    def scaled(self, scale: float) -> NarrowBandConfig:
-        """The same settings for a scene ``scale`` times larger (``delta_s`` and ``w_s`` times ``scale``)."""
-        if not scale > 0:
-            raise ValueError(f"scale must be > 0, got {scale}")
-        return replace(self, delta_s=self.delta_s * scale, w_s=self.w_s * scale)
 
 
 @dataclass

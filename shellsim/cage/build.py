@@ -72,8 +72,8 @@ UNDILATED_EPSILON = 1e-3
 
 #: What a cage in pieces asks for: a dilated shell, an undilated mesh.
 APART_DILATED = (
-    "parts of the outer shell lie farther apart than twice the margin. Build the cage with a larger --margin "
-    "('shellsim cage', 'simulate' and 'wind' take one; the others use the stored cage) until they merge, or "
+    "parts of the outer shell lie farther apart than twice the margin. Build the cage with a larger margin "
+    "(the cage, simulate and wind commands set one; the others use the stored cage) until they merge, or "
     "remove the floating parts from the shell"
 )
 

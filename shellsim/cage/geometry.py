@@ -5,8 +5,8 @@ A tet ``(a, b, c, d)`` is positively oriented when ``det[b - a, c - a, d - a] > 
 ratio is ``det F`` = deformed volume / rest volume: at or below 0 the tet is inverted and the shells
 embedded in it fold through each other; close to 0 it is a sliver that smears whatever it holds. Both are
 refused below :data:`MIN_VOLUME_RATIO` (a tet squeezed to a fifth of its volume) before a frame is written
-(:mod:`shellsim.physics.fem`, :mod:`shellsim.physics.wind`). Normal motion stays far above it (a 0.3 m jelly cube dropped
-0.1 m onto the ground: 0.75 at worst; rubber, foam, plastic: above 0.99).
+(:mod:`shellsim.physics.driver`, :mod:`shellsim.physics.wind`). Normal motion stays far above it (a 0.3 m
+jelly cube dropped 0.1 m onto the ground: 0.75 at worst; rubber, foam, plastic: above 0.99).
 """
 
 from __future__ import annotations

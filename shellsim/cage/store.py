@@ -211,8 +211,9 @@ def asset_cages(asset, digest: str) -> list[Path]:
 
 
 def cage_for_motion(asset, motion, source: str | None = None) -> Cage:
-    """The asset's cage (its own or a cached one) that ``motion`` (:class:`shellsim.motion.format.Motion`) moves,
-    found by :func:`shellsim.motion.format.cage_digest`; an :class:`InputError` (``source: ...``, default the
+    """The asset's cage (its own or a cached one) that ``motion`` (a :class:`shellsim.motion.format.Motion` or
+    :class:`~shellsim.motion.format.MotionInfo`) moves, found by the cage digest its header records
+    (:func:`shellsim.motion.format.cage_digest`); an :class:`InputError` (``source: ...``, default the
     motion's file) saying how they differ when there is none. A motion recording another digest of the
     asset (:meth:`neural.asset.Asset.digest`: a retrained field) is logged, and rendered all the same."""
     made_for = motion.asset.get("digest")

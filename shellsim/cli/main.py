@@ -5,8 +5,9 @@ Every sub-command module defines ``register(subparsers)``, which adds its parser
 ``shellsim: error: ...`` and exit with status 2. Ctrl-C (SIGINT) and SIGTERM both unwind the command as a
 ``KeyboardInterrupt``, so it saves what it made; they exit with 130 and 143 (128 + the signal number). A
 signal that arrives while a finalizer runs (Warp frees arrays in ``__del__``, where Python ignores exceptions)
-is sent again a moment later, so that it is never lost.
-Warp's banner and module-load lines are shown only with ``--verbose``.
+is sent again a moment later, so that it is never lost. The process-wide settings
+(:func:`neural.device.configure_process`) are made once the arguments are parsed: Warp's banner, module-load
+lines and CUDA probe are shown only with ``--verbose``.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import sys
 import threading
 from pathlib import Path
 
+from neural.device import configure_process
 from neural.errors import ShellsimError
 
 COMMANDS = (
@@ -86,35 +88,15 @@ def _interrupt(signum, frame) -> None:
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
-def _init_warp_quietly(warp) -> None:
-    """Initialise Warp with file descriptor 2 silenced: its native CUDA probe writes "Could not find or load
-    the NVIDIA CUDA driver" straight to stderr on every machine without a GPU, whatever the log level."""
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            warp.init()
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.cache_dir is not None:
-        os.environ["SHELLSIM_CACHE"] = str(Path(args.cache_dir).resolve())
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
     )
-    import warp
-
-    # warp 1.19 reads config.log_level (it has no config.quiet): LOG_WARNING hides the banner and the
-    # "Module ... load" lines that it prints on stdout; --verbose shows them
-    warp.config.log_level = warp.LOG_INFO if args.verbose else warp.LOG_WARNING
-    if not args.verbose:
-        _init_warp_quietly(warp)
+    configure_process(verbose=args.verbose)
+    if args.cache_dir is not None:
+        os.environ["SHELLSIM_CACHE"] = str(Path(args.cache_dir).resolve())
     previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGINT, signal.SIGTERM)}
     try:
         args.func(args)

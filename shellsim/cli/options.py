@@ -4,7 +4,9 @@
 (``--field-name`` unless the field names its own flag) whose help ends with the dataclass default;
 :func:`from_args` builds the settings from the parsed namespace and turns a
 :class:`~shellsim.errors.SettingError`, which names the field, into an :class:`~neural.errors.InputError`
-naming the option instead: the library speaks of values, the command line of flags.
+naming the option instead: the library speaks of values, the command line of flags. An option that takes
+one value refuses a second occurrence (:func:`from_args`); a ``repeat`` option says in its help that it
+may be repeated.
 """
 
 from __future__ import annotations
@@ -26,6 +28,20 @@ def flag_of(field: dataclasses.Field) -> str:
 def options(cls) -> list[dataclasses.Field]:
     """The fields of the settings dataclass ``cls`` that are command-line options, in declaration order."""
     return [f for f in dataclasses.fields(cls) if "option" in f.metadata]
+
+
+#: The namespace attribute where :class:`_Once` keeps every value given to each single-valued option.
+_GIVEN = "given values"
+
+
+class _Once(argparse._StoreAction):
+    """Store the option's value, as ``store`` does, and keep each value given (in ``_GIVEN``) so that
+    :func:`from_args` refuses an option given more than once instead of keeping the last."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = vars(namespace).setdefault(_GIVEN, {})
+        given.setdefault(self.dest, []).append(values)
+        super().__call__(parser, namespace, values, option_string)
 
 
 def _show(value) -> str:
@@ -55,6 +71,8 @@ def add_options(parser: argparse.ArgumentParser, cls, skip: typing.Collection[st
         help_text = meta["help"]
         hidden = field.default is None or isinstance(field.default, bool) or field.default == ()
         shown = meta["shown_default"] or (None if hidden else _show(field.default))
+        if meta["repeat"]:
+            help_text += " (repeat for several)"
         if shown:
             help_text += f" (default {shown})"
         kwargs: dict = {"dest": field.name, "help": help_text.replace("%", "%%")}
@@ -65,8 +83,7 @@ def add_options(parser: argparse.ArgumentParser, cls, skip: typing.Collection[st
             scalar = {int: int, float: float, int | None: int, float | None: float}.get(kind)
             kwargs["type"] = scalar if scalar and not meta["parse"] else str
             kwargs["default"] = list(field.default) if meta["repeat"] else field.default
-            if meta["repeat"]:
-                kwargs["action"] = "append"
+            kwargs["action"] = "append" if meta["repeat"] else _Once
             for key in ("metavar", "choices"):
                 if meta[key]:
                     kwargs[key] = meta[key]
@@ -78,9 +95,15 @@ def add_options(parser: argparse.ArgumentParser, cls, skip: typing.Collection[st
 
 
 def from_args(cls, args: argparse.Namespace, **values):
-    """The settings ``cls`` from parsed ``args`` (plus ``values`` for fields that are not options); every
-    parse or :class:`SettingError` becomes one :class:`InputError` naming the option."""
+    """The settings ``cls`` from parsed ``args`` (plus ``values`` for fields that are not options); an option
+    that takes one value given more than once, and every parse or :class:`SettingError`, becomes one
+    :class:`InputError` naming the option."""
     flags = {f.name: flag_of(f) for f in options(cls)}
+    for name, given in getattr(args, _GIVEN, {}).items():
+        if name in flags and len(given) > 1:
+            times = "twice" if len(given) == 2 else f"{len(given)} times"
+            shown = ", then ".join(_show(v) for v in given)
+            raise InputError(f"{flags[name]} given {times} ({shown}); it takes one value")
     for field in options(cls):
         if field.name in values or not hasattr(args, field.name):
             continue

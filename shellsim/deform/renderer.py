@@ -5,9 +5,10 @@ shade); this module supplies, for one frame with cage vertices ``p`` (V, 3), the
 to rest space. :class:`DeformedRenderer`
 
 1. **deforms the shells**: every ``M+`` / ``M-`` vertex is the barycentric interpolation of ``p`` in its
-   rest tet (:func:`shellsim.deform.inverse_map.deform_points`, as :meth:`~neural.render.raycast.WarpCaster.refit_blended`
+   rest tet (:func:`~shellsim.deform.inverse_map.deform_points`, as
+   :meth:`~neural.render.raycast.WarpCaster.refit_blended`
    computes it in a Warp kernel); the BVHs of their Warp meshes, built once from the rest shells, are
-   refitted, and meanwhile the inverse map (:class:`shellsim.deform.inverse_map.InverseMap`) is updated to the frame;
+   refitted, and meanwhile the inverse map (:class:`~shellsim.deform.inverse_map.InverseMap`) is updated;
 2. **samples**: casts the camera rays against the deformed shells and places samples in the deformed narrow
    band (Procedure 3, the asset's ``NarrowBandConfig`` in world units);
 3. **maps** every sample back to rest space: ``x_rest = Phi^-1(x)``, the ray direction by finite

@@ -67,4 +67,3 @@ def check_writable_file(path, flag: str | None = None) -> Path:
         _refuse(path, flag, "cannot write here (a directory has this name)")
     _check(path, path.parent, flag)
     return path
-

@@ -22,7 +22,13 @@ def write_video(frames: list[Path], path, fps: float) -> Path:
 
     def write(tmp: Path) -> None:
         with imageio.get_writer(
-            tmp, fps=fps, codec="libx264", macro_block_size=1, quality=8, pixelformat="yuv420p", format="FFMPEG"
+            tmp,
+            fps=fps,
+            codec="libx264",
+            macro_block_size=1,
+            quality=8,
+            pixelformat="yuv420p",
+            format="FFMPEG",
         ) as writer:
             for frame in frames:
                 image = np.asarray(imageio.imread(frame))[..., :3]

@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 from shellsim.cage.build import CageConfig
 from shellsim.errors import SettingError
-from shellsim.settings import option
+from shellsim.settings import check_required, option
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,7 @@ class CageSettings:
     rebuild: bool = option(False, help="rebuild even if a matching cage.npz exists")
 
     def __post_init__(self):
+        check_required(self)
         for name, key in (("tets", "target_tets"), ("margin", "margin")):
             if getattr(self, name) is not None:
                 try:
@@ -42,9 +44,35 @@ class CageSettings:
         return CageConfig(**given) if given else None
 
 
-def cage(settings: CageSettings) -> dict:
-    """Load or build the cage of ``settings.asset``; returns :func:`~shellsim.cage.store.cage_summary` with the
-    asset's ``name``, the cage's ``path`` and ``config`` and ``seconds`` (the wall time)."""
+@dataclass(frozen=True)
+class CageResult:
+    """The cage :func:`cage` loaded or built (facts of :func:`~shellsim.cage.store.cage_summary`).
+
+    name : the asset's name; path : the cage file; config : its :class:`~shellsim.cage.build.CageConfig`
+    seconds : wall time of loading or building it
+    vertices, tets : V and T, the cage's vertex and tet counts; volume : its volume (asset units cubed)
+    min_quality, median_quality : tet quality (1 = regular)
+    outer_vertices, inner_vertices : vertices of M+ and M- embedded in it; outside : how many of them lie
+        outside the cage (embedded with extrapolated coordinates), at most ``max_outside_distance`` from it
+    """
+
+    name: str
+    path: Path
+    config: CageConfig
+    seconds: float
+    vertices: int
+    tets: int
+    volume: float
+    min_quality: float
+    median_quality: float
+    outer_vertices: int
+    inner_vertices: int
+    outside: int
+    max_outside_distance: float
+
+
+def cage(settings: CageSettings) -> CageResult:
+    """Load or build the cage of ``settings.asset`` and describe it."""
     from neural.asset import load_asset
     from shellsim.cage.store import cage_summary, load_or_build_cage
 
@@ -52,10 +80,6 @@ def cage(settings: CageSettings) -> dict:
     start = time.perf_counter()
     built = load_or_build_cage(asset, settings.cage_config(), rebuild=settings.rebuild)
     seconds = time.perf_counter() - start
-    return {
-        **cage_summary(built),
-        "name": asset.name,
-        "path": built.path,
-        "config": built.config,
-        "seconds": seconds,
-    }
+    return CageResult(
+        name=asset.name, path=Path(built.path), config=built.config, seconds=seconds, **cage_summary(built)
+    )

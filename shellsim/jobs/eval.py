@@ -3,13 +3,15 @@ the same field, on the held-out views (every 8th) of the dataset it was trained 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from neural.config import PipelineConfig
 from neural.device import DEVICES, processor
 from shellsim.errors import SettingError
-from shellsim.settings import check_choice, device_setting, option
+from shellsim.settings import check_choice, check_required, config_bounds, device_setting, option
 
 
 @dataclass(frozen=True)
@@ -30,16 +32,61 @@ class EvalSettings:
     device: str = option("auto", help="cpu, cuda or auto")
 
     def __post_init__(self):
-        for name in ("downscale", "views"):
-            value = getattr(self, name)
-            if value is not None and value < 1:
-                raise SettingError(name, f"expected a positive integer, got {value}")
+        check_required(self)
+        if self.downscale is not None:
+            with config_bounds(self, {(PipelineConfig, "downscale"): "downscale"}):  # as training's
+                PipelineConfig(downscale=self.downscale)
+        if self.views is not None and self.views < 1:
+            raise SettingError("views", f"expected a positive integer, got {self.views}")
         check_choice("device", self.device, DEVICES)
 
 
-def evaluate(settings: EvalSettings) -> dict:
-    """PSNR, SSIM, samples per pixel and ms per frame of each renderer (``narrow_band``, ``full_ray``), the
-    ``speedup`` and the LPIPS status; written to ``settings.json`` and recorded in the asset as asked."""
+@dataclass(frozen=True)
+class ViewMetrics:
+    """Means over the held-out views of one renderer: ``psnr`` (dB), ``ssim``, ``samples_per_pixel`` (those
+    evaluated), ``ms_per_frame``; ``views`` the dataset indices of the views."""
+
+    psnr: float
+    ssim: float
+    samples_per_pixel: float
+    ms_per_frame: float
+    views: list[int]
+
+    @classmethod
+    def of(cls, figures: dict) -> ViewMetrics:
+        """From the figures of :func:`neural.train.evaluate`."""
+        return cls(**{f.name: figures[f.name] for f in dataclasses.fields(cls)})
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """What :func:`evaluate` measured.
+
+    asset, data : the asset directory and the dataset; downscale : the images' downscale factor
+    processor : what ``ms_per_frame`` was measured on; heldout_views : the dataset indices evaluated
+    narrow_band : the asset's renderer (Procedure 3); full_ray : full-ray rendering of the same field (None
+        when not asked for); speedup : full ray's ms per frame over narrow band's (None without full ray)
+    lpips : why LPIPS is not reported
+    """
+
+    asset: str
+    data: str
+    downscale: int
+    processor: str
+    heldout_views: list[int]
+    narrow_band: ViewMetrics
+    full_ray: ViewMetrics | None
+    speedup: float | None
+    lpips: str
+
+    def as_dict(self) -> dict:
+        """The figures as written to ``settings.json`` and recorded in the asset (None ones left out)."""
+        return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+
+
+def evaluate(settings: EvalSettings) -> EvalResult:
+    """Render the held-out views with each renderer and compare them with the photos; the figures are
+    written to ``settings.json`` and recorded in the asset as asked."""
     import numpy as np
     import torch
 
@@ -62,24 +109,22 @@ def evaluate(settings: EvalSettings) -> dict:
     views = np.asarray(data.test_idx)[: settings.views]
     field = load_field(asset, device)
     bg = torch.as_tensor(asset.background, dtype=torch.float32, device=device)
-    samplers = {"narrow_band": asset_sampler(asset)}  # the sampler of 'shellsim render' at rest
-    if settings.full_ray:
-        samplers["full_ray"] = full_ray_sampler(field)
-    report = {
-        "asset": str(asset.root),
-        "data": str(settings.data),
-        "downscale": downscale,
-        "processor": processor(device),  # what ms_per_frame was measured on
-        "heldout_views": [int(v) for v in views],
-        "lpips": lpips_status(),
-    }
-    for name, sampler in samplers.items():
-        report[name] = evaluate_views(field, data, views, sampler, bg)
-    if settings.full_ray:
-        report["speedup"] = report["full_ray"]["ms_per_frame"] / report["narrow_band"]["ms_per_frame"]
+    narrow_band = evaluate_views(field, data, views, asset_sampler(asset), bg)  # 'shellsim render' at rest
+    full_ray = evaluate_views(field, data, views, full_ray_sampler(field), bg) if settings.full_ray else None
+    result = EvalResult(
+        asset=str(asset.root),
+        data=str(settings.data),
+        downscale=downscale,
+        processor=processor(device),
+        heldout_views=[int(v) for v in views],
+        narrow_band=ViewMetrics.of(narrow_band),
+        full_ray=None if full_ray is None else ViewMetrics.of(full_ray),
+        speedup=None if full_ray is None else full_ray["ms_per_frame"] / narrow_band["ms_per_frame"],
+        lpips=lpips_status(),
+    )
     if settings.json:
-        Path(settings.json).write_text(json.dumps(report, indent=1))
+        Path(settings.json).write_text(json.dumps(result.as_dict(), indent=1))
     if settings.record:
-        asset.meta.setdefault("metrics", {})["eval"] = {**report, "command": command_line()}
+        asset.meta.setdefault("metrics", {})["eval"] = {**result.as_dict(), "command": command_line()}
         write_meta(asset.root, asset.meta)
-    return report
+    return result

@@ -7,9 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from neural.errors import InputError
 from shellsim.errors import SettingError
-from shellsim.settings import option
+from shellsim.settings import check_required, option
 
 FORMATS = ("usd", "vtu", "ply")
 
@@ -33,6 +32,7 @@ class ExportSettings:
     overwrite: bool = option(help="replace OUT if it exists")
 
     def __post_init__(self):
+        check_required(self)
         if self.format not in FORMATS:
             raise SettingError("format", f"expected one of {', '.join(FORMATS)}, got {self.format!r}")
         suffix = Path(self.out).suffix.lower()
@@ -40,6 +40,17 @@ class ExportSettings:
         if suffix not in wanted:
             expected = " or ".join(w or "a directory name without suffix" for w in wanted)
             raise SettingError("out", f"a {self.format} export is written to {expected}, got {self.out!r}")
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    """What :func:`export` wrote: ``out`` (the USD stage, the .pvd index or the PLY directory) in ``format``,
+    ``files`` every file written (the index or stage last), ``frames`` the motion frames exported."""
+
+    out: Path
+    format: str
+    files: list[Path]
+    frames: int
 
 
 def _compact(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -73,20 +84,20 @@ def _meshes(settings: ExportSettings, motion):
     if motion.surface is not None:
         meshes.append(AnimatedMesh("surface", motion.surface.faces, motion.surface_points))
     if not meshes:
-        raise InputError(
-            f"{settings.motion}: the motion of an asset's cage needs --asset to export its shell"
+        raise SettingError(
+            "motion", "the motion of an asset's cage needs {asset} to export its shell", value=settings.motion
         )
     used, faces = _compact(boundary_faces(motion.tets))
     return [*meshes, AnimatedMesh("cage", faces, lambda k: motion.positions[k][used])]
 
 
-def export(settings: ExportSettings, progress: bool = True) -> list[Path]:
-    """Write the export ``settings`` describe; returns the files written (the index or stage last)."""
+def export(settings: ExportSettings, progress: bool = True) -> ExportResult:
+    """Write the export ``settings`` describe."""
     from tqdm import tqdm
 
     from shellsim.io.export import require_usd, write_ply_sequence, write_usd, write_vtu_series
     from shellsim.io.outputs import check_writable_dir, check_writable_file
-    from shellsim.motion.format import load_motion
+    from shellsim.motion.read import load_motion
     from shellsim.render.frames import motion_fps
     from shellsim.settings import parse_frames
 
@@ -103,7 +114,7 @@ def export(settings: ExportSettings, progress: bool = True) -> list[Path]:
     bar = tqdm(total=len(frames), desc=f"export {settings.format}", unit="frame", disable=not progress)
     with bar:
         if settings.format == "vtu":
-            return write_vtu_series(
+            files = write_vtu_series(
                 out,
                 motion.rest_vertices,
                 motion.tets,
@@ -112,11 +123,13 @@ def export(settings: ExportSettings, progress: bool = True) -> list[Path]:
                 [float(motion.times[k]) for k in frames],
                 bar.update,
             )
-        if settings.format == "ply":
-            return write_ply_sequence(out, meshes[0], frames, bar.update)
-        up = motion.meta.get("up") or _asset_up(settings)
-        metres = float(motion.meta.get("world", {}).get("scale", 1.0))
-        return [write_usd(out, meshes, frames, motion_fps(motion), up, metres, bar.update)]
+        elif settings.format == "ply":
+            files = write_ply_sequence(out, meshes[0], frames, bar.update)
+        else:
+            up = motion.meta.get("up") or _asset_up(settings)
+            metres = float(motion.meta.get("world", {}).get("scale", 1.0))
+            files = [write_usd(out, meshes, frames, motion_fps(motion), up, metres, bar.update)]
+    return ExportResult(out, settings.format, files, len(frames))
 
 
 def _asset_up(settings: ExportSettings) -> list[float]:

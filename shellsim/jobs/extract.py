@@ -10,15 +10,21 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
-from neural.config import ShellConfig
+from neural.config import NarrowBandConfig, ShellConfig
 from neural.device import DEVICES
 from shellsim.errors import SettingError
-from shellsim.settings import check_choice, device_setting, option
+from shellsim.settings import check_choice, check_required, config_bounds, device_setting, option
 
 log = logging.getLogger(__name__)
 
 THE_ASSETS = "the asset's"
+#: The settings that are fields of :class:`~neural.config.ShellConfig`.
+SHELL_FIELDS = ("resolution", "steps", "beta_d", "sigma_min", "beta_e", "v_max", "min_part_fraction")
+#: The config field each setting sets: its bound (:mod:`neural.config`) is the setting's.
+CONFIG_FIELDS = {(ShellConfig, name): name for name in SHELL_FIELDS}
+CONFIG_FIELDS[NarrowBandConfig, "max_peel"] = "max_peel"
 
 
 @dataclass(frozen=True)
@@ -46,22 +52,36 @@ class ExtractSettings:
     device: str = option("auto", help="cpu, cuda or auto")
 
     def __post_init__(self):
-        for name, value in self.shell_overrides().items():
-            try:
-                ShellConfig(**{name: value})  # each bound is on one parameter alone
-            except ValueError as err:
-                raise SettingError(name, f"shell parameters: {err}") from None
+        check_required(self)
+        with config_bounds(self, CONFIG_FIELDS):
+            ShellConfig(**self.shell_overrides())  # each bound is on one parameter alone
+            if self.max_peel is not None:
+                NarrowBandConfig(max_peel=self.max_peel)
         check_choice("device", self.device, DEVICES)
 
     def shell_overrides(self) -> dict:
         """The shell parameters that are set: {ShellConfig field: value}."""
-        names = ("resolution", "steps", "beta_d", "sigma_min", "beta_e", "v_max", "min_part_fraction")
-        return {name: getattr(self, name) for name in names if getattr(self, name) is not None}
+        return {name: getattr(self, name) for name in SHELL_FIELDS if getattr(self, name) is not None}
 
 
-def extract(settings: ExtractSettings) -> dict:
-    """Extract the shells of ``settings.asset`` again and replace its shell files; returns the shells'
-    statistics (faces of M+ and M-, widths) with ``seconds``, the extraction's wall time."""
+@dataclass(frozen=True)
+class ExtractResult:
+    """The new shells of :func:`extract`: ``asset`` the asset directory they were written to,
+    ``outer_faces`` and ``inner_faces`` the triangles of M+ and M-, ``width_mean``, ``width_median`` and
+    ``width_max`` the distance from M+ to M- (world units; NaN when M- is empty), ``seconds`` the
+    extraction's wall time."""
+
+    asset: Path
+    outer_faces: int
+    inner_faces: int
+    width_mean: float
+    width_median: float
+    width_max: float
+    seconds: float
+
+
+def extract(settings: ExtractSettings) -> ExtractResult:
+    """Extract the shells of ``settings.asset`` again and replace its shell files."""
     from neural.asset import command_line, load_asset, load_field, refuse_shipped, replace_shells
     from neural.shell.from_field import extract_field_shells
     from shellsim.io.outputs import check_writable_dir
@@ -77,10 +97,7 @@ def extract(settings: ExtractSettings) -> dict:
     except (TypeError, ValueError) as err:
         raise SettingError("asset", f"shell parameters: {err}", value=asset.root) from None
     if settings.max_peel is not None:
-        try:
-            narrowband = dataclasses.replace(asset.narrowband_config(), max_peel=settings.max_peel)
-        except ValueError as err:
-            raise SettingError("max_peel", str(err)) from None
+        narrowband = dataclasses.replace(asset.narrowband_config(), max_peel=settings.max_peel)
         asset.meta["narrowband"] = dataclasses.asdict(narrowband)
     field = load_field(asset, device)
     start = time.perf_counter()
@@ -91,13 +108,13 @@ def extract(settings: ExtractSettings) -> dict:
         shells.inner,
         {**dataclasses.asdict(config), **shells.stats, "command": command_line()},
     )
-    stats = {**shells.stats, "seconds": time.perf_counter() - start}
+    result = ExtractResult(asset=Path(asset.root), seconds=time.perf_counter() - start, **shells.stats)
     log.info(
         "%s: new shells in %.1f s: M+ %d faces, M- %d faces, mean width %.4g",
-        asset.root,
-        stats["seconds"],
-        stats["outer_faces"],
-        stats["inner_faces"],
-        stats.get("width_mean", float("nan")),
+        result.asset,
+        result.seconds,
+        result.outer_faces,
+        result.inner_faces,
+        result.width_mean,
     )
-    return stats
+    return result

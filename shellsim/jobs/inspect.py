@@ -59,7 +59,7 @@ class InspectSettings:
 def inspect(settings: InspectSettings) -> Path | None:
     """Open the interactive view (returns None when its window is closed) or, with ``settings.screenshot``,
     write the PNG and return its path. Files and frames are checked before the asset loads."""
-    from shellsim.motion.format import load_motion
+    from shellsim.motion.read import load_motion
 
     shot = settings.screenshot
     if shot is not None:

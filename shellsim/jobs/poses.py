@@ -13,7 +13,7 @@ from pathlib import Path
 from neural.files import write_text_atomically
 from shellsim.errors import SettingError
 from shellsim.io.outputs import check_writable_dir
-from shellsim.settings import check_choice, check_range, option
+from shellsim.settings import check_choice, check_range, check_required, option
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +38,7 @@ class PosesSettings:
     overwrite: bool = option(False, help="replace an existing OUT/transforms.json")
 
     def __post_init__(self):
+        check_required(self)
         check_range("min_registered", self.min_registered, 0.0, 1.0, "a fraction")
         check_range("max_features", self.max_features, 64, 1_000_000, "a number of features")
         if self.threads is not None:
@@ -45,10 +46,22 @@ class PosesSettings:
         check_choice("matching", self.matching, MATCHINGS)
 
 
-def poses(settings: PosesSettings) -> Path:
+@dataclass(frozen=True)
+class PosesResult:
+    """What :func:`poses` wrote: ``transforms`` the path of ``transforms.json``, ``posed`` of ``photos``
+    photos posed, ``unregistered`` the paths (relative to the output directory, as in the file) of those
+    that could not be used or posed."""
+
+    transforms: Path
+    posed: int
+    photos: int
+    unregistered: list[str]
+
+
+def poses(settings: PosesSettings) -> PosesResult:
     """Pose the photos in ``settings.images``; writes ``OUT/transforms.json`` (instant-ngp format, the
     photos that could not be posed under ``unregistered``) and COLMAP's files in ``OUT/colmap`` (rebuilt
-    each time). Returns the path of ``transforms.json``."""
+    each time)."""
     from neural.data.colmap import require_pycolmap, run_sfm, transforms_from_reconstruction
 
     images, out = Path(settings.images), Path(settings.out)
@@ -105,4 +118,4 @@ def poses(settings: PosesSettings) -> Path:
         meta.get("aabb_scale", 1),
         out,
     )
-    return target
+    return PosesResult(target, registered, n_images, [u["file_path"] for u in meta["unregistered"]])

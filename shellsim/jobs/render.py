@@ -1,8 +1,8 @@
 """Render an asset to PNG frames (and an MP4): every camera of a camera file at rest, or the frames of a
 motion deformed by its cage (paper Sec. 5), or a motion's own surface without an asset.
 
-The renderers are :func:`shellsim.render.frames.render_views`, :func:`shellsim.render.frames.render_motion` and
-:func:`shellsim.viz.surface.render_surface_motion`; this module checks the settings and outputs first.
+The renderers are :func:`shellsim.render.frames.render_views`, :func:`shellsim.render.frames.render_motion`
+and :func:`shellsim.viz.surface.render_surface_motion`; this module checks the settings and outputs first.
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from neural.device import DEVICES
 from shellsim.errors import SettingError
 from shellsim.io.outputs import check_writable_dir, check_writable_file
-from shellsim.settings import check_choice, option
+from shellsim.render.result import RenderResult
+from shellsim.settings import check_choice, check_required, option
 
 ORBIT_SIZE = 400  # pixels a side of the orbit's frames when no size is given
 MOTION_ONLY = ("orbit", "frames", "video", "fps")
@@ -59,6 +60,7 @@ class RenderSettings:
     quiet: bool = True
 
     def __post_init__(self):
+        check_required(self)
         for name in ("width", "height"):
             value = getattr(self, name)
             if value is not None and value < 1:
@@ -67,6 +69,8 @@ class RenderSettings:
             for name in MOTION_ONLY:
                 if getattr(self, name) not in (None, False):
                     raise SettingError(name, "needs {motion} (without it every camera is rendered at rest)")
+        if (self.cameras is None) == (not self.orbit):  # the command line's group "view"
+            raise SettingError("cameras", "give exactly one of {cameras} and {orbit} (with a {motion})")
         if self.fps is not None and not (self.fps > 0 and math.isfinite(self.fps)):
             raise SettingError("fps", f"expected a positive number, got {self.fps}")
         check_choice("device", self.device, DEVICES)
@@ -86,10 +90,10 @@ class RenderSettings:
         return (self.width, self.height)
 
 
-def render(settings: RenderSettings) -> dict:
-    """Render what ``settings`` ask for; returns the renderer's summary (``rendered``, ``skipped``,
-    ``replaced``, ``out``, mean ``ms`` per frame and per stage, ``video``). Outputs and the frame range are
-    checked before torch or pyvista is imported."""
+def render(settings: RenderSettings) -> RenderResult:
+    """Render what ``settings`` ask for; returns the :class:`~shellsim.render.result.RenderResult` (the
+    frames, how many were rendered, kept and replaced, mean ms per frame and per stage, the video). Outputs
+    and the frame range are checked before torch or pyvista is imported."""
     check_writable_dir(settings.out, "out")
     if settings.ray is not None:
         from shellsim.distributed import require_ray
@@ -98,10 +102,10 @@ def render(settings: RenderSettings) -> dict:
     if settings.video:
         check_writable_file(settings.video, "video")
     if settings.motion is not None:
-        from shellsim.motion.format import load_motion
+        from shellsim.motion.read import read_motion_info
         from shellsim.settings import parse_frames
 
-        parse_frames(settings.frames, load_motion(settings.motion).n_frames, str(settings.motion))
+        parse_frames(settings.frames, read_motion_info(settings.motion).n_frames, str(settings.motion))
     common = dict(size=settings.size(), overwrite=settings.overwrite)
     if settings.asset is None:
         from shellsim.viz.inspect import quiet_vtk

@@ -1,13 +1,15 @@
 """The simulate job: drop an asset's cage (or a closed mesh, tetrahedralised) as an elastic body.
 
-:func:`simulate` builds the cage and the :class:`shellsim.physics.fem.Simulator`, drives :func:`shellsim.physics.fem.simulate`
-into a motion file (:mod:`shellsim.motion.format`, format 2: its settings are :func:`motion_settings`, its asset
-and cage identified by content digest) and optionally renders it. The world frame is kept: an asset's cage
-is scaled so that its largest extent measures ``size`` metres (default :data:`ASSET_SIZE`); a ``mesh`` is
-the body itself, in metres (or ``units``), not dilated, and scaled only when ``size`` asks. It is simulated
-in SI units and written back in world coordinates (``meta['world']`` holds the scale and why). An existing
-``out`` made with the same settings is continued from its last frame and stored velocities; one made with
-other settings is refused unless ``overwrite``.
+Everything is in the world of :mod:`shellsim.world`: metres, z up, the ground at z = 0. The body is placed
+by :func:`shellsim.world.place_on_ground`: an asset's up axis turned onto +z and its largest extent scaled to
+``size`` metres (default :data:`~shellsim.world.BODY_SIZE`); a ``mesh`` is the body itself, in metres (or
+``units``), scaled only when ``size`` asks; either way its lowest point ``drop_height`` above the ground and
+its bounding box centred over the origin. Obstacles, absolute pin rules and velocities are world metres; a
+pin rule in percent is relative to the body's bounding box. An obstacle that overlaps the body at frame 0 or
+a pin rule that selects nothing is refused before anything runs. The motion (:mod:`shellsim.motion.format`)
+stores world positions and the placement; its settings are :func:`motion_settings`, its asset and cage
+identified by content digest. An existing ``out`` made with the same settings is continued from its last
+frame and stored velocities; one made with other settings is refused unless ``overwrite``.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from neural.errors import InputError
 from shellsim.errors import SettingError
 from shellsim.motion.format import MAX_FPS, MAX_FRAMES
 from shellsim.physics.selection import parse_selection, select_vertices, selection_text
+from shellsim.render.result import RenderResult
 from shellsim.settings import (
     check_range,
     device_setting,
@@ -34,16 +37,25 @@ from shellsim.settings import (
     pixels,
     resume_option,
 )
+from shellsim.world import BODY_SIZE, GROUND_Z, UP, describe_placement, place_on_ground
 
 log = logging.getLogger(__name__)
 
 #: Metres per unit of a mesh file's coordinates (``units``).
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
-#: Size in metres of an asset's largest extent when ``size`` is not given.
-ASSET_SIZE = 0.3
 MAX_SUBSTEPS = 1000  # per frame; a retried frame runs up to 4 times as many
 #: The settings that do not change the motion (not compared when a file is continued).
-NOT_MOTION = ("frames", "out", "resume", "overwrite", "video", "video_size", "device")
+NOT_MOTION = (
+    "frames",
+    "out",
+    "resume",
+    "overwrite",
+    "video",
+    "video_size",
+    "device",
+    "max_stretch",
+    "allow_stretch",
+)
 
 
 def _presets() -> str:
@@ -54,7 +66,7 @@ def _presets() -> str:
 
 @dataclass(frozen=True)
 class SimulateSettings:
-    """What :func:`simulate` does; lengths in world units unless said otherwise."""
+    """What :func:`simulate` does; lengths in world metres (z up, ground at z = 0)."""
 
     asset: str | None = option(
         help="asset directory or shipped asset name (its cage is used)", group="source", required=True
@@ -71,7 +83,7 @@ class SimulateSettings:
     substeps: int = option(8, help="implicit steps per frame")
     size: float | None = option(
         help="scale the body so that its largest extent measures this many metres",
-        shown_default=f"{ASSET_SIZE} for --asset; a --mesh keeps its own size, see --units",
+        shown_default=f"{BODY_SIZE} for --asset; a --mesh keeps its own size, see --units",
     )
     units: str | None = option(
         help="length unit of the --mesh file's coordinates; not with --size",
@@ -83,16 +95,18 @@ class SimulateSettings:
         "diagonal; a --mesh is tetrahedralised as it is",
         shown_default="0.02",
     )
-    drop_height: float = option(0.1, help="gap in metres between the lowest cage vertex and the ground")
+    drop_height: float = option(
+        0.1, help="height in metres of the body's lowest cage point above the ground (z = 0) at frame 0"
+    )
     ground: bool = option(True, help="no ground plane", flag="--no-ground", negate=True)
     up: tuple[float, ...] | None = option(
-        help="up axis x,y,z: gravity points against it",
+        help="the asset's up axis x,y,z (in its own frame), turned onto the world's +z",
         parse=floats(3),
         shown_default="the asset's, or 0,0,1",
     )
     pin: tuple[str, ...] = option(
-        help="hold the cage vertices selected by AXIS OP VALUE in world units, or in % of the bounding box: "
-        "'z<0.1', 'x>=-2', 'z<5%'; repeat for several",
+        help="hold the cage vertices selected by AXIS OP VALUE, in world metres (z up, ground at z = 0) or "
+        "in % of the body's bounding box: 'z<0.12', 'x>=0.1', 'z<5%'",
         repeat=True,
         metavar="RULE",
         parse=selection_text,
@@ -106,19 +120,26 @@ class SimulateSettings:
         parse=floats(3),
     )
     sphere: tuple[tuple[float, ...], ...] = option(
-        help="a static sphere obstacle, world units; repeat for several",
+        help="a static sphere obstacle: centre and radius in world metres",
         repeat=True,
         metavar="X,Y,Z,R",
         parse=floats(4),
     )
     box: tuple[tuple[float, ...], ...] = option(
-        help="a static axis-aligned box obstacle (centre, half extents), world units; repeat for several",
+        help="a static axis-aligned box obstacle: centre and half extents in world metres (the ground is "
+        "z = 0)",
         repeat=True,
         metavar="X,Y,Z,HX,HY,HZ",
         parse=floats(6),
     )
     friction: float = option(0.5, help="Coulomb coefficient")
     damping: float = option(0.0, help="Kelvin-Voigt damping in seconds")
+    max_stretch: float = option(
+        3.0,
+        help="largest principal stretch of a tet (deformed over rest length along its most stretched "
+        "direction) a frame may reach; a frame past it stops the run",
+    )
+    allow_stretch: bool = option(False, help="only warn, once, when a frame passes --max-stretch, and go on")
     tets: int | None = option(help="target cage tet count when the cage is built")
     out: str | None = option(help="motion file", shown_default="NAME_sim.npz")
     resume: bool = resume_option()
@@ -134,8 +155,8 @@ class SimulateSettings:
     device: str = option("auto", help="auto, cpu or cuda")
 
     def __post_init__(self):
-        from shellsim.physics.fem import SimSettings
         from shellsim.physics.materials import RANGES, get_material
+        from shellsim.physics.model import SimSettings
 
         if (self.asset is None) == (self.mesh is None):
             raise SettingError("asset", "give exactly one of an asset and a mesh")
@@ -161,6 +182,7 @@ class SimulateSettings:
         check_range("drop_height", self.drop_height, 0, 100, "a height in metres")  # lands below 45 m/s
         check_range("friction", self.friction, 0, 10, "a Coulomb coefficient")
         check_range("damping", self.damping, 0, 10, "a time in seconds")
+        check_range("max_stretch", self.max_stretch, 1, math.inf, "a principal stretch", "(]")
         for name, what in (
             ("youngs", "a Young's modulus in Pa"),
             ("poisson", "a Poisson ratio"),
@@ -178,7 +200,7 @@ class SimulateSettings:
         check_range("velocity", speed, 0, max_speed, "a speed in m/s (the simulator's limit)", "[)")
         size = self.scale_size
         if size is not None:  # a --mesh in its own units: the simulator checks speeds
-            what = f"an angular speed in rad/s at --size {size:g}"  # the rim below max_speed
+            what = f"an angular speed in rad/s at {{size}} {size:g} m"  # the rim below max_speed
             check_range("spin", float(np.linalg.norm(self.spin)), 0, max_speed / size, what, "[)")
         for s in self.sphere:
             check_range("sphere", s[3], 0, math.inf, "a radius", "()")
@@ -189,9 +211,9 @@ class SimulateSettings:
 
     @property
     def scale_size(self) -> float | None:
-        """The body's largest extent in metres: ``size``, :data:`ASSET_SIZE` for an asset, None for a mesh
-        kept in its own units."""
-        return self.size if self.size is not None or self.mesh else ASSET_SIZE
+        """The body's largest extent in metres: ``size``, :data:`~shellsim.world.BODY_SIZE` for an asset,
+        None for a mesh kept in its own units."""
+        return self.size if self.size is not None or self.mesh else BODY_SIZE
 
     @property
     def name(self) -> str:
@@ -223,23 +245,27 @@ _OPTIONS = {
 
 @dataclass
 class SimulateResult:
-    """out : the motion file; frames : its frame count; history : :class:`shellsim.physics.fem.StepStats` of the
-    frames simulated now; video : the render's summary (None without ``video``)."""
+    """out : the motion file; frames : its frame count; history : :class:`shellsim.physics.driver.FrameStats`
+    of the frames simulated now; video : the render's :class:`shellsim.render.result.RenderResult` (None
+    without ``video``)."""
 
     out: Path
     frames: int
     history: list
-    video: dict | None = None
+    video: RenderResult | None = None
 
 
 def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResult:
     """Run the simulation ``settings`` describe into ``settings.out_path`` (module docstring)."""
     from shellsim.io.outputs import check_writable_dir, check_writable_file
     from shellsim.motion.changes import describe_changes
-    from shellsim.motion.format import MotionWriter
-    from shellsim.physics.fem import SimulationError, Simulator, WorldMap, restore_state
-    from shellsim.physics.fem import simulate as run_frames
+    from shellsim.motion.format import cage_digest
+    from shellsim.motion.writer import MotionWriter, motion_exists
+    from shellsim.physics.control import Control
+    from shellsim.physics.driver import FrameDriver, SimulationError, restore_state
+    from shellsim.physics.driver import simulate as run_frames
     from shellsim.physics.materials import get_material
+    from shellsim.physics.model import Model
 
     s = settings
     out = check_writable_file(s.out_path, "out")
@@ -251,64 +277,68 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     device = device_setting(s.device, warp=True)  # the simulator runs in Warp
     record = motion_settings(s)
 
-    if out.is_file() and not s.overwrite:  # same settings: continue the file; other settings: refuse
+    if motion_exists(out) and not s.overwrite:  # same settings: continue the file; other settings: refuse
         replace = "give {overwrite} to start it anew, or another {out}"
         writer = MotionWriter.resume(out)  # not a motion file: refused as it is, never replaced
-        meta = writer.motion.meta
-        if writer.motion.producer != "shellsim simulate" or not {"world", "up"} <= set(meta):
+        if writer.motion.producer != "shellsim simulate":
             raise SettingError("out", f"not a 'shellsim simulate' motion file; {replace}", out)
+        if not writer.motion.placement:
+            raise SettingError(
+                "out", f"was made by an earlier shellsim in the asset's own units, not metres; {replace}", out
+            )
         changes = describe_changes(writer.motion.settings, record, _OPTIONS)
         if changes:
             raise SettingError("out", f"made with other settings ({'; '.join(changes)}); {replace}", out)
         _check_source(s, writer.motion)
-        vertices, tets, up = writer.motion.rest_vertices, writer.motion.tets, np.asarray(meta["up"])
-        world = WorldMap(tuple(meta["world"]["origin"]), float(meta["world"]["scale"]))
+        rest, tets = writer.motion.rest_vertices, writer.motion.tets
         log.info("resuming %s after frame %d", out, writer.n_frames - 1)
     else:
         writer = None
         vertices, tets, up, surface, asset = _load_cage(s)
-        up = np.asarray(s.up if s.up is not None else up, np.float64)
-        world, how = _world_map(s, vertices)
-        log.info("%s: %s", s.name, how)
-    up = up / np.linalg.norm(up)
+        placement = _placement(s, vertices, s.up if s.up is not None else up)
+        rest = placement.to_world(vertices)
+        log.info("%s", describe_placement(s.name, placement, rest))
+        _check_obstacles(s, rest, tets)
 
-    pinned = select_vertices(rules, vertices, "pin")
-    sim_settings = _sim_settings(s, world, world.to_sim(vertices), up)
-    sim = Simulator(world.to_sim(vertices), tets, material, sim_settings, pinned=pinned, device=device)
+    pinned = select_vertices(rules, rest, "pin")
+    sim_settings = _sim_settings(s)
+    model = Model(rest, tets, material, sim_settings, device=device)
+    control, driver = Control(model, pinned=pinned), FrameDriver(model)
+    state = model.state(s.velocity, s.spin)
     if writer is None:
         if s.resume:
             log.info("%s does not exist: nothing to resume, starting it", out)
-        sim.set_rigid_velocity(s.velocity, s.spin)
         meta = {
             "fps": s.fps,
-            "up": [float(c) for c in up],
+            "up": list(UP),
             "material": material.as_dict(),
-            "world": {"origin": list(world.origin), "scale": world.scale, "scaling": how},
-            "units": "positions in world units; meta.world.scale is metres per world unit; "
-            "state.velocities in world units per second",
+            "units": "metres: positions and rest_vertices in the world (z up, ground at z = 0), "
+            "state velocities in m/s; the header's placement maps the asset's frame to the world",
             "sim_settings": sim_settings.as_dict(),
         }
         if out.exists():
             log.info("--overwrite: replacing %s", out)
         writer = MotionWriter(
             out,
-            vertices,
+            rest,
             tets,
             meta,
             surface=surface,
             producer="shellsim simulate",
             settings=record,
             asset=asset,
+            placement=placement.as_dict(),
+            cage_digest=cage_digest(vertices, tets),
         )
     else:
-        restore_state(sim, writer, world)
+        restore_state(state, writer)
 
     # a new file starts with frame 0, the initial state
     remaining = max(s.frames - max(writer.n_frames, 1), 0)
     log.info(
         "%s: %d cage vertices, %d tets, %s (E=%.3g Pa, nu=%.3g, rho=%.4g kg/m^3), %d frames to go on %s",
         s.name,
-        len(vertices),
+        len(rest),
         len(tets),
         material.name,
         material.youngs,
@@ -319,7 +349,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     )
     with writer:
         try:
-            history = run_frames(sim, remaining, writer, world, progress=progress)
+            history = run_frames(driver, state, control, remaining, writer, progress=progress)
         except SimulationError as err:
             raise _failure(err, out, material) from None
     result = SimulateResult(out, writer.n_frames, history)
@@ -334,9 +364,11 @@ def _check_source(s: SimulateSettings, motion) -> None:
     if s.asset:
         motion.check_against(_asset_cage(s)[1])
     elif motion.asset.get("digest") != _file_digest(Path(s.mesh)):
-        raise InputError(
-            f"{motion.path}: made from another content of {s.mesh} (changed since); give --overwrite to "
-            "start it anew, or another --out"
+        raise SettingError(
+            "out",
+            f"made from another content of {s.mesh} (changed since); give {{overwrite}} to start it anew, or "
+            "another {out}",
+            motion.path,
         )
 
 
@@ -344,7 +376,7 @@ def _file_digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, device: str) -> dict:
+def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, device: str) -> RenderResult:
     """Render the motion ``out`` to ``frames_dir`` and ``video``: the asset, or a mesh's surface (pyvista);
     each frame already there is kept only if it records this motion frame and camera."""
     if s.asset:
@@ -358,21 +390,60 @@ def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, devic
     return render_surface_motion(out, frames_dir, size=s.video_size, video=video)
 
 
-def _sim_settings(s: SimulateSettings, world, rest_sim: np.ndarray, up: np.ndarray):
-    """The :class:`shellsim.physics.fem.SimSettings` of the run: obstacles and the ground in simulation metres."""
+def _sim_settings(s: SimulateSettings):
+    """The :class:`shellsim.physics.model.SimSettings` of the run, in world metres: the ground at z = 0."""
     from shellsim.physics.contact import Box, Sphere
-    from shellsim.physics.fem import SimSettings
+    from shellsim.physics.model import SimSettings
 
     return SimSettings(
         dt=1.0 / s.fps,
         substeps=s.substeps,
-        up=tuple(up),
-        ground=float((rest_sim @ up).min() - s.drop_height) if s.ground else None,
-        spheres=tuple(Sphere(tuple(world.to_sim(p[:3])), p[3] * world.scale) for p in s.sphere),
-        boxes=tuple(Box(tuple(world.to_sim(b[:3])), tuple(np.multiply(b[3:], world.scale))) for b in s.box),
+        up=UP,
+        ground=GROUND_Z if s.ground else None,
+        spheres=tuple(Sphere(tuple(p[:3]), p[3]) for p in s.sphere),
+        boxes=tuple(Box(tuple(b[:3]), tuple(b[3:])) for b in s.box),
         friction=s.friction,
         damping=s.damping,
+        max_stretch=s.max_stretch,
+        allow_stretch=s.allow_stretch,
     )
+
+
+def _obstacle_distances(s: SimulateSettings, points: np.ndarray):
+    """(name, signed distances (N,) of ``points`` (N, 3) to the obstacle, negative inside) of every
+    obstacle of ``s``, named as the user gave it."""
+    for k, p in enumerate(s.sphere):
+        name = f"sphere {k + 1} ({','.join(f'{c:g}' for c in p)})"
+        yield name, np.linalg.norm(points - p[:3], axis=1) - p[3]
+    for k, b in enumerate(s.box):
+        q = np.abs(points - b[:3]) - b[3:]
+        name = f"box {k + 1} ({','.join(f'{c:g}' for c in b)})"
+        yield name, np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+
+
+def _check_obstacles(s: SimulateSettings, rest: np.ndarray, tets: np.ndarray) -> None:
+    """A :class:`SettingError` naming the first obstacle that overlaps the body at frame 0: a cage vertex
+    (V, 3, world metres) inside it, or the obstacle's centre inside a cage tet (T, 4)."""
+    from shellsim.cage.embed import outside_distance
+
+    centres = np.array([p[:3] for p in (*s.sphere, *s.box)], np.float64).reshape(-1, 3)
+    held = outside_distance(rest, tets, centres) == 0
+    lo, hi = rest.min(0), rest.max(0)
+    span = ", ".join(f"{a} {lo[i]:.3f}..{hi[i]:.3f}" for i, a in enumerate("xyz"))
+    for k, (name, distance) in enumerate(_obstacle_distances(s, rest)):
+        inside = int((distance < 0).sum())
+        if inside or held[k]:
+            what = "its centre lies inside the body"
+            if inside:
+                what = (
+                    f"{inside} cage vertices lie inside it" if inside > 1 else "a cage vertex lies inside it"
+                )
+            field = "sphere" if name.startswith("sphere") else "box"
+            raise SettingError(
+                field,
+                f"{name} overlaps the body at frame 0 ({what}); the body spans {span} m (world metres, "
+                "ground at z = 0)",
+            )
 
 
 def _asset_cage(s: SimulateSettings):
@@ -412,34 +483,25 @@ def _mesh_surface(mesh, cage):
     return Surface(tet, bary, np.asarray(mesh.faces, np.int64))
 
 
-def _world_map(s: SimulateSettings, vertices: np.ndarray):
-    """The :class:`shellsim.physics.fem.WorldMap` of the body (vertices (V, 3), world units) and one line saying how
-    it is scaled, logged and kept in the motion's meta."""
-    from shellsim.physics.fem import WorldMap
-
-    extent = float(np.ptp(vertices, axis=0).max())
-    size = s.scale_size
-    if size is not None:
-        world = WorldMap.fit(vertices, size)
-        return world, (
-            f"scaled by {world.scale:.6g} m per unit (largest extent {extent:.6g} units -> --size {size:g} m)"
-        )
-    units = s.units or "m"
-    lo, hi = vertices.min(0), vertices.max(0)
-    world = WorldMap(tuple(float(c) for c in (lo + hi) / 2), UNITS[units])
-    return world, (
-        f"not rescaled: coordinates in {units} ({world.scale:g} m per unit), "
-        f"largest extent {extent * world.scale:.6g} m"
-    )
+def _placement(s: SimulateSettings, vertices: np.ndarray, up):
+    """The :class:`shellsim.world.Placement` of the body whose rest cage is ``vertices`` (V, 3, its own
+    frame; ``up`` (3,) its up axis): an asset scaled to ``size`` (default :data:`BODY_SIZE`) metres, a mesh
+    by its ``units`` or to ``size``; lowest point at ``drop_height``, centred over the origin."""
+    up = np.asarray(up, np.float64)
+    if s.asset or s.size is not None:
+        return place_on_ground(vertices, up, s.scale_size, s.drop_height)
+    return place_on_ground(vertices, up, None, s.drop_height, scale=UNITS[s.units or "m"])
 
 
 def _failure(err, out: Path, material) -> SettingError:
-    """The one line for a :class:`shellsim.physics.fem.SimulationError`: the frame, the value, what to change (the
-    settings named as placeholders, which the command line shows as its options)."""
+    """The one line for a :class:`shellsim.physics.driver.SimulationError`: the frame, the value, what to
+    change (the settings named as placeholders, which the command line shows as its options)."""
     advice = {
         "collapse": f"use a stiffer material ({{material}}, {{youngs}}; now {material.youngs:g} Pa), a "
         "smaller {size} or {drop_height}, or more {damping}",
         "speed": "lower {drop_height}, {velocity} or {spin}",
+        "stretch": f"use a stiffer material ({{material}}, {{youngs}}; now {material.youngs:g} Pa), lower "
+        "{drop_height}, {velocity} or {spin}, raise {max_stretch}, or give {allow_stretch} to only warn",
         "nonfinite": "use more {substeps} or a lower {drop_height}",
     }[err.kind]
     return SettingError(None, f"{err}; frames 0-{err.frame - 1} are kept in {out}; {advice}")

@@ -23,7 +23,7 @@ import numpy as np
 
 from shellsim.errors import SettingError
 from shellsim.motion.format import MAX_FRAMES
-from shellsim.settings import check_range, float_list, name_list, option, pixels
+from shellsim.settings import check_range, check_required, float_list, name_list, option, pixels
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,7 @@ class SweepSettings:
     device: str = option("auto", help="auto, cpu or cuda")
 
     def __post_init__(self):
+        check_required(self)
         from shellsim.physics.materials import get_material
 
         for name in self.material:
@@ -83,12 +84,29 @@ class SweepSettings:
         return drops + [{"name": f"wind_{w:g}", "kind": "wind", "strength": w} for w in self.wind]
 
 
+@dataclass(frozen=True)
+class SweepResult:
+    """What :func:`sweep` made.
+
+    out : the sweep's directory; index : ``OUT/index.json``; contact_sheet : ``OUT/contact_sheet.png``
+    combinations : the index's entries, in order (drops first): ``name``, ``kind`` ("drop" or "wind"), the
+        combination's settings (``material`` and ``drop_height``, or ``strength``), its files relative to
+        ``out`` (``motion``, ``frames``, ``still``, ``video``: None without one) and ``render``: frames
+        ``rendered`` now and ``kept``, mean ``ms``, ``samples_per_pixel`` and ``<stage>_ms`` per frame
+    """
+
+    out: Path
+    index: Path
+    contact_sheet: Path
+    combinations: list[dict]
+
+
 def simulate_combination(settings: SweepSettings, combo: dict, progress: bool = False) -> np.ndarray:
     """Simulate (or animate) one combination into ``settings.out / combo["name"] / "motion.npz"`` (continued
     when it exists with the same settings); returns the (2, 3) corners of the box its cage moves in."""
     from shellsim.jobs.simulate import SimulateSettings, simulate
     from shellsim.jobs.wind import WindJobSettings, wind
-    from shellsim.motion.format import load_motion
+    from shellsim.motion.read import frame_bounds
 
     folder = Path(settings.out) / combo["name"]
     folder.mkdir(parents=True, exist_ok=True)
@@ -108,8 +126,7 @@ def simulate_combination(settings: SweepSettings, combo: dict, progress: bool = 
             asset=settings.asset, strength=combo["strength"], frames=settings.frames, out=str(motion)
         )
         wind(gusts, progress=progress)
-    positions = load_motion(motion).positions.reshape(-1, 3)
-    return np.stack([positions.min(0), positions.max(0)])
+    return frame_bounds(motion)
 
 
 def render_combination(
@@ -123,7 +140,7 @@ def render_combination(
     out = Path(settings.out)
     folder = out / combo["name"]
     video = folder / "video.mp4" if settings.video else None
-    summary = render_motion(
+    result = render_motion(
         settings.asset,
         folder / "motion.npz",
         folder / "frames",
@@ -134,14 +151,19 @@ def render_combination(
         progress=progress,
         framing=framing,
     )
-    figures = {k: round(v, 3) for k, v in summary.items() if isinstance(v, float)}
+    figures = {"ms": result.ms, "samples_per_pixel": result.samples_per_pixel}
+    figures.update({f"{stage}_ms": ms for stage, ms in result.stage_ms.items()})
     return {
         **combo,
         "motion": f"{combo['name']}/motion.npz",
         "frames": f"{combo['name']}/frames",
         "still": f"{combo['name']}/frames/{settings.frames - 1:05d}.png",
         "video": str(video.relative_to(out)) if video else None,
-        "render": {"rendered": summary["rendered"], "kept": summary["skipped"], **figures},
+        "render": {
+            "rendered": result.rendered,
+            "kept": result.skipped,
+            **{k: round(v, 3) for k, v in figures.items() if v is not None},
+        },
     }
 
 
@@ -169,9 +191,9 @@ def _run(settings: SweepSettings, combos: list[dict], step, args: tuple, on_resu
     run_on_ray(combos, functools.partial(_recipe, step, settings, *args), on_result, address)
 
 
-def sweep(settings: SweepSettings, progress: bool = True) -> dict:
+def sweep(settings: SweepSettings, progress: bool = True) -> SweepResult:
     """Run every combination of ``settings`` (serially, or as Ray tasks with ``settings.ray``), writing
-    ``OUT/index.json`` as each finishes and ``OUT/contact_sheet.png`` at the end. Returns the index."""
+    ``OUT/index.json`` as each finishes and ``OUT/contact_sheet.png`` at the end."""
     from tqdm import tqdm
 
     from neural.files import write_atomically
@@ -202,11 +224,12 @@ def sweep(settings: SweepSettings, progress: bool = True) -> dict:
 
     with bar:
         _run(settings, combos, simulate_combination, (), simulated, bar, "simulate")
-        framing = np.concatenate(corners)  # one orbit for all: the stills compare at one scale
+        lo, hi = np.min(corners, axis=(0, 1)), np.max(corners, axis=(0, 1))  # world metres
+        framing = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])  # its corners:
+        # one orbit for all, so the stills compare at one scale (the box's 8 corners, whatever the rotation)
         bar.reset(total=len(combos))
         _run(settings, combos, render_combination, (framing,), done, bar, "render")
     entries = index["combinations"]
-    contact_sheet(
-        [out / e["still"] for e in entries], [e["name"] for e in entries], out / "contact_sheet.png"
-    )
-    return index
+    sheet = out / "contact_sheet.png"
+    contact_sheet([out / e["still"] for e in entries], [e["name"] for e in entries], sheet)
+    return SweepResult(out, out / "index.json", sheet, entries)

@@ -7,11 +7,11 @@ sizes follow the stage-1 steps unless set (:func:`neural.config.scaled_defaults`
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from neural.config import (
+    MAX_SEED,
     QUICK_STEPS,
     VIEW_ENCODINGS,
     FieldConfig,
@@ -23,23 +23,24 @@ from neural.config import (
     scaled_defaults,
 )
 from neural.device import DEVICES
-from shellsim.errors import SettingError
 from shellsim.io.outputs import check_writable_dir
-from shellsim.settings import check_choice, check_range, device_setting, option
+from shellsim.jobs.eval import ViewMetrics
+from shellsim.settings import check_choice, check_required, config_bounds, device_setting, option
 
 COLOURS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
 
 
 def parse_background(text: str) -> tuple[float, float, float]:
-    """``white``, ``black`` or ``r,g,b`` in [0, 1] -> (r, g, b); ValueError otherwise."""
+    """``white``, ``black`` or ``r,g,b`` -> (r, g, b); ValueError otherwise (their bounds:
+    :class:`~neural.config.PipelineConfig`)."""
     if text in COLOURS:
         return COLOURS[text]
     try:
         values = tuple(float(p) for p in text.split(","))
     except ValueError:
         values = ()
-    if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
-        raise ValueError("expected white, black or r,g,b in [0, 1]")
+    if len(values) != 3:
+        raise ValueError("expected white, black or r,g,b")
     return values  # type: ignore[return-value]
 
 
@@ -49,6 +50,26 @@ def _colour_name(rgb: tuple[float, ...]) -> str:
 
 _DEFAULT_STEPS = Stage1Config.steps
 _QUICK = scaled_defaults(1)
+
+#: The config field each setting sets: its bound (:mod:`neural.config`) is the setting's.
+CONFIG_FIELDS = {
+    (PipelineConfig, "downscale"): "downscale",
+    (PipelineConfig, "background"): "background",
+    (PipelineConfig, "bound"): "bound",
+    (Stage1Config, "steps"): "steps",
+    (Stage2Config, "steps"): "stage2_steps",
+    (ShellConfig, "resolution"): "shell_resolution",
+    (Stage1Config, "checkpoint_seconds"): "checkpoint_minutes",
+    (Stage2Config, "checkpoint_seconds"): "checkpoint_minutes",
+    (HashGridConfig, "log2_table_size"): "table_size",
+    (FieldConfig, "kernel_grid"): "kernel_grid",
+    (Stage1Config, "lambda_k"): "sharpness",
+    (FieldConfig, "view_encoding"): "view_encoding",
+    (Stage1Config, "eval_every"): "eval_every",
+    (Stage1Config, "eval_views"): "eval_views",
+    (Stage2Config, "eval_views"): "eval_views",
+    (Stage1Config, "seed"): "seed",
+}
 
 
 @dataclass(frozen=True)
@@ -122,25 +143,9 @@ class TrainSettings:
     device: str = option("auto", help="cpu, cuda or auto")
 
     def __post_init__(self):
-        if self.eval_views < 0:
-            raise SettingError("eval_views", f"expected an integer >= 0, got {self.eval_views}")
-        for name in ("downscale", "steps", "stage2_steps", "eval_every"):
-            value = getattr(self, name)
-            if value is not None and value < 1:
-                raise SettingError(name, f"expected a positive integer, got {value}")
-        if self.shell_resolution is not None and self.shell_resolution < 8:
-            raise SettingError("shell_resolution", f"expected an integer >= 8, got {self.shell_resolution}")
-        if self.kernel_grid not in range(2, 513) and self.kernel_grid != 0:
-            raise SettingError("kernel_grid", f"expected 0 or an integer in 2..512, got {self.kernel_grid}")
-        if not 0 <= self.sharpness < math.inf:
-            raise SettingError("sharpness", f"expected a number >= 0, got {self.sharpness}")
-        for name in ("checkpoint_minutes", "bound"):
-            value = getattr(self, name)
-            if value is not None and not 0 < value < math.inf:
-                raise SettingError(name, f"expected a positive number, got {value}")
-        check_range("table_size", self.table_size, 1, 30, "an integer")
-        check_range("seed", self.seed, 0, 2**31 - 1, "an integer")
-        check_choice("view_encoding", self.view_encoding, VIEW_ENCODINGS)
+        check_required(self)
+        with config_bounds(self, CONFIG_FIELDS):
+            self.pipeline_config()
         check_choice("device", self.device, DEVICES)
 
     def pipeline_config(self) -> PipelineConfig:
@@ -162,15 +167,14 @@ class TrainSettings:
         )
         config.stage2 = dataclasses.replace(
             config.stage2,
-            steps=self.stage2_steps or scaled["stage2_steps"],
-            seed=self.seed + 1,
+            steps=scaled["stage2_steps"] if self.stage2_steps is None else self.stage2_steps,
+            seed=(self.seed + 1) % (MAX_SEED + 1),
             random_background=self.random_background,
             checkpoint_seconds=seconds,
             eval_views=self.eval_views,
         )
-        config.shell = dataclasses.replace(
-            config.shell, resolution=self.shell_resolution or scaled["shell_resolution"]
-        )
+        resolution = scaled["shell_resolution"] if self.shell_resolution is None else self.shell_resolution
+        config.shell = dataclasses.replace(config.shell, resolution=resolution)
         grid = dataclasses.replace(config.field.hashgrid, log2_table_size=self.table_size)
         config.field = dataclasses.replace(
             config.field, hashgrid=grid, kernel_grid=self.kernel_grid, view_encoding=self.view_encoding
@@ -178,18 +182,44 @@ class TrainSettings:
         return config
 
 
-def train(settings: TrainSettings) -> Path:
-    """Train the asset ``settings.out`` from the dataset ``settings.data`` (resuming from its checkpoints);
-    returns the asset directory. The output is checked before anything is loaded."""
+@dataclass(frozen=True)
+class TrainResult:
+    """The asset :func:`train` wrote, with the held-out figures its ``asset.json`` records.
+
+    asset : the asset directory
+    stage1 : full-ray rendering at the end of stage 1; stage2 : narrow-band rendering (the asset's renderer)
+        at the end of stage 2 (None where none was recorded)
+    wall_minutes : wall time of the training, over every run that resumed it
+    """
+
+    asset: Path
+    stage1: ViewMetrics | None
+    stage2: ViewMetrics | None
+    wall_minutes: float
+
+
+def train(settings: TrainSettings) -> TrainResult:
+    """Train the asset ``settings.out`` from the dataset ``settings.data`` (resuming from its checkpoints).
+    The output is checked before anything is loaded."""
+    from neural.asset import load_asset
     from neural.pipeline import train_asset
 
     check_writable_dir(settings.out, "out")
     check_writable_dir(Path(settings.out) / "checkpoints", "out")
-    return train_asset(
+    root = train_asset(
         settings.data,
         settings.out,
         settings.pipeline_config(),
         device_setting(settings.device),
         name=settings.name,
         keep_checkpoints=settings.keep_checkpoints,
+    )
+    meta = load_asset(root).meta
+    metrics = meta.get("metrics", {})
+    stage1, stage2 = metrics.get("stage1_full_ray"), metrics.get("stage2_narrow_band")
+    return TrainResult(
+        asset=Path(root),
+        stage1=ViewMetrics.of(stage1) if stage1 else None,
+        stage2=ViewMetrics.of(stage2) if stage2 else None,
+        wall_minutes=float(meta["training"]["wall_minutes"]),
     )

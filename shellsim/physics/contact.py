@@ -1,5 +1,5 @@
-"""Per-vertex terms of the backward-Euler incremental potential (:mod:`shellsim.physics.fem`): inertia, drag, penalty
-contact with the ground plane and static obstacles, and lagged, smoothed Coulomb friction.
+"""Per-vertex terms of the backward-Euler incremental potential (:mod:`shellsim.physics.solver`): inertia,
+drag, penalty contact with the ground plane and static obstacles, and lagged, smoothed Coulomb friction.
 
 With substep ``h``, lumped mass ``m_i``, previous positions ``x^n`` and inertial prediction
 ``x~ = x^n + h v^n + h^2 g``, vertex ``i`` contributes

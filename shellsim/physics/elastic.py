@@ -1,9 +1,10 @@
 """The stable Neo-Hookean tetrahedral element in Warp: energy density, stress, the analytic PSD Hessian
 (closed-form eigenvalues; shift or SVD eigen-projection) and :func:`tet_terms`, the kernel that accumulates
-each tet's energy, forces and 3x3 Hessian blocks (with Kelvin-Voigt damping) for :mod:`shellsim.physics.fem`; plus
-NumPy/host helpers (:func:`snh_energy_reference`, :func:`elastic_energy`) used by tests and benchmarks. The
-model (with its volume barrier below det F = ``BARRIER_J``) and its definiteness fix are described in
-:mod:`shellsim.physics.fem`.
+each tet's energy, forces and 3x3 Hessian blocks (with Kelvin-Voigt damping) for
+:mod:`shellsim.physics.solver`; :func:`max_principal_stretch` for the frame driver's check; plus NumPy/host
+helpers (:func:`snh_energy_reference`, :func:`elastic_energy`) used by tests and benchmarks. The model (with
+its volume barrier below det F = ``BARRIER_J``) and its definiteness fix are described in
+:mod:`shellsim.physics.solver`.
 """
 
 from __future__ import annotations
@@ -361,6 +362,21 @@ def tet_terms(
         ia = tets[t, a]
         if pinned[ia] == 0:
             wp.atomic_sub(force, ia, P * G[a])
+
+
+@wp.kernel
+def max_principal_stretch(
+    x: wp.array(dtype=vec3),
+    tets: wp.array2d(dtype=wp.int32),
+    dm_inv: wp.array(dtype=mat33),
+    out: wp.array(dtype=f64),
+):
+    """``out[0] = max(out[0], s0)`` over the tets: ``s0`` the largest singular value of ``F = Ds Dm^-1``, the
+    square root of the largest eigenvalue of ``F^T F`` (:func:`sym_eigenvalues`): how many times its rest
+    length the most stretched direction of the tet has become."""
+    t = wp.tid()
+    F = deformation_gradient(x, tets, t, dm_inv[t])
+    wp.atomic_max(out, 0, wp.sqrt(wp.max(sym_eigenvalues(wp.transpose(F) * F)[0], f64(0.0))))
 
 
 def snh_energy_reference(F: np.ndarray, mu: float, lam: float) -> np.ndarray:

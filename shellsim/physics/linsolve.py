@@ -1,5 +1,5 @@
-"""Linear solvers for the Newton steps of :mod:`shellsim.physics.fem`: the block-sparse (3x3, CSR) stiffness
-pattern (:func:`block_topology`), a serial SSOR-preconditioned CG that runs the whole loop
+"""Linear solvers for the Newton steps of :mod:`shellsim.physics.solver`: the block-sparse (3x3, CSR)
+stiffness pattern (:func:`block_topology`), a serial SSOR-preconditioned CG that runs the whole loop
 in one Warp kernel (the CPU path, :func:`serial_pcg_solver`), and the CUDA path (:func:`bsr_cg_solver`):
 :func:`warp.optim.linear.cg` on a :mod:`warp.sparse` BSR matrix sharing that pattern, with a block-Jacobi
 preconditioner. Each factory returns ``solve(atol, rtol) -> CG iterations`` solving ``H d = b`` in place

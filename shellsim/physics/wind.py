@@ -17,16 +17,16 @@ No simulation: the object is treated as a cantilever anchored at its base and lo
 - **Length.** Bending a rod sideways by ``u(h)`` lowers it by ``int_0^h u'(s)^2 / 2 ds`` when its length is
   kept; the same drop is applied along ``-a``.
 - **Anchor.** Vertices with ``h <= 0`` never move (``w(0) = 0`` exactly). ``anchor`` is a vertex selection
-  of :mod:`shellsim.physics.selection`, the grammar of ``simulate --pin``: ``"z<0.05"`` or ``"z<5%"`` (everything
-  below is fixed, the object stands on it), ``"z>0.9"`` (it hangs from it); ``<`` and ``<=`` fix the same
-  vertices, since those on the threshold have ``h = 0``. None anchors the lowest ``base_fraction`` of the
-  cage along ``up``.
+  of :mod:`~shellsim.physics.selection`, the grammar of ``simulate --pin``: ``"z<0.05"`` or ``"z<5%"``
+  (everything below is fixed, the object stands on it), ``"z>0.9"`` (it hangs from it); ``<`` and ``<=``
+  fix the same vertices, since those on the threshold have ``h = 0``. None anchors the lowest
+  ``base_fraction`` of the cage along ``up``.
 
 - **Limit.** The second-order drop leaves a tet the volume ratio ``1 - slope^2 / 2``, and turbulence
   compresses the cage along the wind: where a frame would squeeze a tet below
-  :data:`shellsim.cage.geometry.MIN_VOLUME_RATIO`, :func:`animate_wind` scales that frame's tip deflection down
-  until none does (:func:`limited_wind_displacement`): a gust too strong for the cage bends it as far as it
-  can go. ``strength`` itself is at most 1 (:data:`RANGES`).
+  :data:`~shellsim.cage.geometry.MIN_VOLUME_RATIO`, :func:`animate_wind` scales that frame's tip deflection
+  down until none does (:func:`limited_wind_displacement`): a gust too strong for the cage bends it as far
+  as it can go. ``strength`` itself is at most 1 (:data:`RANGES`).
 
 Frame 0 of :func:`animate_wind` is the rest cage when ``ramp_seconds > 0``. Plain numpy; no torch.
 """
@@ -39,7 +39,6 @@ import math
 import numbers
 import time
 from dataclasses import asdict, dataclass
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -105,7 +104,7 @@ class WindSettings:
     frequency: float = 0.5  # Hz, gusts and the longest turbulence mode
     turbulence: float = 0.2  # relative amplitude of the travelling modes
     wavelength: float = 1.0  # of the longest turbulence mode, / L
-    anchor: str | None = None  # "AXIS OP VALUE[%]" (shellsim.physics.selection); None: lowest base_fraction along up
+    anchor: str | None = None  # "AXIS OP VALUE[%]" (physics.selection); None: lowest base_fraction along up
     base_fraction: float = 0.05
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     thinness: float = 2.0  # exponent k of EI(h) ~ r(h)^k; 0 ignores the cross-section
@@ -294,8 +293,8 @@ def wind_settings(settings: WindSettings, fps: float) -> dict:
 
 
 def motion_changes(motion, wanted: dict) -> list[str]:
-    """What keeps the wind motion ``motion`` (a :class:`shellsim.motion.format.Motion`) from being continued with
-    the ``wanted`` settings (:func:`wind_settings`): ``"name: old -> new"`` lines
+    """What keeps the wind motion ``motion`` (a :class:`~shellsim.motion.format.Motion`) from being continued
+    with the ``wanted`` settings (:func:`wind_settings`): ``"name: old -> new"`` lines
     (:func:`shellsim.motion.changes.describe_changes`), empty when nothing differs."""
     from shellsim.motion.changes import describe_changes
 
@@ -310,8 +309,8 @@ def animate_wind(
     rest_vertices, tets, settings: WindSettings, frames: int, fps: float, writer, progress: bool = True
 ) -> None:
     """Append wind frames ``writer.n_frames .. frames - 1`` (times ``i / fps``) to a
-    :class:`shellsim.motion.format.MotionWriter`, fresh (its ``settings`` become :func:`wind_settings`) or resumed
-    from a motion made with the same settings and cage.
+    :class:`~shellsim.motion.writer.MotionWriter`, fresh (its ``settings`` become :func:`wind_settings`) or
+    resumed from a motion made with the same settings and cage.
 
     rest_vertices : (V, 3) float; tets : (T, 4) int, positively oriented. Every frame is
     :func:`limited_wind_displacement`: no tet's volume ratio goes below ``MIN_VOLUME_RATIO``. Records in
@@ -334,7 +333,11 @@ def animate_wind(
         )
     wanted = wind_settings(settings, fps)
     if writer.n_frames:
-        writer.motion.check_against(SimpleNamespace(vertices=rest, tets=tets), str(writer.path))
+        made = writer.motion
+        if made.rest_vertices.shape != rest.shape or not np.array_equal(made.tets, tets):
+            raise InputError(f"{writer.path}: was made for another cage ({len(made.rest_vertices)} vertices)")
+        if not np.allclose(made.rest_vertices, rest, rtol=0, atol=1e-9 * float(np.ptp(rest, 0).max())):
+            raise InputError(f"{writer.path}: was made for the same cage placed elsewhere in the world")
         changes = motion_changes(writer.motion, wanted)
         if changes:
             from shellsim.errors import SettingError

@@ -6,6 +6,7 @@ tasks (:func:`render_frames`). A PNG already on disk is kept only when its recor
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import math
@@ -17,6 +18,7 @@ from shellsim.deform.renderer import DeformedRenderer
 from shellsim.io.png import asset_identity, digest, frame_record, renderer_identity, save_png, stale_reason
 from shellsim.io.video import write_video
 from shellsim.render.cameras import orbit_camera, orbit_framing
+from shellsim.render.result import RenderResult
 from shellsim.settings import parse_frames
 
 log = logging.getLogger(__name__)
@@ -24,12 +26,12 @@ log = logging.getLogger(__name__)
 
 def render_frames(
     jobs, out_dir: Path, overwrite: bool, progress: bool, recipe, ray: str | None = None
-) -> dict:
+) -> RenderResult:
     """Render ``jobs`` [(path, record, payload)] into PNGs with ``recipe() -> render_one``,
     ``render_one(payload) -> (image, stats)``, reusing a PNG only when its record matches (unless
     ``overwrite``); logs what was replaced and why. With ``ray`` ("local" or a cluster address) the frames
     are Ray tasks (:func:`shellsim.distributed.run_on_ray`: ``recipe`` runs once per worker) and this
-    process writes each PNG as it arrives. Returns the summary of :func:`_summary`."""
+    process writes each PNG as it arrives. Returns the :class:`RenderResult` of every job's frame."""
     from tqdm import tqdm
 
     todo, skipped, replaced = [], 0, {}
@@ -41,13 +43,12 @@ def render_frames(
         if why:
             replaced.setdefault(why, []).append(path.name)
         todo.append((path, record, payload))
-    written, stats = [], []
+    stats = []
     bar = tqdm(total=len(todo), desc="render", unit="frame", disable=not progress or not todo)
 
     def save(i: int, result) -> None:
         image, frame_stats = result
         save_png(todo[i][0], image, todo[i][1])
-        written.append(todo[i][0])
         stats.append(frame_stats)
         bar.update()
         bar.set_postfix(ms=f"{frame_stats['ms']:.0f}", spp=f"{frame_stats.get('samples_per_pixel', 0):.1f}")
@@ -70,9 +71,8 @@ def render_frames(
             names[-1],
             why,
         )
-    summary = _summary(out_dir, written, skipped, stats)
-    summary["replaced"] = sum(len(n) for n in replaced.values())
-    return summary
+    frames, n_replaced = [path for path, _, _ in jobs], sum(len(n) for n in replaced.values())
+    return RenderResult.of_frames(out_dir, frames, skipped, n_replaced, stats)
 
 
 def motion_fps(motion) -> float:
@@ -95,23 +95,6 @@ def _field(asset, device: str):
     return device, load_field(asset, device)
 
 
-def _summary(out_dir: Path, written: list, skipped: int, stats: list[dict]) -> dict:
-    """Counts and the mean of every ``*ms`` and ``samples_per_pixel`` figure of the frames' ``stats``."""
-    summary = {"out": str(out_dir), "rendered": len(written), "skipped": skipped}
-    if stats:
-        for key in stats[0]:
-            if key.endswith("ms") or key == "samples_per_pixel":
-                summary[key] = float(np.mean([s[key] for s in stats]))
-        log.debug(
-            "%d frames rendered to %s (%d already there): %s",
-            len(written),
-            out_dir,
-            skipped,
-            {k: round(v, 2) for k, v in summary.items() if isinstance(v, float)},
-        )
-    return summary
-
-
 def render_views(
     asset_spec,
     cameras_path,
@@ -121,13 +104,13 @@ def render_views(
     overwrite: bool = False,
     progress: bool = True,
     ray: str | None = None,
-) -> dict:
+) -> RenderResult:
     """Render every camera of a ``transforms*.json``-style camera file (images may be absent) at rest to
     ``out_dir/<frame name>.png`` (the listed image's name, else ``frame_<index>``); ``size`` = (W, H)
     overrides the file's. A PNG already there is kept only when its record (:func:`frame_record`) says it
     shows this asset from this camera at this size, unless ``overwrite``; others are rendered again. With
-    ``ray`` ("local" or a cluster address) each frame is a Ray task. Returns a summary with the mean ms per
-    frame and per stage."""
+    ``ray`` ("local" or a cluster address) each frame is a Ray task. Returns the :class:`RenderResult`
+    (counts, mean ms per frame and per stage)."""
     from neural.asset import load_asset
     from neural.data import load_camera_file
 
@@ -150,14 +133,15 @@ def render_views(
     return render_frames(jobs, out_dir, overwrite, progress, recipe, ray)
 
 
-def _view_frames(asset, cage, device: str, positions=None):
+def _view_frames(asset, cage, device: str, frame=None):
     """``render_one(view)`` of :func:`render_frames`: ``view`` (a one-camera ``Cameras``) -> (image, stats),
-    at rest, or with ``cage`` and ``positions`` (F, V, 3) for payloads ``(view, frame)``."""
+    at rest, or with ``cage`` and ``frame`` (k -> (V, 3) cage positions of frame k, :func:`motion_frames`)
+    for payloads ``(view, k)``."""
     device, field = _field(asset, device)
     renderer = DeformedRenderer(asset, field, cage, device)
-    if positions is None:
+    if frame is None:
         return lambda view: renderer.render(view, 0)
-    return lambda job: renderer.render(job[0], 0, positions[job[1]])
+    return lambda job: renderer.render(job[0], 0, frame(job[1]))
 
 
 def view_recipe(asset_path: str, device: str):
@@ -171,16 +155,46 @@ def motion_recipe(asset_path: str, motion_path: str, device: str):
     """In a Ray worker: the ``render_one((view, frame))`` of a motion of the asset at ``asset_path``."""
     from neural.asset import load_asset
     from shellsim.cage.store import cage_for_motion
-    from shellsim.motion.format import load_motion
+    from shellsim.motion.read import read_motion_info
 
-    asset, motion = load_asset(asset_path), load_motion(motion_path)
-    return _view_frames(asset, cage_for_motion(asset, motion, motion_path), device, motion.positions)
+    asset, motion = load_asset(asset_path), read_motion_info(motion_path)
+    cage = cage_for_motion(asset, motion, motion_path)
+    return _view_frames(asset, cage, device, motion_frames(motion, motion_path))
 
 
-def motion_frame_ids(motion) -> list[str]:
-    """Digest of each frame of ``motion`` (its rest cage, tets and the frame's positions): (F,) strings."""
+def motion_frames(motion, motion_path):
+    """``frame(k)``: (V, 3) float32, frame ``k`` of the motion file ``motion_path`` (``motion``: its
+    :class:`shellsim.motion.format.MotionInfo`) in the asset's frame, read from the file when asked."""
+    from shellsim.motion.read import read_frames
+
+    return lambda k: asset_frame(motion, read_frames(motion_path, [k])[0])
+
+
+def asset_frame(motion, points) -> np.ndarray:
+    """(..., 3) float32: world ``points`` of ``motion`` (its positions, or points framing it) in the asset's
+    own frame, where its field, shells and rest cage are: the inverse of the motion's placement
+    (:class:`shellsim.world.Placement`; the identity for motions made before the world was in metres)."""
+    from shellsim.world import Placement
+
+    placement = Placement.from_dict(motion.placement, motion.path or "motion")
+    return placement.to_asset(points).astype(np.float32)
+
+
+def asset_up(motion, asset) -> np.ndarray:
+    """(3,) the world's up axis in the asset's frame for ``motion`` (the asset's own up for motions made
+    before the world was in metres)."""
+    from shellsim.world import UP, Placement
+
+    if not motion.placement:
+        return np.asarray(asset.up, np.float64)
+    return Placement.from_dict(motion.placement, motion.path or "motion").rotation.T @ np.array(UP)
+
+
+def motion_frame_ids(motion, positions) -> list[str]:
+    """Digest of each frame (V, 3) of ``positions`` (an array (n, V, 3) or any iterable of frames) of
+    ``motion`` (with its rest cage and tets): (n,) strings."""
     base = digest(motion.rest_vertices, motion.tets)
-    return [digest(base, p) for p in motion.positions]
+    return [digest(base, p) for p in positions]
 
 
 def render_motion(
@@ -198,7 +212,7 @@ def render_motion(
     progress: bool = True,
     ray: str | None = None,
     framing=None,
-) -> dict:
+) -> RenderResult:
     """Render frames of a motion to ``out_dir/<k:05d>.png`` (``k`` the motion frame), optionally an MP4.
 
     asset_spec : asset directory or shipped name; motion_path : ``.npz`` of :mod:`shellsim.motion.format` made
@@ -213,48 +227,51 @@ def render_motion(
         (:func:`frame_record`: motion frame, camera, size, asset, renderer settings) matches, so an
         interrupted render resumes and frames of another motion, camera or size are rendered again
     ray : "local" or a Ray cluster address: each frame a Ray task (:func:`render_frames`)
-    framing : (N, 3) points the orbit keeps in view (default: every cage vertex of the whole motion), so
-        that several motions can be seen by the same orbit
+    framing : (N, 3) world points the orbit keeps in view (default: every cage vertex of the whole motion),
+        so that several motions can be seen by the same orbit
     The motion, ``frames`` and the camera file are checked before the asset and its field load.
-    Returns a summary: counts, mean ms per frame and per stage, ``video``.
+    Returns the :class:`RenderResult` (counts, mean ms per frame and per stage, ``video``).
     """
     from neural.asset import load_asset
     from neural.data import load_camera_file
     from shellsim.cage.store import cage_for_motion
-    from shellsim.motion.format import load_motion
+    from shellsim.motion.read import frame_bounds, iter_frames, read_motion_info
 
     if (cameras is None) == (not orbit):
         raise ValueError("give exactly one of cameras and orbit=True")
     if fps is not None and not (fps > 0 and math.isfinite(fps)):
         raise ValueError(f"fps: expected a positive number, got {fps}")
-    motion = load_motion(motion_path)
+    motion = read_motion_info(motion_path)
     indices = parse_frames(frames, motion.n_frames, source=str(motion_path))
     if orbit:
         width, height = size or (400, 400)
-        center, distance = orbit_framing(motion.positions if framing is None else framing)
+        if framing is None:  # the box of every frame, read a batch at a time
+            points = frame_bounds(motion_path, lambda positions: asset_frame(motion, positions))
+        else:
+            points = asset_frame(motion, framing)
+        center, distance = orbit_framing(points)
     else:
         view = load_camera_file(cameras, *(size or (None, None))).subset([0])
     asset = load_asset(asset_spec)
     cage = cage_for_motion(asset, motion, str(motion_path))
+    up = asset_up(motion, asset)
     identity, settings = asset_identity(asset, cage), renderer_identity(asset)
-    frame_ids = motion_frame_ids(motion)
+    frame_ids = motion_frame_ids(motion, (p for batch in iter_frames(motion_path, indices) for p in batch))
     out_dir = Path(out_dir)
     jobs = []
-    for k in indices:
+    for k, frame_id in zip(indices, frame_ids, strict=True):
         if orbit:
-            view = orbit_camera(center, distance, asset.up, 2 * math.pi * k / motion.n_frames, width, height)
-        jobs.append(
-            (out_dir / f"{k:05d}.png", frame_record(frame_ids[k], view, identity, settings), (view, k))
-        )
+            view = orbit_camera(center, distance, up, 2 * math.pi * k / motion.n_frames, width, height)
+        jobs.append((out_dir / f"{k:05d}.png", frame_record(frame_id, view, identity, settings), (view, k)))
     out_dir.mkdir(parents=True, exist_ok=True)
     if ray is None:
-        recipe = functools.partial(_view_frames, asset, cage, device, motion.positions)
+        recipe = functools.partial(_view_frames, asset, cage, device, motion_frames(motion, motion_path))
     else:
         paths = str(asset.root.resolve()), str(Path(motion_path).resolve())
         recipe = functools.partial(motion_recipe, *paths, device)
-    summary = render_frames(jobs, out_dir, overwrite, progress, recipe, ray)
+    result = render_frames(jobs, out_dir, overwrite, progress, recipe, ray)
     if video is not None:
         fps = motion_fps(motion) if fps is None else fps
-        summary["video"] = str(write_video([path for path, _, _ in jobs], video, fps))
+        result = dataclasses.replace(result, video=write_video(list(result.frames), video, fps))
         log.info("wrote %s (%d frames at %g fps)", video, len(indices), fps)
-    return summary
+    return result

@@ -1,12 +1,13 @@
 """Inspection views of an asset (DESIGN.md step 8): the shells, the cage and a motion's frames with pyvista.
 
-The scene is three meshes in the asset's world frame:
+The scene is three meshes in the asset's own frame at rest, in the world (metres, z up, the ground at z = 0)
+with a motion, which also draws the ground and the obstacles it was simulated with (:func:`world_scene`):
 
 - ``"outer"``: ``M+``, drawn translucent and coloured per vertex by either
 
   * ``color="width"``: the shell width, the distance from each ``M+`` vertex to the surface ``M-``
     (libigl point-to-mesh distance), or
-  * ``color="kernel"``: the field's kernel size ``s`` (world units) at each ``M+`` vertex, the quantity
+  * ``color="kernel"``: the field's kernel size ``s`` (asset units) at each ``M+`` vertex, the quantity
     whose size made the shell wide or narrow (paper Sec. 3.3, Eq. 4-7);
 
   both are computed in rest space and stay attached to the vertices when the cage moves;
@@ -36,6 +37,7 @@ import numpy as np
 
 from neural.errors import InputError, ShellsimError
 from shellsim.cage.embed import interpolate
+from shellsim.world import GROUND_Z
 
 #: Point-data array of ``M+`` holding the colouring, per ``color`` option.
 SCALARS = {"width": "shell width", "kernel": "kernel size s"}
@@ -44,6 +46,8 @@ DEFAULT_SIZE = (1024, 768)
 OUTER_OPACITY = 0.35
 INNER_COLOR = "lightgray"
 CAGE_COLOR = "black"
+GROUND_COLOR = "tan"
+OBSTACLE_COLOR = "steelblue"
 #: The colour bar's box (x, y, width, height) as fractions of the window, labels included; its title is above.
 BAR_BOX = (0.3, 0.04, 0.55, 0.08)
 
@@ -92,7 +96,7 @@ def shell_width(outer_vertices, inner_vertices, inner_faces) -> np.ndarray:
 
 
 def kernel_size(asset, points, device: str = "cpu") -> np.ndarray:
-    """The field's kernel size ``s`` (world units) at world points (N, 3) -> (N,) float64.
+    """The field's kernel size ``s`` (asset units) at asset-frame points (N, 3) -> (N,) float64.
 
     Loads the asset's field (torch); a field that cannot be loaded is a :class:`ShellsimError` naming why.
     """
@@ -155,7 +159,7 @@ def build_scene(asset, cage, motion=None, color: str = "width", frame: int = 0, 
         if len(getattr(cage, f"{name}_tet")) != len(mesh.vertices):
             raise InputError(
                 f"{asset.cage_path}: the cage embeds {len(getattr(cage, f'{name}_tet'))} vertices of the "
-                f"{name} shell, which has {len(mesh.vertices)}; rebuild it with 'shellsim cage --rebuild'"
+                f"{name} shell, which has {len(mesh.vertices)}; rebuild the cage"
             )
     if color == "width":
         values = shell_width(outer.vertices, inner.vertices, inner.faces)
@@ -172,6 +176,29 @@ def build_scene(asset, cage, motion=None, color: str = "width", frame: int = 0, 
     scene["outer"].set_active_scalars(SCALARS[color])
     if motion is not None:
         pose_scene(scene, cage, motion.positions[frame])
+    return scene
+
+
+def world_scene(motion) -> dict:
+    """The world a motion was simulated in, to draw beside its body: ``"ground"`` (the plane z = 0 under
+    the motion, 1.5 times its extent, when the simulation had a ground) and ``"sphere k"`` / ``"box k"``
+    (its obstacles, as its settings give them), pyvista meshes in the motion's frame (world metres; the
+    asset's units for motions made before the world was in metres, which draw no ground). Empty for a
+    motion without them (wind)."""
+    pv = _pyvista()
+    scene = {}
+    settings = motion.settings or {}
+    for k, (x, y, z, r) in enumerate(settings.get("sphere") or ()):
+        scene[f"sphere {k + 1}"] = pv.Sphere(r, (x, y, z), theta_resolution=32, phi_resolution=32)
+    for k, (x, y, z, hx, hy, hz) in enumerate(settings.get("box") or ()):
+        scene[f"box {k + 1}"] = pv.Box(bounds=(x - hx, x + hx, y - hy, y + hy, z - hz, z + hz))
+    if motion.placement and settings.get("drop_height") is not None:
+        points = motion.positions.reshape(-1, 3)
+        lo, hi = points.min(0), points.max(0)
+        centre, extent = 0.5 * (lo + hi), 1.5 * float((hi - lo)[:2].max())
+        scene["ground"] = pv.Plane(
+            center=(centre[0], centre[1], GROUND_Z), direction=(0, 0, 1), i_size=extent, j_size=extent
+        )
     return scene
 
 
@@ -227,7 +254,7 @@ def make_plotter(
         },
     )
     bar_title = plotter.add_text(  # centred over the bar's labels, 6 pixels above its box
-        f"{scalars} (world units)",
+        f"{scalars} (asset units)",
         position=(BAR_BOX[0] + BAR_BOX[2] / 2, BAR_BOX[1] + BAR_BOX[3] + 6 / size[1]),
         viewport=True,
         font_size=12,
@@ -238,6 +265,9 @@ def make_plotter(
     plotter.add_mesh(
         scene["cage"], name="cage", style="wireframe", color=CAGE_COLOR, line_width=1, opacity=0.5
     )
+    for name, mesh in (world_scene(motion) if motion is not None else {}).items():
+        color = GROUND_COLOR if name == "ground" else OBSTACLE_COLOR
+        plotter.add_mesh(mesh, name=name, color=color, smooth_shading=name.startswith("sphere"))
 
     def title(k: int) -> None:
         text = " - ".join(filter(None, (asset.name, frame_label(motion, k))))

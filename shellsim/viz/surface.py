@@ -1,17 +1,18 @@
 """Seeing a motion without a neural asset: the moving surface drawn with pyvista off-screen.
 
 A motion made by ``shellsim simulate --mesh`` carries the mesh's surface embedded in its cage
-(:class:`shellsim.motion.format.Surface`): frame ``k`` puts every surface point at the barycentric interpolation of
-the frame's cage vertices in its rest tet (paper Sec. 5). A motion without one shows the boundary of its
-cage. :class:`SurfaceRenderer` draws that surface, opaque and shaded, through a pinhole camera of
-:class:`neural.data.Cameras`; :func:`render_surface_motion` renders a motion's frames to PNGs (and an MP4)
-with the orbiting camera and the frame records of :func:`shellsim.render.frames.render_motion` (a PNG already there
-is kept only when it records the same motion frame, camera, size and surface); :func:`surface_plotter`
-is the inspector's view of it (surface, cage wireframe, frame slider).
+(:class:`shellsim.motion.format.Surface`): frame ``k`` puts every surface point at the barycentric
+interpolation of the frame's cage vertices in its rest tet (paper Sec. 5). A motion without one shows the
+boundary of its cage. :class:`SurfaceRenderer` draws that surface, opaque and shaded, through a pinhole
+camera of :class:`neural.data.Cameras`; :func:`render_surface_motion` renders a motion's frames to PNGs
+(and an MP4) with the orbiting camera and the frame records of :func:`shellsim.render.frames.render_motion`
+(a PNG already there is kept only when it records the same motion frame, camera, size and surface);
+:func:`surface_plotter` is the inspector's view of it (surface, cage wireframe, frame slider).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from shellsim.render.result import RenderResult
 from shellsim.viz.inspect import CAGE_COLOR, _pyvista, frame_label
 
 log = logging.getLogger(__name__)
@@ -106,14 +108,14 @@ def render_surface_motion(
     fps: float | None = None,
     overwrite: bool = False,
     progress: bool = True,
-) -> dict:
+) -> RenderResult:
     """Render a motion's surface to ``out_dir/<k:05d>.png`` (and an MP4) with the orbiting camera of
     :func:`shellsim.render.frames.render_motion` about the motion's up axis; ``frames``, ``size`` (default
-    400 x 400), ``video``, ``fps`` and ``overwrite`` as there. Returns the same summary (counts, ``ms``,
-    ``video``)."""
+    400 x 400), ``video``, ``fps`` and ``overwrite`` as there. Returns its
+    :class:`~shellsim.render.result.RenderResult` (counts, ``ms``, ``video``)."""
     from shellsim.io.png import digest, frame_record
     from shellsim.io.video import write_video
-    from shellsim.motion.format import load_motion
+    from shellsim.motion.read import load_motion
     from shellsim.render.cameras import orbit_camera, orbit_framing
     from shellsim.render.frames import motion_fps, motion_frame_ids, render_frames
     from shellsim.settings import parse_frames
@@ -128,7 +130,7 @@ def render_surface_motion(
     s = motion.surface
     drawn = digest("surface", *((s.tet, s.bary, s.faces) if s is not None else ("cage boundary",)))
     settings = digest("pyvista surface", SURFACE_COLOR)
-    frame_ids = motion_frame_ids(motion)
+    frame_ids = motion_frame_ids(motion, motion.positions)
     out_dir = Path(out_dir)
     jobs = []
     for k in indices:
@@ -137,16 +139,16 @@ def render_surface_motion(
     out_dir.mkdir(parents=True, exist_ok=True)
     renderer = SurfaceRenderer(motion, width, height)
     try:
-        summary = render_frames(
+        result = render_frames(
             jobs, out_dir, overwrite, progress, lambda: lambda job: renderer.render(job[0], 0, job[1])
         )
     finally:
         renderer.close()
     if video is not None:
         fps = motion_fps(motion) if fps is None else fps
-        summary["video"] = str(write_video([path for path, _, _ in jobs], video, fps))
+        result = dataclasses.replace(result, video=write_video(list(result.frames), video, fps))
         log.info("wrote %s (%d frames at %g fps)", video, len(indices), fps)
-    return summary
+    return result
 
 
 def surface_plotter(motion, frame: int = 0, size=(1024, 768), off_screen: bool | None = None, slider=False):

@@ -27,14 +27,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     with options_named(CageSettings):
         s = cage(from_args(CageSettings, args))
-    print(f"cage of {s['name']}: {s['path']}")
-    print(f"  {s['vertices']} vertices, {s['tets']} tets, volume {s['volume']:.6g}")
-    print(f"  tet quality: min {s['min_quality']:.3f}, median {s['median_quality']:.3f} (1 = regular)")
+    print(f"cage of {s.name}: {s.path}")
+    print(f"  {s.vertices} vertices, {s.tets} tets, volume {s.volume:.6g}")
+    print(f"  tet quality: min {s.min_quality:.3f}, median {s.median_quality:.3f} (1 = regular)")
     print(
-        f"  embedded: {s['outer_vertices']} outer-shell + {s['inner_vertices']} inner-shell vertices; "
-        f"{s['outside']} outside the cage (max distance {s['max_outside_distance']:.3g})"
+        f"  embedded: {s.outer_vertices} outer-shell + {s.inner_vertices} inner-shell vertices; "
+        f"{s.outside} outside the cage (max distance {s.max_outside_distance:.3g})"
     )
-    config = s["config"]
     print(
-        f"  margin {config.margin:g} of the diagonal, target {config.target_tets} tets; {s['seconds']:.1f} s"
+        f"  margin {s.config.margin:g} of the diagonal, target {s.config.target_tets} tets; {s.seconds:.1f} s"
     )

@@ -22,15 +22,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> None:
     with options_named(EvalSettings):
-        report = evaluate(from_args(EvalSettings, args))
+        result = evaluate(from_args(EvalSettings, args))
     for name in ("narrow_band", "full_ray"):
-        if name in report:
-            r = report[name]
+        r = getattr(result, name)
+        if r is not None:
             print(
-                f"{name:12s} PSNR {r['psnr']:.2f} dB  SSIM {r['ssim']:.4f}  "
-                f"{r['samples_per_pixel']:.2f} samples/pixel  {r['ms_per_frame']:.0f} ms/frame"
+                f"{name:12s} PSNR {r.psnr:.2f} dB  SSIM {r.ssim:.4f}  "
+                f"{r.samples_per_pixel:.2f} samples/pixel  {r.ms_per_frame:.0f} ms/frame"
             )
-    if "speedup" in report:
-        gain = report["narrow_band"]["psnr"] - report["full_ray"]["psnr"]
-        print(f"narrow band is {report['speedup']:.1f}x faster, {gain:+.2f} dB")
-    print(report["lpips"])
+    if result.full_ray is not None:
+        gain = result.narrow_band.psnr - result.full_ray.psnr
+        print(f"narrow band is {result.speedup:.1f}x faster, {gain:+.2f} dB")
+    print(result.lpips)

@@ -28,5 +28,5 @@ def run(args: argparse.Namespace) -> None:
     from shellsim.jobs.export import export
 
     with options_named(ExportSettings):
-        written = export(from_args(ExportSettings, args), progress=not args.verbose)
-    log.info("wrote %d file(s): %s", len(written), written[-1])
+        result = export(from_args(ExportSettings, args), progress=not args.verbose)
+    log.info("wrote %d file(s): %s", len(result.files), result.out)

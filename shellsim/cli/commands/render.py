@@ -6,6 +6,7 @@ import argparse
 
 from shellsim.cli.options import add_options, from_args, options_named
 from shellsim.jobs.render import RenderSettings, render
+from shellsim.render.result import RenderResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,16 +30,12 @@ def run(args: argparse.Namespace) -> None:
         _report(render(from_args(RenderSettings, args, quiet=not args.verbose)))
 
 
-def _report(summary: dict) -> None:
-    line = f"{summary['rendered']} frames rendered to {summary['out']} ({summary['skipped']} already there"
-    line += f", {summary['replaced']} replaced)" if summary["replaced"] else ")"
-    if summary["rendered"] and "field_ms" in summary:
-        line += (
-            f": {summary['ms']:.0f} ms/frame (deform + build {summary['build_ms']:.0f}, cast "
-            f"{summary['cast_ms']:.0f}, inverse map {summary['map_ms']:.0f}, field {summary['field_ms']:.0f})"
-        )
-    elif summary["rendered"]:
-        line += f": {summary['ms']:.0f} ms/frame"
+def _report(result: RenderResult) -> None:
+    line = f"{result.rendered} frames rendered to {result.out} ({result.skipped} already there"
+    line += f", {result.replaced} replaced)" if result.replaced else ")"
+    if result.rendered:
+        stages = ", ".join(f"{stage} {ms:.0f}" for stage, ms in result.stage_ms.items())
+        line += f": {result.ms:.0f} ms/frame" + (f" ({stages})" if stages else "")
     print(line)
-    if "video" in summary:
-        print(f"video: {summary['video']}")
+    if result.video is not None:
+        print(f"video: {result.video}")

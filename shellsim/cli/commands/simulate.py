@@ -46,11 +46,10 @@ def run(args: argparse.Namespace) -> None:
             sum(h.newton_iterations for h in history) / substeps,
             sum(h.retries > 0 for h in history),
         )
-    if result.video:
-        summary = result.video
+    if result.video is not None:
         log.info(
             "rendered %d frames (%d already there) and the video %s",
-            summary["rendered"],
-            summary["skipped"],
-            summary["video"],
+            result.video.rendered,
+            result.video.skipped,
+            result.video.video,
         )

@@ -27,5 +27,5 @@ def run(args: argparse.Namespace) -> None:
     from shellsim.jobs.sweep import sweep
 
     with options_named(SweepSettings):
-        index = sweep(from_args(SweepSettings, args), progress=not args.verbose)
-    log.info("%d combinations in %s (index.json, contact_sheet.png)", len(index["combinations"]), args.out)
+        result = sweep(from_args(SweepSettings, args), progress=not args.verbose)
+    log.info("%d combinations in %s (index.json, contact_sheet.png)", len(result.combinations), result.out)

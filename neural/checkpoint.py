@@ -22,7 +22,8 @@ def save_checkpoint(
     extra: dict[str, torch.Tensor] | None = None,
     meta: dict | None = None,
 ) -> None:
-    """Write model (+ optimizer state, extra tensors, JSON ``meta``) to ``path`` atomically."""
+    """Write model (+ optimizer state, extra tensors, JSON ``meta``) to ``path`` atomically; a disk full or
+    I/O error is a :class:`neural.errors.WriteError` and keeps the previous checkpoint."""
     from .asset import write_safetensors
 
     tensors = {f"model.{k}": v.detach().contiguous().cpu() for k, v in model.state_dict().items()}
@@ -34,8 +35,6 @@ def save_checkpoint(
     for key, value in (extra or {}).items():
         tensors[f"extra.{key}"] = value.detach().contiguous().cpu()
     header = {"meta": json.dumps(meta or {})}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     write_safetensors(path, tensors, header)
 
 

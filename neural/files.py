@@ -4,8 +4,9 @@ A file is written under a temporary name beside its target, unique to the writin
 (``.NAME.<pid>-<random>.partial.SUFFIX``: two writers never share one), flushed to disk (``fsync``), renamed
 onto the target (``os.replace``: readers see the old complete file or the new complete one, never a torn
 one) and the directory is flushed too, so that the rename survives a power loss. The temporary file of a
-failed write is removed. It lives in :mod:`neural` because both packages write files and :mod:`neural`
-never imports :mod:`shellsim`.
+failed write is removed (one left by a killed process has a name no reader opens), and a disk full or I/O
+error is a :class:`neural.errors.WriteError` naming the file. It lives in :mod:`neural` because both
+packages write files and :mod:`neural` never imports :mod:`shellsim`.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import os
 import secrets
 from collections.abc import Callable
 from pathlib import Path
+
+from .errors import write_failures
 
 
 def temporary_name(path: Path) -> Path:
@@ -46,16 +49,18 @@ def fsync_file(path: Path) -> None:
 
 def write_atomically(path, write: Callable[[Path], object]) -> Path:
     """Call ``write(tmp)`` for a temporary file beside ``path`` (module docstring), then publish it as
-    ``path``; creates the parent directory. Returns the Path."""
+    ``path``; creates the parent directory. Returns the Path. A disk full, I/O error or refused write is a
+    :class:`neural.errors.WriteError` naming ``path``; ``path`` then holds what it held before."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temporary_name(path)
-    try:
-        write(tmp)
-        fsync_file(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with write_failures(path, kept="the previous file is kept" if path.is_file() else ""):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            write(tmp)
+            fsync_file(tmp)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
     fsync_directory(path.parent)
     return path
 

@@ -20,7 +20,7 @@ from .data import SceneData, load_dataset
 from .device import processor
 from .errors import InputError
 from .field import ShellField
-from .files import write_text_atomically
+from .files import write_atomically, write_text_atomically
 from .shell.from_field import FieldShells, extract_field_shells
 from .train import train_stage1, train_stage2
 
@@ -171,10 +171,9 @@ def _shell_key(config: PipelineConfig) -> dict:
 
 def _save_shells(ckpt_dir: Path, config: PipelineConfig, shells: FieldShells) -> None:
     """Keep the extracted shells so that a resumed run skips the extraction; shells.json is written last."""
-    ckpt_dir.mkdir(parents=True, exist_ok=True)
-    shells.outer.export(ckpt_dir / "shell_outer.ply")
-    shells.inner.export(ckpt_dir / "shell_inner.ply")
-    (ckpt_dir / "shells.json").write_text(json.dumps({**_shell_key(config), "stats": shells.stats}))
+    for name, mesh in (("shell_outer.ply", shells.outer), ("shell_inner.ply", shells.inner)):
+        write_atomically(ckpt_dir / name, lambda tmp, m=mesh: m.export(tmp))
+    write_text_atomically(ckpt_dir / "shells.json", json.dumps({**_shell_key(config), "stats": shells.stats}))
 
 
 def _load_shells(ckpt_dir: Path, config: PipelineConfig) -> FieldShells | None:

@@ -548,7 +548,7 @@ def test_cli_reports_the_stretched_frame_and_goes_on_when_allowed(tmp_path, cube
         (["--friction", "inf"], "--friction: expected a Coulomb coefficient in [0, 10], got inf"),
         (["--damping", "-0.1"], "--damping: expected a time in seconds in [0, 10], got -0.1"),
         (["--max-stretch", "1"], "--max-stretch: expected a principal stretch in (1, inf], got 1"),
-        (["--tets", "5"], "--tets: expected an integer in [10, 1000000], got 5"),
+        (["--tets", "5"], "--tets: expected an integer in [10, 1000000000], got 5"),
         (["--velocity", "300,0,0"], "--velocity: expected a speed in m/s"),
         (
             ["--spin", "0,0,1000", "--size", "0.3"],

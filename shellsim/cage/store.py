@@ -25,7 +25,7 @@ from shellsim.cage.build import Cage, CageConfig, check_tet_mesh, shell_digest
 from shellsim.cage.embed import BARY_TOL, check_embedding, embed_points, interpolate, outside_distance
 from shellsim.cage.geometry import check_tets, tet_quality, tet_volumes
 from shellsim.io.npz import load_npz, save_npz
-from shellsim.io.outputs import check_writable_file
+from shellsim.io.outputs import check_writable_file, output_lock
 
 FORMAT = "shellsim-cage"
 
@@ -197,9 +197,10 @@ def load_or_build_cage(asset, config: CageConfig | None = None, rebuild: bool = 
             return cage
     path = cached if asset.shipped or own is not None else asset.cage_path
     check_writable_file(path)  # before the build, not after it
-    cage = build.build_cage(outer, inner, config, what=str(asset.file("shell_outer")))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_cage(path, cage, embedding=False)
+    with output_lock(path):  # one build per cage file at a time
+        cage = build.build_cage(outer, inner, config, what=str(asset.file("shell_outer")))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_cage(path, cage, embedding=False)
     logger.info("cage saved to %s", path)
     return dataclasses.replace(cage, path=str(path))
 

@@ -3,16 +3,23 @@
 A read-only directory, a path under a regular file or an output name taken by a directory must end a command
 at once with one line (``shellsim: error: PATH: cannot write here (...)``), not with a traceback after minutes
 of work. Writability is tested by creating and removing a temporary file, since permission bits alone say
-nothing for root or on read-only mounts.
+nothing for root or on read-only mounts. Each output is then locked (:mod:`neural.lock`) for as long as the
+job that writes it runs (a job decorated with :func:`holds_outputs` calls :func:`lock_output`): a second
+command that asks for the same output is refused in one line naming the process that holds it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import os
 import tempfile
+from collections.abc import Iterator
+from contextvars import ContextVar
 from pathlib import Path
 
 from neural.errors import InputError
+from neural.lock import OutputBusy, hold_output
 from shellsim.errors import SettingError
 
 
@@ -67,3 +74,45 @@ def check_writable_file(path, flag: str | None = None) -> Path:
         _refuse(path, flag, "cannot write here (a directory has this name)")
     _check(path, path.parent, flag)
     return path
+
+
+#: The locks of the job running in this context (:func:`holds_outputs`), released when it ends.
+_job_locks: ContextVar[contextlib.ExitStack | None] = ContextVar("job_locks", default=None)
+
+
+@contextlib.contextmanager
+def output_lock(path, setting: str | None = None) -> Iterator[Path]:
+    """Hold the lock of output ``path`` for the ``with`` block; yields the Path. When another process holds
+    it, an error naming ``path``, that process and (as a placeholder) the ``setting`` to change."""
+    with contextlib.ExitStack() as stack:
+        try:
+            path = stack.enter_context(hold_output(path))
+        except OutputBusy as err:
+            other = f"{{{setting}}}" if setting else "output"
+            raise SettingError(
+                None, f"{err.path}: being written by {err.owner}; wait for it or choose another {other}"
+            ) from None
+        yield path
+
+
+def holds_outputs(job):
+    """Decorate a job: what it locks with :func:`lock_output` stays locked until it returns or raises."""
+
+    @functools.wraps(job)
+    def run(*args, **kwargs):
+        with contextlib.ExitStack() as stack:
+            token = _job_locks.set(stack)
+            try:
+                return job(*args, **kwargs)
+            finally:
+                _job_locks.reset(token)
+
+    return run
+
+
+def lock_output(path, setting: str | None = None) -> Path:
+    """Lock output ``path`` (:func:`output_lock`) until the running job (:func:`holds_outputs`) ends."""
+    stack = _job_locks.get()
+    if stack is None:
+        raise RuntimeError("lock_output is for jobs decorated with holds_outputs")
+    return stack.enter_context(output_lock(path, setting))

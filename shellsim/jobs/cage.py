@@ -75,7 +75,11 @@ def cage(settings: CageSettings) -> CageResult:
     """Load or build the cage of ``settings.asset`` and describe it."""
     from neural.asset import load_asset
     from shellsim.cage.store import cage_summary, load_or_build_cage
+    from shellsim.memory import check_memory, tetwild_bytes
 
+    if settings.tets:
+        what = f"a cage of {settings.tets:,} tets"
+        check_memory("tets", tetwild_bytes(settings.tets), what, "to build")
     asset = load_asset(settings.asset)
     start = time.perf_counter()
     built = load_or_build_cage(asset, settings.cage_config(), rebuild=settings.rebuild)

@@ -6,11 +6,11 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass
-from pathlib import Path
 
 from neural.config import PipelineConfig
 from neural.device import DEVICES, processor
 from shellsim.errors import SettingError
+from shellsim.io.outputs import holds_outputs
 from shellsim.settings import check_choice, check_required, config_bounds, device_setting, option
 
 
@@ -84,6 +84,7 @@ class EvalResult:
         return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
 
 
+@holds_outputs
 def evaluate(settings: EvalSettings) -> EvalResult:
     """Render the held-out views with each renderer and compare them with the photos; the figures are
     written to ``settings.json`` and recorded in the asset as asked."""
@@ -92,17 +93,18 @@ def evaluate(settings: EvalSettings) -> EvalResult:
 
     from neural.asset import command_line, load_asset, load_field, refuse_shipped, write_meta
     from neural.data import load_dataset
+    from neural.files import write_text_atomically
     from neural.metrics import lpips_status
     from neural.render.view import asset_sampler, full_ray_sampler
     from neural.train import evaluate as evaluate_views
-    from shellsim.io.outputs import check_writable_dir, check_writable_file
+    from shellsim.io.outputs import check_writable_dir, check_writable_file, lock_output
 
     if settings.json:
-        check_writable_file(settings.json, "json")
+        lock_output(check_writable_file(settings.json, "json"), "json")
     asset = load_asset(settings.asset)
     if settings.record:
         refuse_shipped(asset, "recording the figures")
-        check_writable_dir(asset.root, "record")  # asset.json is rewritten there
+        lock_output(check_writable_dir(asset.root, "record"), "record")  # asset.json is rewritten there
     device = device_setting(settings.device)
     downscale = settings.downscale or asset.training_downscale
     data = load_dataset(settings.data, downscale=downscale, background=asset.background)
@@ -123,7 +125,7 @@ def evaluate(settings: EvalSettings) -> EvalResult:
         lpips=lpips_status(),
     )
     if settings.json:
-        Path(settings.json).write_text(json.dumps(result.as_dict(), indent=1))
+        write_text_atomically(settings.json, json.dumps(result.as_dict(), indent=1))
     if settings.record:
         asset.meta.setdefault("metrics", {})["eval"] = {**result.as_dict(), "command": command_line()}
         write_meta(asset.root, asset.meta)

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from shellsim.errors import SettingError
+from shellsim.io.outputs import holds_outputs
 from shellsim.settings import check_required, option
 
 FORMATS = ("usd", "vtu", "ply")
@@ -91,12 +92,13 @@ def _meshes(settings: ExportSettings, motion):
     return [*meshes, AnimatedMesh("cage", faces, lambda k: motion.positions[k][used])]
 
 
+@holds_outputs
 def export(settings: ExportSettings, progress: bool = True) -> ExportResult:
     """Write the export ``settings`` describe."""
     from tqdm import tqdm
 
     from shellsim.io.export import require_usd, write_ply_sequence, write_usd, write_vtu_series
-    from shellsim.io.outputs import check_writable_dir, check_writable_file
+    from shellsim.io.outputs import check_writable_dir, check_writable_file, lock_output
     from shellsim.motion.read import load_motion
     from shellsim.render.frames import motion_fps
     from shellsim.settings import parse_frames
@@ -104,10 +106,11 @@ def export(settings: ExportSettings, progress: bool = True) -> ExportResult:
     if settings.format == "usd":
         require_usd()
     out = Path(settings.out)
+    (check_writable_dir if settings.format == "ply" else check_writable_file)(out, "out")
+    lock_output(out, "out")
     taken = out.is_dir() and any(out.iterdir()) if settings.format == "ply" else out.exists()
     if taken and not settings.overwrite:
         raise SettingError("out", "exists; give {overwrite} to replace it, or another {out}", out)
-    (check_writable_dir if settings.format == "ply" else check_writable_file)(out, "out")
     motion = load_motion(settings.motion)
     frames = parse_frames(settings.frames, motion.n_frames, settings.motion)
     meshes = None if settings.format == "vtu" else _meshes(settings, motion)

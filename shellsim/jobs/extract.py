@@ -15,6 +15,7 @@ from pathlib import Path
 from neural.config import NarrowBandConfig, ShellConfig
 from neural.device import DEVICES
 from shellsim.errors import SettingError
+from shellsim.io.outputs import holds_outputs
 from shellsim.settings import check_choice, check_required, config_bounds, device_setting, option
 
 log = logging.getLogger(__name__)
@@ -80,15 +81,17 @@ class ExtractResult:
     seconds: float
 
 
+@holds_outputs
 def extract(settings: ExtractSettings) -> ExtractResult:
     """Extract the shells of ``settings.asset`` again and replace its shell files."""
     from neural.asset import command_line, load_asset, load_field, refuse_shipped, replace_shells
     from neural.shell.from_field import extract_field_shells
-    from shellsim.io.outputs import check_writable_dir
+    from shellsim.io.outputs import check_writable_dir, lock_output
+    from shellsim.memory import check_memory, shell_bytes
 
     asset = load_asset(settings.asset)
     refuse_shipped(asset, "extract")
-    check_writable_dir(asset.root, "asset")  # new shells and asset.json are written there
+    lock_output(check_writable_dir(asset.root, "asset"), "asset")  # new shells and asset.json go there
     device = device_setting(settings.device)
     known = {f.name for f in dataclasses.fields(ShellConfig)}
     stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}
@@ -96,6 +99,8 @@ def extract(settings: ExtractSettings) -> ExtractResult:
         config = ShellConfig(**{**stored, **settings.shell_overrides()})
     except (TypeError, ValueError) as err:
         raise SettingError("asset", f"shell parameters: {err}", value=asset.root) from None
+    grid = f"a shell grid of {config.resolution}^3 nodes"
+    check_memory("resolution", shell_bytes(config.resolution), grid, "to extract the shells", device)
     if settings.max_peel is not None:
         narrowband = dataclasses.replace(asset.narrowband_config(), max_peel=settings.max_peel)
         asset.meta["narrowband"] = dataclasses.asdict(narrowband)

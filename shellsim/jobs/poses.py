@@ -12,7 +12,7 @@ from pathlib import Path
 
 from neural.files import write_text_atomically
 from shellsim.errors import SettingError
-from shellsim.io.outputs import check_writable_dir
+from shellsim.io.outputs import check_writable_dir, holds_outputs, lock_output
 from shellsim.settings import check_choice, check_range, check_required, option
 
 log = logging.getLogger(__name__)
@@ -58,6 +58,7 @@ class PosesResult:
     unregistered: list[str]
 
 
+@holds_outputs
 def poses(settings: PosesSettings) -> PosesResult:
     """Pose the photos in ``settings.images``; writes ``OUT/transforms.json`` (instant-ngp format, the
     photos that could not be posed under ``unregistered``) and COLMAP's files in ``OUT/colmap`` (rebuilt
@@ -67,7 +68,7 @@ def poses(settings: PosesSettings) -> PosesResult:
     images, out = Path(settings.images), Path(settings.out)
     if not images.is_dir():
         raise SettingError("images", "no such directory", value=images)
-    check_writable_dir(out, "out")
+    lock_output(check_writable_dir(out, "out"), "out")
     target, work = out / "transforms.json", out / "colmap"
     if target.exists() and not settings.overwrite:
         raise SettingError("out", f"{target} already exists; give {{overwrite}} to replace it", value=out)

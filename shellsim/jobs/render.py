@@ -12,9 +12,10 @@ from dataclasses import dataclass
 
 from neural.device import DEVICES
 from shellsim.errors import SettingError
-from shellsim.io.outputs import check_writable_dir, check_writable_file
+from shellsim.io.outputs import check_writable_dir, check_writable_file, holds_outputs, lock_output
+from shellsim.memory import check_memory, render_bytes
 from shellsim.render.result import RenderResult
-from shellsim.settings import check_choice, check_required, option
+from shellsim.settings import check_choice, check_required, device_setting, option
 
 ORBIT_SIZE = 400  # pixels a side of the orbit's frames when no size is given
 MOTION_ONLY = ("orbit", "frames", "video", "fps")
@@ -90,23 +91,28 @@ class RenderSettings:
         return (self.width, self.height)
 
 
+@holds_outputs
 def render(settings: RenderSettings) -> RenderResult:
     """Render what ``settings`` ask for; returns the :class:`~shellsim.render.result.RenderResult` (the
     frames, how many were rendered, kept and replaced, mean ms per frame and per stage, the video). Outputs
     and the frame range are checked before torch or pyvista is imported."""
-    check_writable_dir(settings.out, "out")
+    lock_output(check_writable_dir(settings.out, "out"), "out")
     if settings.ray is not None:
         from shellsim.distributed import require_ray
 
         require_ray()
     if settings.video:
-        check_writable_file(settings.video, "video")
+        lock_output(check_writable_file(settings.video, "video"), "video")
     if settings.motion is not None:
         from shellsim.motion.read import read_motion_info
         from shellsim.settings import parse_frames
 
         parse_frames(settings.frames, read_motion_info(settings.motion).n_frames, str(settings.motion))
-    common = dict(size=settings.size(), overwrite=settings.overwrite)
+    size = settings.size()
+    if size and None not in size:
+        what = f"a frame of {size[0]}x{size[1]} pixels"
+        check_memory("width", render_bytes(*size), what, "to render", device_setting(settings.device))
+    common = dict(size=size, overwrite=settings.overwrite)
     if settings.asset is None:
         from shellsim.viz.inspect import quiet_vtk
         from shellsim.viz.surface import render_surface_motion

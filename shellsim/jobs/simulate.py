@@ -25,6 +25,7 @@ import numpy as np
 
 from neural.errors import InputError
 from shellsim.errors import SettingError
+from shellsim.io.outputs import holds_outputs
 from shellsim.motion.format import MAX_FPS, MAX_FRAMES
 from shellsim.physics.selection import parse_selection, select_vertices, selection_text
 from shellsim.render.result import RenderResult
@@ -175,7 +176,7 @@ class SimulateSettings:
         check_range("frames", self.frames, 1, MAX_FRAMES, "an integer")
         check_range("substeps", self.substeps, 1, MAX_SUBSTEPS, "an integer")
         if self.tets is not None:
-            check_range("tets", self.tets, 10, 1_000_000, "an integer")
+            check_range("tets", self.tets, 10, 1_000_000_000, "an integer")
         check_range("fps", self.fps, 0, MAX_FPS, "a number of frames per second", "(]")
         if self.size is not None:
             check_range("size", self.size, 1e-3, 1e3, "a length in metres")
@@ -255,9 +256,11 @@ class SimulateResult:
     video: RenderResult | None = None
 
 
+@holds_outputs
 def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResult:
     """Run the simulation ``settings`` describe into ``settings.out_path`` (module docstring)."""
-    from shellsim.io.outputs import check_writable_dir, check_writable_file
+    from shellsim.io.outputs import check_writable_dir, check_writable_file, lock_output
+    from shellsim.memory import cage_bytes, check_memory, render_bytes
     from shellsim.motion.changes import describe_changes
     from shellsim.motion.format import cage_digest
     from shellsim.motion.writer import MotionWriter, motion_exists
@@ -268,13 +271,21 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     from shellsim.physics.model import Model
 
     s = settings
-    out = check_writable_file(s.out_path, "out")
+    out = lock_output(check_writable_file(s.out_path, "out"), "out")
     if s.video:
-        video = check_writable_file(s.video, "video")
+        video = lock_output(check_writable_file(s.video, "video"), "video")
         frames_dir = check_writable_dir(video.with_name(video.stem + "_frames"), "video")
+        lock_output(frames_dir, "video")
     material = get_material(s.material, s.youngs, s.poisson, s.density)
     rules = [parse_selection(text) for text in s.pin]
     device = device_setting(s.device, warp=True)  # the simulator runs in Warp
+    if s.tets:
+        what = f"a cage of {s.tets:,} tets"
+        check_memory("tets", cage_bytes(s.tets), what, "to build and simulate", device)
+    if s.video:
+        width, height = s.video_size
+        frame = f"a frame of {width}x{height} pixels"
+        check_memory("video_size", render_bytes(width, height), frame, "to render", device)
     record = motion_settings(s)
 
     if motion_exists(out) and not s.overwrite:  # same settings: continue the file; other settings: refuse
@@ -463,12 +474,15 @@ def _load_cage(s: SimulateSettings):
     ``asset`` is the motion's record of what it moves (name or path, and content digest)."""
     from neural.asset import load_mesh
     from shellsim.cage.build import CageConfig, build_cage
+    from shellsim.memory import check_memory, mesh_bytes
 
     if s.asset:
         asset, cage = _asset_cage(s)
         return cage.vertices, cage.tets, asset.up, None, {"name": asset.name, "digest": asset.digest()}
     mesh = load_mesh(Path(s.mesh))
     config = CageConfig(margin=0.0, **({"target_tets": s.tets} if s.tets else {}))
+    needed, faces = mesh_bytes(len(mesh.faces), config.target_tets), f"a mesh of {len(mesh.faces):,} faces"
+    check_memory("mesh", needed, faces, "to tetrahedralise and simulate")
     cage = build_cage(mesh, mesh, config, what=str(s.mesh))
     record = {"mesh": str(Path(s.mesh).resolve()), "digest": _file_digest(Path(s.mesh))}
     return cage.vertices, cage.tets, np.array([0.0, 0.0, 1.0]), _mesh_surface(mesh, cage), record

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from shellsim.errors import SettingError
+from shellsim.io.outputs import holds_outputs
 from shellsim.motion.format import MAX_FRAMES
 from shellsim.settings import check_range, check_required, float_list, name_list, option, pixels
 
@@ -191,20 +192,21 @@ def _run(settings: SweepSettings, combos: list[dict], step, args: tuple, on_resu
     run_on_ray(combos, functools.partial(_recipe, step, settings, *args), on_result, address)
 
 
+@holds_outputs
 def sweep(settings: SweepSettings, progress: bool = True) -> SweepResult:
     """Run every combination of ``settings`` (serially, or as Ray tasks with ``settings.ray``), writing
     ``OUT/index.json`` as each finishes and ``OUT/contact_sheet.png`` at the end."""
     from tqdm import tqdm
 
     from neural.files import write_atomically
-    from shellsim.io.outputs import check_writable_dir
+    from shellsim.io.outputs import check_writable_dir, lock_output
     from shellsim.viz.contact_sheet import contact_sheet
 
     if settings.ray is not None:
         from shellsim.distributed import require_ray
 
         require_ray()  # before anything is written
-    out = check_writable_dir(settings.out, "out")
+    out = lock_output(check_writable_dir(settings.out, "out"), "out")
     out.mkdir(parents=True, exist_ok=True)
     combos = settings.combinations()
     index = {"asset": settings.asset, "frames": settings.frames, "combinations": [None] * len(combos)}

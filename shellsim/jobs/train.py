@@ -23,8 +23,9 @@ from neural.config import (
     scaled_defaults,
 )
 from neural.device import DEVICES
-from shellsim.io.outputs import check_writable_dir
+from shellsim.io.outputs import check_writable_dir, holds_outputs, lock_output
 from shellsim.jobs.eval import ViewMetrics
+from shellsim.memory import check_memory, shell_bytes
 from shellsim.settings import check_choice, check_required, config_bounds, device_setting, option
 
 COLOURS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
@@ -198,19 +199,24 @@ class TrainResult:
     wall_minutes: float
 
 
+@holds_outputs
 def train(settings: TrainSettings) -> TrainResult:
     """Train the asset ``settings.out`` from the dataset ``settings.data`` (resuming from its checkpoints).
     The output is checked before anything is loaded."""
     from neural.asset import load_asset
     from neural.pipeline import train_asset
 
-    check_writable_dir(settings.out, "out")
+    lock_output(check_writable_dir(settings.out, "out"), "out")  # the asset and its checkpoints
     check_writable_dir(Path(settings.out) / "checkpoints", "out")
+    config, device = settings.pipeline_config(), device_setting(settings.device)
+    resolution = config.shell.resolution
+    grid = f"a shell grid of {resolution}^3 nodes"
+    check_memory("shell_resolution", shell_bytes(resolution), grid, "to extract the shells", device)
     root = train_asset(
         settings.data,
         settings.out,
-        settings.pipeline_config(),
-        device_setting(settings.device),
+        config,
+        device,
         name=settings.name,
         keep_checkpoints=settings.keep_checkpoints,
     )

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from shellsim.errors import SettingError
+from shellsim.io.outputs import holds_outputs
 from shellsim.motion.format import MAX_FPS, MAX_FRAMES
 from shellsim.physics.selection import selection_text
 from shellsim.physics.wind import RANGES, WindSettings, max_frequency
@@ -109,12 +110,13 @@ class WindResult:
     stats: dict
 
 
+@holds_outputs
 def wind(settings: WindJobSettings, progress: bool = True) -> WindResult:
     """Animate the asset of ``settings`` into its motion file (module docstring)."""
     from neural.asset import load_asset
     from shellsim.cage.build import CageConfig
     from shellsim.cage.store import load_or_build_cage
-    from shellsim.io.outputs import check_writable_file
+    from shellsim.io.outputs import check_writable_file, lock_output
     from shellsim.motion.format import cage_digest
     from shellsim.motion.writer import MotionWriter, motion_exists
     from shellsim.physics.wind import animate_wind, motion_changes, wind_settings
@@ -124,6 +126,7 @@ def wind(settings: WindJobSettings, progress: bool = True) -> WindResult:
     asset = load_asset(s.asset)
     wind_ = s.wind_settings(UP)
     out = check_writable_file(Path(s.out) if s.out else Path(f"{asset.name}_wind.npz"), "out")
+    lock_output(out, "out")
     # the stored cage whatever its settings (unless margin asks for another), else a default one
     cage = load_or_build_cage(asset, None if s.margin is None else CageConfig(margin=s.margin))
     if motion_exists(out) and not s.overwrite:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neural.errors import InputError
+from neural.errors import InputError, write_failures
 from neural.files import write_atomically
 from shellsim.io.npz import Blocks, damaged_as
 from shellsim.motion.format import Motion, MotionInfo, Surface, refuser, to_json, write_motion_npz
@@ -160,18 +160,24 @@ class MotionWriter:
         if not self._frames:
             return
         chunk = chunk_record(np.stack(self._frames), self._times, self.motion.meta, self.motion.state)
-        if self._size == 0:
-            records = itertools.chain([header_record(self.motion)], self._copied(), [chunk])
-            self._size = create_log(self.partial, records)  # the copied chunks one at a time
-            if self._base is None:
-                self.path.unlink(missing_ok=True)  # a new motion: what OUT held is gone
-            self._base = None
-        else:
-            append_record(self.partial, self._size, chunk)
-            self._size += len(chunk)
+        doing = f"writing frames {self._written}-{self.n_frames - 1}"
+        kept = f"{self.path.name} is unchanged" if self.path.is_file() else ""
+        with write_failures(self.partial, doing, f"{self._written} frames kept" if self._size else kept):
+            if self._size == 0:
+                records = itertools.chain([header_record(self.motion)], self._copied(), [chunk])
+                size = create_log(self.partial, records)  # the copied chunks one at a time
+            else:
+                append_record(self.partial, self._size, chunk)
+                size = self._size + len(chunk)
+        replaces = self._size == 0 and self._base is None  # a new motion: what OUT held is gone
+        self._size, self._base = size, None
         self._written += len(self._frames)
         self._last = (self._frames[-1], self._times[-1])
         self._frames, self._times = [], []
+        if replaces:
+            kept = f"{self._written} frames kept in {self.partial.name}"
+            with write_failures(self.path, "removing the motion it replaces", kept):
+                self.path.unlink(missing_ok=True)
         self._last_flush = time.monotonic()
 
     def _copied(self) -> Iterator[bytes]:
@@ -198,7 +204,9 @@ class MotionWriter:
             info = contents.info
             chunks = _chunk_positions(contents.chunks, refuser(source))
             positions = Blocks((info.n_frames, len(info.rest_vertices), 3), np.dtype(np.float32), chunks)
-            write_atomically(self.path, lambda tmp: write_motion_npz(tmp, info, positions))
+            kept = f"its {info.n_frames} frames are kept in {self.partial.name}"
+            with write_failures(self.path, f"publishing {info.n_frames} frames", kept):
+                write_atomically(self.path, lambda tmp: write_motion_npz(tmp, info, positions))
         self.partial.unlink()
         info.path = str(self.path)
         self._size, self._base = 0, info

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neural.errors import write_failures
 from shellsim.deform.renderer import DeformedRenderer
 from shellsim.io.png import asset_identity, digest, frame_record, renderer_identity, save_png, stale_reason
 from shellsim.io.video import write_video
@@ -48,7 +49,9 @@ def render_frames(
 
     def save(i: int, result) -> None:
         image, frame_stats = result
-        save_png(todo[i][0], image, todo[i][1])
+        kept = f"{skipped + len(stats)} of {skipped + len(todo)} frames kept in {out_dir}"
+        with write_failures(todo[i][0], kept=kept):
+            save_png(todo[i][0], image, todo[i][1])
         stats.append(frame_stats)
         bar.update()
         bar.set_postfix(ms=f"{frame_stats['ms']:.0f}", spp=f"{frame_stats.get('samples_per_pixel', 0):.1f}")

@@ -12,11 +12,48 @@ packages write files and :mod:`neural` never imports :mod:`shellsim`.
 from __future__ import annotations
 
 import os
+import re
 import secrets
 from collections.abc import Callable
 from pathlib import Path
 
 from .errors import write_failures
+
+
+def _temporary_pattern(stem: str, suffix: str) -> re.Pattern:
+    """The names :func:`temporary_name` gives for a target of this stem and suffix; group ``pid``."""
+    return re.compile(rf"\.{re.escape(stem)}\.(?P<pid>\d+)-[0-9a-f]{{8}}\.partial{re.escape(suffix)}")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's process
+    return True
+
+
+def remove_stale_temporaries(path) -> list[Path]:
+    """Remove the temporary files that writers killed mid-write (their process gone) left for ``path``: beside
+    a file, or inside a directory (its frames). Called by the one process that holds the output's lock
+    (:func:`neural.lock.hold_output`), so no live writer's file is touched. Returns those removed."""
+    path = Path(path)
+    if path.is_dir():
+        candidates = [
+            (p, re.compile(r"\.(?:.+)\.(?P<pid>\d+)-[0-9a-f]{8}\.partial(?:\..*)?")) for p in path.iterdir()
+        ]
+    else:
+        pattern = _temporary_pattern(path.stem, path.suffix)
+        candidates = [(p, pattern) for p in path.parent.glob(f".{path.stem}.*.partial{path.suffix}")]
+    removed = []
+    for candidate, pattern in candidates:
+        match = pattern.fullmatch(candidate.name)
+        if match and int(match["pid"]) != os.getpid() and not _alive(int(match["pid"])):
+            candidate.unlink(missing_ok=True)
+            removed.append(candidate)
+    return removed
 
 
 def temporary_name(path: Path) -> Path:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from .asset import command_line
 from .errors import ShellsimError
+from .files import remove_stale_temporaries
 
 #: Seconds a refused taker waits for the owner to write its pid and command line into a fresh lock file.
 OWNER_WAIT = 1.0
@@ -110,6 +111,7 @@ def hold_output(path) -> Iterator[Path]:
         _held[key] = (fd, depth + 1)
     else:
         _held[key] = (_acquire(path, lock), 1)
+        remove_stale_temporaries(path)  # of writers killed mid-write: only the lock's holder may
     try:
         yield path
     finally:

@@ -165,3 +165,28 @@ def test_two_simulations_of_one_motion_the_second_refused_and_sigterm_releases(t
     third.send_signal(signal.SIGTERM)
     assert third.wait(120) == 128 + signal.SIGTERM
     assert not lock_path(tmp_path / "other.npz").exists()  # released on SIGTERM
+
+
+def test_the_holder_removes_temporaries_of_writers_killed_mid_write(tmp_path):
+    """A writer killed between creating its temporary and the rename leaves
+    ``.NAME.<pid>-<hex>.partial.SUFFIX`` behind; the next holder of the output's lock removes those of dead
+    processes, beside a file and inside a directory, and leaves a live process's and other files alone."""
+    from neural.files import temporary_name
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True)
+    dead = int(gone.stdout)
+    out, frames = tmp_path / "m.npz", tmp_path / "frames"
+    frames.mkdir()
+    mine = f".{os.getpid()}-"
+    left = [
+        p.with_name(p.name.replace(mine, f".{dead}-"))
+        for p in (temporary_name(out), temporary_name(frames / "00003.png"))
+    ]
+    other = tmp_path / ".other.123-0000abcd.partial.npz"
+    keep = [temporary_name(out), tmp_path / "m.npz.partial", frames / "00002.png", other]  # ours is in use
+    for p in [*left, *keep]:
+        p.write_bytes(b"x")
+    with hold_output(out), hold_output(frames):
+        pass
+    assert not any(p.exists() for p in left)
+    assert all(p.exists() for p in keep)

@@ -52,7 +52,7 @@ def main() -> None:
     for name, ray in (("serial", None), ("ray", args.address)):
         start = time.perf_counter()
         result = render_motion(
-            args.asset, motion, out / name, orbit=True, size=size, overwrite=True, progress=False, ray=ray
+            args.asset, motion, out / name, size=size, overwrite=True, progress=False, ray=ray
         )
         times[name] = time.perf_counter() - start
         print(

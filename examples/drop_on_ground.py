@@ -8,7 +8,7 @@ Re-running continues the simulation (refused, naming what changed, when it was m
 and the render where they stopped.
 
     python examples/drop_on_ground.py                          # the shipped lego, rubber, 45 frames
-    python examples/drop_on_ground.py --asset PATH --frames 10 --size 96 --material foam
+    python examples/drop_on_ground.py --asset PATH --frames 10 --size 96x64 --material foam
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from neural.device import configure_process
 from neural.errors import ShellsimError
 from shellsim.jobs.simulate import SimulateSettings, simulate
 from shellsim.render.result import RenderResult
+from shellsim.settings import pixels
 
 
 def main(argv: list[str] | None = None) -> RenderResult:
@@ -35,7 +36,9 @@ def main(argv: list[str] | None = None) -> RenderResult:
     parser.add_argument(
         "--drop-height", type=float, default=0.1, help="metres above the ground (default 0.1)"
     )
-    parser.add_argument("--size", type=int, default=160, help="images are SIZE x SIZE (default 160)")
+    parser.add_argument(
+        "--size", type=pixels, default=(512, 512), metavar="WxH", help="frames in pixels (default 512x512)"
+    )
     parser.add_argument("--out", default="drop_on_ground", help="output directory (default drop_on_ground)")
     parser.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
     args = parser.parse_args(argv)
@@ -52,7 +55,7 @@ def main(argv: list[str] | None = None) -> RenderResult:
                 frames=args.frames,
                 out=str(out / "drop.npz"),
                 video=str(out / "drop.mp4"),
-                video_size=(args.size, args.size),
+                video_size=args.size,
                 device=args.device,
             )
         )

@@ -2,12 +2,13 @@
 
 The asset's cage bends like a cantilever in a gusty wind (:mod:`shellsim.jobs.wind`); every frame is
 rendered by deforming the adaptive shells with the cage (:func:`shellsim.render.frames.render_motion`), seen
-by a camera orbiting the asset. Writes ``OUT/wind.npz`` (the motion), ``OUT/frames/00000.png ...`` and
-``OUT/wind.mp4``. Re-running continues the motion when it was made with the same wind (else it is refused,
-naming what changed, unless ``--overwrite``) and the render where it stopped.
+by a fixed camera from the side (the sway crosses the image). Writes ``OUT/wind.npz`` (the motion),
+``OUT/frames/00000.png ...`` and ``OUT/wind.mp4``. Re-running continues the motion when it was made with
+the same wind (else it is refused, naming what changed, unless ``--overwrite``) and the render where it
+stopped.
 
     python examples/wind_animation.py                        # the shipped lego, 48 frames, 160x160
-    python examples/wind_animation.py --asset PATH --frames 12 --size 96
+    python examples/wind_animation.py --asset PATH --frames 12 --size 96x64
     python examples/wind_animation.py --asset furry_bunny --anchor "z<10%"   # pedestal held, bunny sways
 """
 
@@ -21,7 +22,9 @@ from neural.device import configure_process
 from neural.errors import ShellsimError
 from shellsim.cli.options import options_named
 from shellsim.jobs.wind import WindJobSettings, wind
+from shellsim.render.cameras import CameraSettings
 from shellsim.render.result import RenderResult
+from shellsim.settings import pixels
 
 
 def main(argv: list[str] | None = None) -> RenderResult:
@@ -38,7 +41,9 @@ def main(argv: list[str] | None = None) -> RenderResult:
     parser.add_argument(
         "--anchor", help='the cage nodes held still, "AXIS OP VALUE[%%]" (default: the lowest 5%%)'
     )
-    parser.add_argument("--size", type=int, default=160, help="images are SIZE x SIZE (default 160)")
+    parser.add_argument(
+        "--size", type=pixels, default=(512, 512), metavar="WxH", help="frames in pixels (default 512x512)"
+    )
     parser.add_argument("--out", default="wind_animation", help="output directory (default wind_animation)")
     parser.add_argument("--overwrite", action="store_true", help="make the motion anew")
     parser.add_argument("--device", default="auto", help="cpu, cuda or auto (default)")
@@ -62,8 +67,8 @@ def main(argv: list[str] | None = None) -> RenderResult:
             args.asset,
             result.out,
             out / "frames",
-            orbit=True,
-            size=(args.size, args.size),
+            camera=CameraSettings(camera="side"),
+            size=args.size,
             video=out / "wind.mp4",
             device=args.device,
         )

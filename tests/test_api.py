@@ -111,11 +111,15 @@ def test_required_settings_are_required_from_python_too(settings, field):
         getattr(shellsim, settings)()
 
 
-def test_render_settings_need_cameras_or_an_orbit():
-    with pytest.raises(shellsim.SettingError, match="^cameras: give exactly one of cameras and orbit"):
-        shellsim.RenderSettings(asset="a", motion="m.npz", out="o")
-    with pytest.raises(shellsim.SettingError, match="^cameras: give exactly one of cameras and orbit"):
-        shellsim.RenderSettings(asset="a", motion="m.npz", cameras="c.json", orbit=True, out="o")
+def test_render_settings_take_a_camera_file_or_a_camera():
+    with pytest.raises(shellsim.SettingError, match="^cameras: needed to render at rest"):
+        shellsim.RenderSettings(asset="a", out="o")
+    with pytest.raises(shellsim.SettingError, match="^cameras: give one of cameras and camera"):
+        shellsim.RenderSettings(asset="a", motion="m.npz", cameras="c.json", camera="top", out="o")
+    with pytest.raises(shellsim.SettingError, match="^camera_position: needed by the fixed camera"):
+        shellsim.RenderSettings(asset="a", motion="m.npz", camera="fixed", out="o")
+    with pytest.raises(shellsim.SettingError, match="^orbit_degrees: sets an orbit's arc"):
+        shellsim.RenderSettings(asset="a", motion="m.npz", camera="follow", orbit_degrees=90, out="o")
 
 
 @pytest.fixture(scope="module")
@@ -146,14 +150,14 @@ def test_render_from_python_writes_the_cli_frames(ball, tmp_path):
     assert result.out == out and result.frames == tuple(sorted(out.iterdir()))
     assert (result.rendered, result.skipped, result.replaced, result.video) == (3, 0, 0, None)
     assert result.ms > 0 and result.samples_per_pixel > 0
-    assert set(result.stage_ms) == {"build", "sample", "map", "shade"}
+    assert set(result.stage_ms) == {"build", "sample", "map", "shade", "world"}
     again = shellsim.render_job(settings)
     assert (again.rendered, again.skipped, again.replaced) == (0, 3, 0)
     assert (again.ms, again.samples_per_pixel, again.stage_ms) == (None, None, {})
 
     out, video = tmp_path / "py_motion", tmp_path / "py.mp4"
-    moved = shellsim.render_motion(asset, motion, out, orbit=True, size=(16, 16), video=video)
-    argv = ["render", "--asset", str(asset), "--motion", str(motion), "--orbit", "--width", "16"]
+    moved = shellsim.render_motion(asset, motion, out, size=(16, 16), video=video)
+    argv = ["render", "--asset", str(asset), "--motion", str(motion), "--camera", "orbit", "--width", "16"]
     assert main([*argv, "--out", str(tmp_path / "cli_motion")]) == 0
     assert _same_files(out, tmp_path / "cli_motion") == ["00000.png", "00001.png", "00002.png"]
     assert moved.rendered == 3 and moved.video == video and video.stat().st_size > 0

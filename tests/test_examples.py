@@ -38,11 +38,11 @@ def _run(script: str, *argv: str) -> str:
 )
 def test_example_runs_tiny(tmp_path, script, motion, frames):
     out = tmp_path / "out"
-    printed = _run(script, "--frames", "2", "--size", "16", "--out", str(out))
+    printed = _run(script, "--frames", "2", "--size", "16x12", "--out", str(out))
     assert "2 frames in" in printed
     m = load_motion(out / motion)
     assert m.n_frames == 2 and m.asset["name"] == "lego" and len(m.asset["digest"]) == 64
     assert np.abs(m.positions[1] - m.positions[0]).max() > 0  # it moved
     images = sorted((out / frames).glob("*.png"))
-    assert [Image.open(p).size for p in images] == [(16, 16)] * 2
+    assert [Image.open(p).size for p in images] == [(16, 12)] * 2
     assert (out / motion.replace(".npz", ".mp4")).stat().st_size > 0

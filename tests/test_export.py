@@ -1,5 +1,6 @@
 """`shellsim export`: USD, VTU series and PLY files read back by pxr, pyvista and trimesh, against an affine
-motion whose deformed shells and volume ratios are known in closed form."""
+motion whose deformed shells and volume ratios are known in closed form; the USD colours of M+ against a
+field of one known colour."""
 
 from __future__ import annotations
 
@@ -9,12 +10,13 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 import trimesh
 from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from shellsim.cage.embed import embed_points
 from shellsim.cli.main import main
-from shellsim.io.export import up_rotation
+from shellsim.io.export import AnimatedMesh, up_rotation
 from shellsim.motion.format import Motion, Surface, save_motion
 
 FRAMES = 4
@@ -32,6 +34,22 @@ def moved(points: np.ndarray, k: int) -> np.ndarray:
     return points @ a.T + b
 
 
+def small_field(center, color=None, inv_s: float = 20.0):
+    """An untrained ``ShellField`` (a sphere SDF about ``center``, unit scale) with a small hash grid; with
+    ``color`` (3,) its radiance is that colour everywhere."""
+    from neural.field import FieldConfig, ShellField
+    from neural.field.hashgrid import HashGridConfig
+
+    torch.manual_seed(0)
+    hashgrid = HashGridConfig(n_levels=2, log2_table_size=8, max_resolution=16)
+    field = ShellField(FieldConfig(hashgrid=hashgrid, init_inv_s=inv_s), center=center)
+    if color is not None:
+        with torch.no_grad():
+            field.rad[-1].weight.zero_()
+            field.rad[-1].bias.copy_(torch.logit(torch.tensor(color)))
+    return field
+
+
 @pytest.fixture
 def rod(tmp_path):
     """(asset directory, its cage) : cylinder shells in a hand-made Kuhn-box cage, z up."""
@@ -41,7 +59,10 @@ def rod(tmp_path):
     outer.apply_translation([0.0, 0.0, 0.5])
     inner = trimesh.creation.cylinder(radius=0.1, height=0.9, sections=16)
     inner.apply_translation([0.0, 0.0, 0.5])
-    root = write_asset_dir(tmp_path / "rod", outer, inner, "rod", center=(0, 0, 0.5), up=(0, 0, 1))
+    field = small_field((0.0, 0.0, 0.5))
+    root = write_asset_dir(
+        tmp_path / "rod", outer, inner, "rod", center=(0, 0, 0.5), up=(0, 0, 1), field=field
+    )
     verts, tets, _ = kuhn_grid(0.0, (0.4, 0.4, 1.1), (2, 2, 4))
     cage = save_embedded_cage(load_asset(root), verts - [0.2, 0.2, 0.05], tets)
     return root, cage
@@ -83,6 +104,53 @@ def test_usd_holds_the_deformed_shell_and_cage_per_time_code(rod, tmp_path):
     boundary = trimesh.Trimesh(cage_points, faces, process=False)
     assert boundary.is_watertight and boundary.volume == pytest.approx(1.2**3 * 0.4 * 0.4 * 1.1, rel=1e-5)
     assert np.abs(cage_points[:, None] - positions[2][None]).sum(-1).min(1).max() < 1e-6
+    assert cage_prim.GetPurposeAttr().Get() == UsdGeom.Tokens.guide  # not rendered: it would hide M+
+    assert shell.GetPurposeAttr().Get() == UsdGeom.Tokens.default_
+    colors = np.asarray(shell.GetDisplayColorPrimvar().Get())
+    assert shell.GetDisplayColorPrimvar().GetInterpolation() == UsdGeom.Tokens.vertex
+    assert colors.shape == rest_outer.vertices.shape and colors.min() >= 0 and colors.max() <= 1
+
+
+def test_usd_colours_of_a_one_colour_field_are_that_colour(tmp_path):
+    """A sphere field of one colour, sharp enough (kernel 1/500) to be opaque within its band: every M+
+    vertex's colour in the stage is that colour, not the white background."""
+    from pxr import Usd, UsdGeom
+
+    from neural.asset import load_asset
+
+    color = (0.2, 0.6, 0.9)
+    center = np.array([0.1, -0.2, 0.3])
+    field = small_field(tuple(center), color, inv_s=500.0)
+    radius = field.config.init_radius
+    outer = trimesh.creation.icosphere(subdivisions=2, radius=radius + 0.05).apply_translation(center)
+    inner = trimesh.creation.icosphere(subdivisions=2, radius=radius - 0.05).apply_translation(center)
+    root = write_asset_dir(tmp_path / "ball", outer, inner, "ball", center=tuple(center), field=field)
+    verts, tets, _ = kuhn_grid(center - radius - 0.1, center + radius + 0.1, 2)
+    cage = save_embedded_cage(load_asset(root), verts, tets)
+    write_motion(tmp_path / "m.npz", cage)
+    out = tmp_path / "ball.usda"
+    assert main(["export", "--asset", str(root), "--motion", str(tmp_path / "m.npz"), "--out", str(out)]) == 0
+    stage = Usd.Stage.Open(str(out))  # held: its prims are valid while it lives
+    shell = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/outer_shell"))
+    colors = np.asarray(shell.GetDisplayColorPrimvar().Get())
+    assert colors.shape == (len(outer.vertices), 3)
+    np.testing.assert_allclose(colors, np.broadcast_to(color, colors.shape), atol=0.01)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"purpose": "render"}, "purpose: expected one of default, guide, got 'render'"),
+        (
+            {"colors": np.full((3, 4), 0.5)},
+            r"colors: expected \(V, 3\) numbers in \[0, 1\], got shape \(3, 4\)",
+        ),
+        ({"colors": np.full((3, 3), 1.5)}, r"colors: expected \(V, 3\)"),
+    ],
+)
+def test_a_mesh_refuses_an_unknown_purpose_or_bad_colours(options, message):
+    with pytest.raises(ValueError, match=message):
+        AnimatedMesh("m", np.zeros((1, 3), int), lambda k: np.zeros((3, 3)), **options)
 
 
 def test_vtu_series_carries_displacement_and_det_f(rod, tmp_path):

@@ -93,7 +93,7 @@ def _commands(tmp_path):
             tmp_path / "v_frames",
         ),
         (["wind", "--asset", "lego", "--out", str(motion)], motion),
-        (["render", "--asset", "lego", "--motion", str(motion), "--orbit", "--out", str(out)], out),
+        (["render", "--asset", "lego", "--motion", str(motion), "--camera", "orbit", "--out", str(out)], out),
         (["export", "--motion", str(motion), "--format", "ply", "--out", str(out)], out),
         (
             ["sweep", "--asset", "lego", "--material", "rubber", "--drop-height", "0.1", "--out", str(out)],

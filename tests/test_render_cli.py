@@ -138,7 +138,7 @@ def test_motion_render_resumes_and_writes_the_video(tmp_path, asset_dir):
 def test_orbit_render_with_odd_sizes(tmp_path, asset_dir):
     motion = write_motion(tmp_path / "m.npz", asset_dir, 3)
     out, video = tmp_path / "orbit", tmp_path / "orbit.mp4"
-    options = ("--orbit", "--width", "15", "--height", "11", "--frames", "1:3", "--video", video)
+    options = ("--camera", "orbit", "--width", "15", "--height", "11", "--frames", "1:3", "--video", video)
     assert render(asset_dir, out, *options, "--fps", "5", motion=motion) == 0
     names = sorted(p.name for p in out.iterdir())
     assert names == ["00001.png", "00002.png"]
@@ -246,7 +246,7 @@ def test_bad_options_fail_before_the_asset_loads(tmp_path, asset_dir, capsys, mo
     monkeypatch.setattr("neural.asset.load_asset", no_loading)
     monkeypatch.setattr("neural.asset.load_field", no_loading)
     motion = write_motion(tmp_path / "m.npz", asset_dir, 3)
-    assert render(asset_dir, tmp_path / "o", "--orbit", *options, motion=motion) == 2
+    assert render(asset_dir, tmp_path / "o", "--camera", "orbit", *options, motion=motion) == 2
     assert options[0] in error_line(capsys)
 
 
@@ -264,21 +264,21 @@ def test_wind_example_run_again_at_another_size_renders_again(tmp_path, asset_di
     def example(*extra):
         return example_module.main([*argv, *extra])
 
-    assert example("--strength", "0.1", "--size", "16").rendered == 3
-    again = example("--strength", "0.1", "--size", "20")  # same wind: the motion file is kept
+    assert example("--strength", "0.1", "--size", "16x16").rendered == 3
+    again = example("--strength", "0.1", "--size", "20x16")  # same wind: the motion file is kept
     assert again.rendered == 3 and again.replaced == 3
-    assert all(Image.open(p).size == (20, 20) for p in (out / "frames").iterdir())
+    assert all(Image.open(p).size == (20, 16) for p in (out / "frames").iterdir())
     import imageio.v2 as imageio
 
     with imageio.get_reader(out / "wind.mp4") as reader:
-        assert all(frame.shape[:2] == (20, 20) for frame in reader)
-    assert example("--strength", "0.1", "--size", "20").skipped == 3
+        assert all(frame.shape[:2] == (16, 20) for frame in reader)
+    assert example("--strength", "0.1", "--size", "20x16").skipped == 3
     with pytest.raises(
         SystemExit, match=r"wind_animation: error: .*made with other settings \(--strength: 0.1 -> 0.2"
     ):
-        example("--strength", "0.2", "--size", "20")
+        example("--strength", "0.2", "--size", "20x16")
     # another wind with --overwrite: the motion is recomputed, and the orbit that frames it moves
     from shellsim.motion.read import load_motion
 
-    assert example("--strength", "0.2", "--size", "20", "--overwrite").rendered == 3
+    assert example("--strength", "0.2", "--size", "20x16", "--overwrite").rendered == 3
     assert load_motion(out / "wind.npz").settings["strength"] == 0.2

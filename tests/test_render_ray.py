@@ -13,17 +13,15 @@ from shellsim.render.frames import render_motion
 def test_ray_frames_equal_serial_frames_and_resume(tmp_path):
     motion = tmp_path / "w.npz"
     assert main(["wind", "--asset", "lego", "--frames", "3", "--out", str(motion)]) == 0
-    serial = render_motion("lego", motion, tmp_path / "serial", orbit=True, size=(24, 24), progress=False)
-    orbit = ["render", "--asset", "lego", "--motion", str(motion), "--orbit", "--width", "24"]
+    serial = render_motion("lego", motion, tmp_path / "serial", size=(24, 24), progress=False)
+    orbit = ["render", "--asset", "lego", "--motion", str(motion), "--camera", "orbit", "--width", "24"]
     assert main([*orbit, "--out", str(tmp_path / "ray"), "--ray"]) == 0  # a local Ray instance
     assert serial.rendered == 3
     for k in range(3):
         name = f"{k:05d}.png"
         assert (tmp_path / "ray" / name).read_bytes() == (tmp_path / "serial" / name).read_bytes(), name
     (tmp_path / "ray" / "00001.png").unlink()  # an interrupted run: one frame missing
-    again = render_motion(
-        "lego", motion, tmp_path / "ray", orbit=True, size=(24, 24), progress=False, ray="local"
-    )
+    again = render_motion("lego", motion, tmp_path / "ray", size=(24, 24), progress=False, ray="local")
     assert (again.rendered, again.skipped) == (1, 2)
     assert (tmp_path / "ray" / "00001.png").read_bytes() == (tmp_path / "serial" / "00001.png").read_bytes()
 
@@ -51,12 +49,10 @@ def test_a_worker_killed_mid_render_loses_no_frame(tmp_path, monkeypatch):
                 killed.append(int(found[0]))
 
     monkeypatch.setattr(render, "save_png", save_then_kill)
-    summary = render_motion(
-        "lego", motion, tmp_path / "ray", orbit=True, size=(24, 24), progress=False, ray="local"
-    )
+    summary = render_motion("lego", motion, tmp_path / "ray", size=(24, 24), progress=False, ray="local")
     assert killed and summary.rendered == 6
     monkeypatch.setattr(render, "save_png", save)
-    serial = render_motion("lego", motion, tmp_path / "serial", orbit=True, size=(24, 24), progress=False)
+    serial = render_motion("lego", motion, tmp_path / "serial", size=(24, 24), progress=False)
     assert serial.rendered == 6
     for k in range(6):
         name = f"{k:05d}.png"

@@ -107,7 +107,19 @@ def test_render_cli_draws_a_motion_without_an_asset(tmp_path, capsys):
     path = tmp_path / "cube.npz"
     save_motion(path, cube_motion([(0, 0, 0), (0.3, 0, 0)]))
     out = tmp_path / "frames"
-    argv = ["render", "--motion", str(path), "--orbit", "--out", str(out), "--width", "24", "--height", "20"]
+    argv = [
+        "render",
+        "--motion",
+        str(path),
+        "--camera",
+        "orbit",
+        "--out",
+        str(out),
+        "--width",
+        "24",
+        "--height",
+        "20",
+    ]
     assert main(argv) == 0
     assert "2 frames rendered" in capsys.readouterr().out
     assert [Image.open(p).size for p in sorted(out.iterdir())] == [(24, 20)] * 2

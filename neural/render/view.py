@@ -9,11 +9,14 @@ sampler's ``rays_per_chunk`` rays, else :data:`RAY_CHUNK`):
    stretch (S,), inside (S,) bool)`` takes each sample to the space where the field lives (deformed
    rendering, paper Sec. 5: ``shellsim.deform.InverseMap``); samples outside are dropped and every section
    length is multiplied by ``stretch``; without it the samples are already there;
-3. **shade**: the field at the samples, composited along the rays (Eq. 2-3) by
+3. **shade**: the field at the samples, composited along the rays (Eq. 2-3) over the background (or a
+   ``backdrop``: a lit ground with shadows and a sky, :mod:`neural.render.ground`) by
    :func:`~neural.render.fullray.shade_samples`, front to back: rays that light no longer reaches stop
    (their remaining samples are neither mapped nor evaluated) and the radiance network runs only where a
    sample's weight can change its pixel, each channel within ``WEIGHT_TOLERANCE`` (1e-3) of the full
    composite of every sample.
+
+:func:`transmittance` runs steps 1-2 and the field's opacity only: the light a shadow ray lets through.
 
 Samplers:
 
@@ -32,7 +35,9 @@ import numpy as np
 import torch
 
 from ..data import Cameras, camera_rays
+from .composite import MIN_TRANSMITTANCE
 from .fullray import ray_aabb, ray_background, shade_samples, stepped_samples
+from .neus import neus_alpha
 from .occupancy import OccupancyConfig, OccupancyGrid
 
 #: Rays rendered at once (bounds the memory of one pass) by samplers that may put hundreds of samples on
@@ -41,8 +46,9 @@ RAY_CHUNK = 16384
 #: Rays rendered at once in the narrow band (a few samples per ray): a 200x200 image in one pass, so that
 #: the fixed costs of its rounds of shading (kernel launches, thread hand-offs) are paid once, not 3 times.
 NARROW_BAND_CHUNK = 65536
-#: Stages of the pipeline, timed in the stats of :func:`render_pixels` as ``<stage>_ms``.
-STAGES = ("sample", "map", "shade")
+#: Stages of the pipeline, timed in the stats of :func:`render_pixels` as ``<stage>_ms`` ("world": what the
+#: rays see behind the field, a ``backdrop``'s ground and shadows; 0 without one).
+STAGES = ("sample", "map", "shade", "world")
 
 DEFAULT_STEP = 2.0 * np.sqrt(3.0) / 512  # marching step in the field's unit space (Instant-NGP's)
 
@@ -140,6 +146,54 @@ class RestMap(Protocol):
         the ray, ``inside`` (S,) bool (False: no rest point, the sample is dropped)."""
 
 
+def _locate(index, origins, dirs, samples, to_rest, times=None):
+    """Pipeline step 2 for the samples ``index`` (K,) of ``samples`` on rays ``origins``, ``dirs`` (R, 3):
+    ``(index (K',), points (K', 3), unit_dirs (K', 3), deltas (K',), fronts (K',), dropped)`` where the field
+    is evaluated, in its (rest) space through ``to_rest`` (None: as placed), section lengths in its units;
+    ``dropped`` samples had no rest point. The map's seconds are added to ``times["map"]``."""
+    rays = samples.ray_indices.index_select(0, index)
+    norm = dirs.norm(dim=1).index_select(0, rays)  # field-space length per unit of t
+    t = samples.t_mid.index_select(0, index)
+    points = origins.index_select(0, rays) + t[:, None] * dirs.index_select(0, rays)
+    unit_dirs = dirs.index_select(0, rays) / norm[:, None].clamp_min(1e-12)
+    dropped = 0
+    if to_rest is not None:
+        tick = time.perf_counter()
+        points, unit_dirs, stretch, inside = to_rest.map_rays(points, unit_dirs)
+        keep = torch.nonzero(inside).squeeze(1)
+        index, points, unit_dirs = index[keep], points[keep], unit_dirs[keep]
+        norm = (norm * stretch)[keep]
+        dropped = len(inside) - len(keep)
+        if times is not None:
+            times["map"] += time.perf_counter() - tick
+    deltas = samples.deltas.index_select(0, index) * norm
+    fronts = (samples.t_mid - samples.t_starts).index_select(0, index) * norm
+    return index, points, unit_dirs, deltas, fronts, dropped
+
+
+@torch.no_grad()
+def transmittance(
+    field, origins: torch.Tensor, dirs: torch.Tensor, sampler, to_rest: RestMap | None = None
+) -> torch.Tensor:
+    """Transmittance (R,) of the field along rays ``origins``, ``dirs`` (R, 3), ``T = prod_i (1 - alpha_i)``
+    over every sample (Eq. 2) with NeuS opacities alpha (Eq. 3): pipeline steps 1-2 (sample, map to rest
+    space with ``to_rest``), then the field's geometry only (no radiance). A shadow ray's visibility of the
+    light through a body."""
+    log_t = torch.zeros(len(origins), dtype=torch.float64, device=origins.device)
+    chunk = getattr(sampler, "rays_per_chunk", RAY_CHUNK)
+    for i in range(0, len(origins), chunk):
+        o, d = origins[i : i + chunk], dirs[i : i + chunk]
+        samples = sampler(o, d)
+        index = torch.arange(len(samples.ray_indices), device=o.device)
+        index, points, unit_dirs, deltas, fronts, _ = _locate(index, o, d, samples, to_rest)
+        geometry = field.geometry(points)
+        cos = (unit_dirs * geometry.normal).sum(dim=1)
+        alpha = neus_alpha(geometry.sdf, geometry.inv_s, cos, deltas, 1.0, fronts)
+        rays = samples.ray_indices.index_select(0, index) + i
+        log_t.index_add_(0, rays, torch.log(torch.clamp(1.0 - alpha.double(), min=MIN_TRANSMITTANCE)))
+    return log_t.exp().to(origins.dtype)
+
+
 @torch.no_grad()
 def render_pixels(
     field,
@@ -149,10 +203,13 @@ def render_pixels(
     background: torch.Tensor,
     to_rest: RestMap | None = None,
     chunk: int | None = None,
+    backdrop=None,
 ) -> tuple[torch.Tensor, dict]:
     """Colours (R, 3) (unclamped) of rays ``origins``, ``dirs`` (R, 3) on the field's device: sample, map to
     rest space with ``to_rest`` (None: no map), shade over ``background`` (3,), ``chunk`` rays at a time
-    (None: the sampler's ``rays_per_chunk``, else :data:`RAY_CHUNK`). Stats: ``ms``, per stage
+    (None: the sampler's ``rays_per_chunk``, else :data:`RAY_CHUNK`). ``backdrop(origins (r, 3), dirs (r, 3))
+    -> (r, 3)``: what each ray sees behind the field instead of ``background`` (a lit ground and a sky,
+    :mod:`neural.render.ground`); ``color = sum_i w_i c_i + T backdrop`` (Eq. 2). Stats: ``ms``, per stage
     ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside ``to_rest``) and
     ``counts`` (R,) int64 samples per ray that were mapped and evaluated (dropped ones included, those after
     a ray's termination not)."""
@@ -164,29 +221,20 @@ def render_pixels(
         o, d = origins[i : i + chunk], dirs[i : i + chunk]
         tick = time.perf_counter()
         samples = sampler(o, d)
-        norm = d.norm(dim=1)  # field-space length per unit of t
-        unit = d / norm[:, None].clamp_min(1e-12)
-        deltas, fronts = samples.deltas, samples.t_mid - samples.t_starts
         times["sample"] += time.perf_counter() - tick
 
-        def locate(index, o=o, d=d, samples=samples, norm=norm, unit=unit, deltas=deltas, fronts=fronts):
+        def locate(index, o=o, d=d, samples=samples):
             nonlocal dropped
-            rays = samples.ray_indices.index_select(0, index)
-            t = samples.t_mid.index_select(0, index)
-            points = o.index_select(0, rays) + t[:, None] * d.index_select(0, rays)
-            scale, unit_dirs = norm.index_select(0, rays), unit.index_select(0, rays)
-            if to_rest is not None:
-                tick = time.perf_counter()
-                points, unit_dirs, stretch, inside = to_rest.map_rays(points, unit_dirs)
-                keep = torch.nonzero(inside).squeeze(1)
-                index, points, unit_dirs = index[keep], points[keep], unit_dirs[keep]
-                scale = (scale * stretch)[keep]
-                dropped += len(inside) - len(keep)
-                times["map"] += time.perf_counter() - tick
-            return index, points, unit_dirs, deltas[index] * scale, fronts[index] * scale
+            index, points, unit_dirs, deltas, fronts, n_out = _locate(index, o, d, samples, to_rest, times)
+            dropped += n_out
+            return index, points, unit_dirs, deltas, fronts
 
         tick = time.perf_counter()
-        color, located = shade_samples(field, samples, locate, ray_background(field, d, background))
+        behind = None if backdrop is None else backdrop(o, d)
+        times["world"] += time.perf_counter() - tick
+        tick = time.perf_counter()
+        behind = ray_background(field, d, background) if behind is None else behind
+        color, located = shade_samples(field, samples, locate, behind)
         colors.append(color)
         counts.append(located)
         times["shade"] += time.perf_counter() - tick
@@ -212,12 +260,13 @@ def render_camera(
     background: torch.Tensor,
     to_rest: RestMap | None = None,
     chunk: int | None = None,
+    backdrop=None,
 ) -> tuple[np.ndarray, dict]:
-    """Render camera ``index`` through :func:`render_pixels`: image (H, W, 3) float32 in [0, 1] and its
-    stats, with ``counts`` (H, W) and ``ms`` including the camera rays."""
+    """Render camera ``index`` through :func:`render_pixels` (``backdrop`` as there): image (H, W, 3)
+    float32 in [0, 1] and its stats, with ``counts`` (H, W) and ``ms`` including the camera rays."""
     start = time.perf_counter()
     origins, dirs = camera_rays(cameras, index, device=background.device)
-    colors, stats = render_pixels(field, origins, dirs, sampler, background, to_rest, chunk)
+    colors, stats = render_pixels(field, origins, dirs, sampler, background, to_rest, chunk, backdrop)
     h, w = int(cameras.height[index]), int(cameras.width[index])
     stats["counts"] = stats["counts"].reshape(h, w)
     image = colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy()

@@ -17,7 +17,11 @@ to rest space. :class:`DeformedRenderer`
    rest-space one of length ``stretch * delta`` (:meth:`InverseMap.map_rays`). Samples outside the deformed
    cage (``inside = False``) are dropped: the cage contains everything the field shows;
 4. **shades** the rest-space samples with the field and composites them along the deformed rays (Eq. 2-3),
-   over the asset's background.
+   over the asset's background, or, given a :class:`~neural.render.ground.WorldLook` and the body's
+   :class:`~shellsim.world.Placement`, over the world's lit ground and sky
+   (:func:`~neural.render.ground.world_backdrop`), its shadow rays cast through the same deformed shells,
+   mapped to rest space alike and attenuated by the field's transmittance
+   (:func:`~neural.render.view.transmittance`).
 
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
 pipeline without a map, with the asset's rest sampler, exactly what ``shellsim eval`` measures.
@@ -32,7 +36,7 @@ import torch
 
 #: Stages of a frame, in :meth:`DeformedRenderer.render`'s ``stats`` as ``<stage>_ms``: building the
 #: deformed frame, then the stages of :data:`neural.render.view.STAGES`.
-STAGES = ("build", "sample", "map", "shade")
+STAGES = ("build", "sample", "map", "shade", "world")
 
 
 class DeformedRenderer:
@@ -45,15 +49,21 @@ class DeformedRenderer:
     cage : :class:`shellsim.cage.build.Cage` embedding the asset's shells; None renders at rest only
     device : torch device of the field ("cpu", "cuda"); the inverse map runs on the matching Warp device
     config : narrow-band settings; None takes the asset's ``meta["narrowband"]`` (or the defaults)
+    look : :class:`neural.render.ground.WorldLook` of the world behind the body (ground, light, shadows,
+        sky); None: the asset's background colour
+    placement : :class:`shellsim.world.Placement` of the asset's frame in the world (with ``look``; None: the
+        identity)
 
     State: the rest sampler (:func:`neural.render.view.asset_sampler`, Embree scenes built once), the field,
     the cage, Warp meshes of the shells refitted to each deformed frame and the inverse map updated to it
     (both built on the first one): the renderer draws one frame at a time.
     """
 
-    def __init__(self, asset, field, cage, device: str = "cpu", config=None):
+    def __init__(self, asset, field, cage, device: str = "cpu", config=None, look=None, placement=None):
         from neural.device import warp_device
+        from neural.render.ground import WorldFrame
         from neural.render.view import asset_sampler
+        from shellsim.world import Placement
 
         self.outer, self.inner = asset.outer_mesh(), asset.inner_mesh()
         for name, mesh in (("outer", self.outer), ("inner", self.inner)):
@@ -70,6 +80,9 @@ class DeformedRenderer:
         self.config = asset.narrowband_config() if config is None else config
         self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
         self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
+        self.look = look
+        placement = Placement() if placement is None else placement
+        self.world = WorldFrame(placement.scale, placement.rotation, placement.translation)
         self._deformed = None  # WarpCaster, built for the first deformed frame
         self._inverse = None  # the InverseMap, built for the first deformed frame and updated for the next
 
@@ -113,13 +126,24 @@ class DeformedRenderer:
         """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
         (V, 3) (None: at rest, exactly :func:`neural.render.view.render_camera` with the asset's sampler),
         and the stats of ``render_camera`` plus ``build_ms`` (shell deformation, refitting their BVHs and
-        updating the inverse map; both built on the first deformed frame) and ``ms`` with it."""
-        from neural.render.view import render_camera
+        updating the inverse map; both built on the first deformed frame) and ``ms`` with it. With a ``look``
+        the world is behind the body, its shadow rays sampled and mapped as the camera rays are."""
+        from neural.render.ground import world_backdrop
+        from neural.render.view import render_camera, transmittance
 
         start = time.perf_counter()
         sampler, to_rest = self._frame(positions)
         build = time.perf_counter() - start
-        image, stats = render_camera(self.field, cameras, index, sampler, self.background, to_rest)
+        backdrop = None
+        if self.look is not None:
+
+            def visibility(origins, dirs):
+                return transmittance(self.field, origins, dirs, sampler, to_rest)
+
+            backdrop = world_backdrop(self.look, self.world, visibility)
+        image, stats = render_camera(
+            self.field, cameras, index, sampler, self.background, to_rest, backdrop=backdrop
+        )
         stats["build_ms"] = 1000.0 * build
         stats["ms"] = 1000.0 * (time.perf_counter() - start)
         return image, stats

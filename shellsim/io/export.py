@@ -22,13 +22,29 @@ from neural.files import write_atomically
 USD_HINT = "USD export needs the usd-core package: pip install 'shellsim[usd]'"
 
 
+#: USD purposes a mesh may have: "default" is rendered, "guide" (a cage) only shown when asked for.
+PURPOSES = ("default", "guide")
+
+
 @dataclass
 class AnimatedMesh:
-    """A triangle mesh whose points move: ``faces`` (F, 3) int, ``points(frame)`` -> (V, 3) float."""
+    """A triangle mesh whose points move: ``faces`` (F, 3) int, ``points(frame)`` -> (V, 3) float;
+    ``colors`` (V, 3) float in [0, 1] per vertex or None; ``purpose`` one of :data:`PURPOSES`."""
 
     name: str
     faces: np.ndarray
     points: Callable[[int], np.ndarray]
+    colors: np.ndarray | None = None
+    purpose: str = "default"
+
+    def __post_init__(self):
+        if self.purpose not in PURPOSES:
+            raise ValueError(f"purpose: expected one of {', '.join(PURPOSES)}, got {self.purpose!r}")
+        if self.colors is not None:
+            colors = np.asarray(self.colors, np.float32)
+            if colors.ndim != 2 or colors.shape[1] != 3 or not np.all((colors >= 0) & (colors <= 1)):
+                raise ValueError(f"colors: expected (V, 3) numbers in [0, 1], got shape {colors.shape}")
+            self.colors = colors
 
 
 def require_usd() -> None:
@@ -72,7 +88,8 @@ def write_usd(
 ) -> Path:
     """A USD stage (``.usd``/``.usda``/``.usdc``) with each mesh under ``/Root`` and its points sampled at
     time codes ``0 .. len(frames) - 1`` (the motion's frames ``frames``), ``fps`` time codes per second,
-    the up axis and metres per unit set so that Blender and Omniverse play it at its size."""
+    the up axis and metres per unit set so that Blender and Omniverse play it at its size; a mesh's
+    ``colors`` become its per-vertex ``primvars:displayColor`` and its ``purpose`` its USD purpose."""
     require_usd()
     from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
@@ -96,6 +113,10 @@ def write_usd(
             prim.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(faces)))
             prim.CreateFaceVertexIndicesAttr(Vt.IntArray(faces.reshape(-1).tolist()))
             prim.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+            prim.CreatePurposeAttr(mesh.purpose)
+            if mesh.colors is not None:
+                color = prim.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
+                color.Set(Vt.Vec3fArray.FromNumpy(mesh.colors))
             prims.append((prim, prim.CreatePointsAttr(), prim.CreateExtentAttr()))
         for code, frame in enumerate(frames):
             for mesh, (_, points_attr, extent_attr) in zip(meshes, prims, strict=True):

@@ -107,9 +107,17 @@ def stale_reason(path: Path, record: dict) -> str | None:
     return ", ".join(parts)
 
 
-def renderer_identity(asset) -> str:
-    """Digest of the narrow-band renderer's settings for ``asset`` (its sampling and background)."""
+def renderer_identity(asset, antialias: int = 1, world: dict | None = None) -> str:
+    """Digest of the narrow-band renderer's settings for ``asset`` (its sampling and background), the
+    jittered rays per pixel ``antialias`` (:func:`shellsim.render.frames.antialiased`; 1, one ray through
+    each pixel's centre, leaves the digest as it was before antialiasing, so those PNGs stay valid) and the
+    ``world`` behind the body (JSON: its look and the body's placement, :func:`shellsim.render.frames.
+    motion_world`; None, the asset's background, leaves the digest as it was)."""
     from dataclasses import asdict
 
     settings = {"narrowband": asdict(asset.narrowband_config()), "background": list(asset.background)}
+    if antialias != 1:
+        settings["antialias"] = antialias
+    if world is not None:
+        settings["world"] = world
     return digest("narrow band", json.dumps(settings, sort_keys=True))

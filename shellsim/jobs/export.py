@@ -61,8 +61,9 @@ def _compact(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _meshes(settings: ExportSettings, motion):
-    """The moving meshes of ``motion`` (list of AnimatedMesh): the asset's M+ (through its cage), the surface
-    a 'simulate --mesh' motion carries, and the cage's boundary last."""
+    """The moving meshes of ``motion`` (list of AnimatedMesh): the asset's M+ (through its cage; for USD
+    with the field's colour at each vertex, :func:`shellsim.render.shell_colors.shell_colors`), the surface
+    a 'simulate --mesh' motion carries, and the cage's boundary last, a guide (not rendered)."""
     from shellsim.cage.geometry import boundary_faces
     from shellsim.cage.store import cage_for_motion
     from shellsim.deform.inverse_map import deform_points
@@ -75,11 +76,18 @@ def _meshes(settings: ExportSettings, motion):
         asset = load_asset(settings.asset)
         cage = cage_for_motion(asset, motion, settings.motion)
         outer = np.asarray(asset.outer_mesh().faces, np.int64)
+        colors = None
+        if settings.format == "usd":
+            from neural.asset import load_field
+            from shellsim.render.shell_colors import shell_colors
+
+            colors = shell_colors(asset, load_field(asset, "cpu"))
         meshes.append(
             AnimatedMesh(
                 "outer_shell",
                 outer,
                 lambda k: deform_points(motion.positions[k], cage.tets, cage.outer_tet, cage.outer_bary),
+                colors,
             )
         )
     if motion.surface is not None:
@@ -89,7 +97,7 @@ def _meshes(settings: ExportSettings, motion):
             "motion", "the motion of an asset's cage needs {asset} to export its shell", value=settings.motion
         )
     used, faces = _compact(boundary_faces(motion.tets))
-    return [*meshes, AnimatedMesh("cage", faces, lambda k: motion.positions[k][used])]
+    return [*meshes, AnimatedMesh("cage", faces, lambda k: motion.positions[k][used], purpose="guide")]
 
 
 @holds_outputs

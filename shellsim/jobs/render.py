@@ -14,11 +14,14 @@ from neural.device import DEVICES
 from shellsim.errors import SettingError
 from shellsim.io.outputs import check_writable_dir, check_writable_file, holds_outputs, lock_output
 from shellsim.memory import check_memory, render_bytes
+from shellsim.render.cameras import OPTIONS, CameraSettings, camera_option
 from shellsim.render.result import RenderResult
+from shellsim.render.world import WorldSettings, world_option
 from shellsim.settings import check_choice, check_required, device_setting, option
 
-ORBIT_SIZE = 400  # pixels a side of the orbit's frames when no size is given
-MOTION_ONLY = ("orbit", "frames", "video", "fps")
+ORBIT_SIZE = 512  # pixels a side of the orbit's frames when no size is given
+MOTION_ANTIALIAS = 4  # jittered rays per pixel of a motion's frames when none is given
+MOTION_ONLY = ("frames", "video", "fps", *OPTIONS)
 
 
 @dataclass(frozen=True)
@@ -26,29 +29,39 @@ class RenderSettings:
     """What ``shellsim render`` takes; ``quiet`` keeps VTK's warnings off stderr."""
 
     asset: str | None = option(
-        help="asset directory or shipped asset name; without it, --motion --orbit draws the surface the "
-        "motion carries (e.g. from 'simulate --mesh') with pyvista"
+        help="asset directory or shipped asset name; without it, --motion draws the surface the motion "
+        "carries (e.g. from 'simulate --mesh') with pyvista"
     )
     motion: str | None = option(help="motion file (.npz) from 'shellsim simulate' or 'shellsim wind'")
     cameras: str | None = option(
         help="camera file or dataset directory, any format 'train --data' reads (NeRF-synthetic "
         "transforms_*.json, instant-ngp / nerfstudio transforms.json with fl_x fl_y cx cy k1 k2 p1 p2 w h); "
-        "every listed frame is a camera, its image may be absent",
-        group="view",
-        required=True,
+        "every listed frame is a camera (in the asset's frame), its image may be absent; with --motion, "
+        "instead of --camera, its first camera views every frame",
     )
-    orbit: bool = option(
-        False, help="with --motion: one camera revolution around the asset per clip", group="view"
-    )
+    camera: str | None = camera_option("camera")
+    orbit_degrees: float | None = camera_option("orbit_degrees")
+    camera_position: tuple[float, float, float] | None = camera_option("camera_position")
+    look_at: tuple[float, float, float] | None = camera_option("look_at")
     out: str = option(help="directory of the PNG frames", required=True)
     frames: str | None = option(help="with --motion: frames START:END (END exclusive)", shown_default="all")
-    width: int | None = option(help="image width", shown_default=f"the camera file's; orbit {ORBIT_SIZE}")
+    width: int | None = option(help="image width", shown_default=f"the camera file's; --camera: {ORBIT_SIZE}")
     height: int | None = option(
         help="image height; the file's pixel intrinsics are scaled to the size",
-        shown_default="the camera file's, or the file's aspect ratio with --width alone; orbit: as --width",
+        shown_default="the camera file's, or its aspect ratio with --width alone; --camera: as --width",
     )
     video: str | None = option(help="with --motion: also write the frames as this MP4")
     fps: float | None = option(help="video frame rate", shown_default="the motion's")
+    antialias: int | None = option(
+        help="jittered rays per pixel, averaged (1: one ray through each pixel's centre, as 'eval' scores)",
+        shown_default=f"{MOTION_ANTIALIAS} with --motion, else 1",
+    )
+    ground: bool = option(
+        True, help="with --motion: draw no ground, only the sky", flag="--no-ground", negate=True
+    )
+    ground_colors: tuple[float, ...] = world_option("ground_colors")
+    light: tuple[float, ...] = world_option("light")
+    sky: tuple[float, ...] = world_option("sky")
     overwrite: bool = option(False, help="render frames already in OUT again")
     device: str = option("auto", help="cpu, cuda or auto")
     ray: str | None = option(
@@ -70,20 +83,31 @@ class RenderSettings:
             for name in MOTION_ONLY:
                 if getattr(self, name) not in (None, False):
                     raise SettingError(name, "needs {motion} (without it every camera is rendered at rest)")
-        if (self.cameras is None) == (not self.orbit):  # the command line's group "view"
-            raise SettingError("cameras", "give exactly one of {cameras} and {orbit} (with a {motion})")
+        world = WorldSettings.of(self)
+        for name in ([] if self.ground else ["ground"]) + world.changed():
+            if self.motion is None:
+                raise SettingError(name, "needs {motion} (views at rest show no world)")
+        if self.motion is None and self.cameras is None:
+            raise SettingError("cameras", "needed to render at rest (without a {motion})")
+        if self.cameras is not None and any(getattr(self, name) is not None for name in OPTIONS):
+            raise SettingError("cameras", "give one of {cameras} and {camera}")
+        CameraSettings.of(self)
         if self.fps is not None and not (self.fps > 0 and math.isfinite(self.fps)):
             raise SettingError("fps", f"expected a positive number, got {self.fps}")
+        if self.antialias is not None and not 1 <= self.antialias <= 64:
+            raise SettingError("antialias", f"expected 1 to 64 rays per pixel, got {self.antialias}")
         check_choice("device", self.device, DEVICES)
-        if self.asset is None and not (self.motion is not None and self.orbit):
-            raise SettingError("asset", "needed, unless {motion} and {orbit} draw a motion's own surface")
+        if self.asset is None and not (self.motion is not None and self.cameras is None):
+            raise SettingError("asset", "needed, unless a {motion} without {cameras} draws its own surface")
         if self.asset is None and self.ray is not None:
             raise SettingError("ray", "renders an asset's frames; a motion's own surface is drawn here")
+        if self.asset is None and self.antialias is not None:
+            raise SettingError("antialias", "renders an asset's frames; pyvista draws a motion's own surface")
 
     def size(self) -> tuple[int | None, int | None] | None:
         """(W, H) of the frames: None, the camera file's; a missing side keeps the file's aspect ratio;
-        the orbit's are square."""
-        if self.orbit:
+        a motion's world camera makes square ones."""
+        if self.cameras is None:
             side = self.width or self.height or ORBIT_SIZE
             return (self.width or side, self.height or side)
         if self.width is None and self.height is None:
@@ -120,13 +144,25 @@ def render(settings: RenderSettings) -> RenderResult:
         if settings.quiet:
             quiet_vtk()
         return render_surface_motion(
-            settings.motion, settings.out, settings.frames, video=settings.video, fps=settings.fps, **common
+            settings.motion,
+            settings.out,
+            settings.frames,
+            video=settings.video,
+            fps=settings.fps,
+            camera=CameraSettings.of(settings),
+            **common,
         )
     if settings.motion is None:
         from shellsim.render.frames import render_views
 
         return render_views(
-            settings.asset, settings.cameras, settings.out, device=settings.device, ray=settings.ray, **common
+            settings.asset,
+            settings.cameras,
+            settings.out,
+            device=settings.device,
+            ray=settings.ray,
+            antialias=settings.antialias or 1,
+            **common,
         )
     from shellsim.render.frames import render_motion
 
@@ -135,11 +171,13 @@ def render(settings: RenderSettings) -> RenderResult:
         settings.motion,
         settings.out,
         cameras=settings.cameras,
-        orbit=settings.orbit,
+        camera=None if settings.cameras else CameraSettings.of(settings),
         frames=settings.frames,
         video=settings.video,
         fps=settings.fps,
         device=settings.device,
         ray=settings.ray,
+        antialias=settings.antialias or MOTION_ANTIALIAS,
+        look=WorldSettings.of(settings).look(settings.ground),
         **common,
     )

@@ -28,7 +28,10 @@ from shellsim.errors import SettingError
 from shellsim.io.outputs import holds_outputs
 from shellsim.motion.format import MAX_FPS, MAX_FRAMES
 from shellsim.physics.selection import parse_selection, select_vertices, selection_text
+from shellsim.render.cameras import OPTIONS, CameraSettings, camera_option
 from shellsim.render.result import RenderResult
+from shellsim.render.world import OPTIONS as WORLD_OPTIONS
+from shellsim.render.world import WorldSettings, world_option
 from shellsim.settings import (
     check_range,
     device_setting,
@@ -53,6 +56,8 @@ NOT_MOTION = (
     "overwrite",
     "video",
     "video_size",
+    *OPTIONS,
+    *WORLD_OPTIONS,
     "device",
     "max_stretch",
     "allow_stretch",
@@ -146,13 +151,20 @@ class SimulateSettings:
     resume: bool = resume_option()
     overwrite: bool = overwrite_option()
     video: str | None = option(
-        help="then render the motion (orbiting camera) to this MP4 and its frames to VIDEO_frames/ (with "
+        help="then render the motion (seen by --camera) to this MP4 and its frames to VIDEO_frames/ (with "
         "--mesh: the mesh's surface, drawn with pyvista); frames already there are kept only when they show "
         "the same motion frame, camera and size"
     )
     video_size: tuple[int, int] = option(
-        (200, 200), help="WxH of the rendered frames", parse=pixels, shown_default="200x200"
+        (512, 512), help="WxH of the rendered frames", parse=pixels, shown_default="512x512"
     )
+    camera: str | None = camera_option("camera")
+    orbit_degrees: float | None = camera_option("orbit_degrees")
+    camera_position: tuple[float, float, float] | None = camera_option("camera_position")
+    look_at: tuple[float, float, float] | None = camera_option("look_at")
+    ground_colors: tuple[float, ...] = world_option("ground_colors")
+    light: tuple[float, ...] = world_option("light")
+    sky: tuple[float, ...] = world_option("sky")
     device: str = option("auto", help="auto, cpu or cuda")
 
     def __post_init__(self):
@@ -209,6 +221,13 @@ class SimulateSettings:
             check_range("box", min(b[3:]), 0, math.inf, "half extents", "()")
         if self.up is not None and not np.linalg.norm(self.up) > 0:
             raise SettingError("up", "the up axis must be a non-zero vector")
+        for name in OPTIONS:
+            if self.video is None and getattr(self, name) is not None:
+                raise SettingError(name, "sets the camera of the {video}")
+        CameraSettings.of(self)
+        for name in WorldSettings.of(self).changed():
+            if self.asset is None or self.video is None:
+                raise SettingError(name, "sets the world behind the {video} of an {asset}")
 
     @property
     def scale_size(self) -> float | None:
@@ -390,15 +409,23 @@ def _file_digest(path: Path) -> str:
 def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, device: str) -> RenderResult:
     """Render the motion ``out`` to ``frames_dir`` and ``video``: the asset, or a mesh's surface (pyvista);
     each frame already there is kept only if it records this motion frame and camera."""
+    camera = CameraSettings.of(s)
     if s.asset:
         from shellsim.render.frames import render_motion
 
         return render_motion(
-            s.asset, out, frames_dir, orbit=True, size=s.video_size, video=video, device=device
+            s.asset,
+            out,
+            frames_dir,
+            camera=camera,
+            size=s.video_size,
+            video=video,
+            device=device,
+            look=WorldSettings.of(s).look(),
         )
     from shellsim.viz.surface import render_surface_motion
 
-    return render_surface_motion(out, frames_dir, size=s.video_size, video=video)
+    return render_surface_motion(out, frames_dir, size=s.video_size, video=video, camera=camera)
 
 
 def _sim_settings(s: SimulateSettings):

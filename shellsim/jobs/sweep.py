@@ -1,7 +1,7 @@
 """``shellsim sweep``: the product of materials and drop heights as simulations (plus wind strengths as wind
 animations), each rendered, one sub-directory per combination, an index and a labelled contact sheet.
 
-``OUT/<name>/`` holds ``motion.npz``, ``frames/<k:05d>.png`` (one orbiting camera for all, framing every
+``OUT/<name>/`` holds ``motion.npz``, ``frames/<k:05d>.png`` (one camera for all, ``camera``, framing every
 motion of the sweep, so the stills compare at one scale) and, with ``video``, ``video.mp4``; ``<name>``
 is ``<material>_h<height>`` for a drop and ``wind_<strength>`` for wind.
 ``OUT/index.json`` lists every combination with its settings, files and figures and is rewritten as each
@@ -24,6 +24,7 @@ import numpy as np
 from shellsim.errors import SettingError
 from shellsim.io.outputs import holds_outputs
 from shellsim.motion.format import MAX_FRAMES
+from shellsim.render.cameras import CameraSettings, camera_option
 from shellsim.settings import check_range, check_required, float_list, name_list, option, pixels
 
 
@@ -45,9 +46,13 @@ class SweepSettings:
     )
     frames: int = option(60, help="frames of each motion")
     size: tuple[int, int] = option(
-        (200, 200), help="WxH of the frames", parse=pixels, shown_default="200x200"
+        (512, 512), help="WxH of the frames", parse=pixels, shown_default="512x512"
     )
     video: bool = option(help="also assemble each combination's frames into an MP4")
+    camera: str | None = camera_option("camera")
+    orbit_degrees: float | None = camera_option("orbit_degrees")
+    camera_position: tuple[float, float, float] | None = camera_option("camera_position")
+    look_at: tuple[float, float, float] | None = camera_option("look_at")
     ray: str | None = option(
         help="run the combinations as Ray tasks: alone, on a local Ray instance using every core; with an "
         "ADDRESS, on that cluster ('auto': the one this machine belongs to)",
@@ -70,6 +75,7 @@ class SweepSettings:
         for strength in self.wind:
             check_range("wind", strength, 0, 1, "a tip deflection / height")
         check_range("frames", self.frames, 1, MAX_FRAMES, "an integer")
+        CameraSettings.of(self)
         for name in ("material", "drop_height", "wind"):
             values = getattr(self, name)
             if len(set(values)) != len(values):
@@ -133,9 +139,9 @@ def simulate_combination(settings: SweepSettings, combo: dict, progress: bool = 
 def render_combination(
     settings: SweepSettings, combo: dict, framing: np.ndarray, progress: bool = False
 ) -> dict:
-    """Render one simulated combination by the orbit that keeps ``framing`` (N, 3) in view (the same for
-    every combination); returns its entry of the index: the combination, its files (relative to ``out``)
-    and figures."""
+    """Render one simulated combination by the camera of ``settings``, which keeps ``framing`` (N, 3) in
+    view (the same for every combination; a follow camera frames the body); returns its entry of the index:
+    the combination, its files (relative to ``out``) and figures."""
     from shellsim.render.frames import render_motion
 
     out = Path(settings.out)
@@ -145,7 +151,7 @@ def render_combination(
         settings.asset,
         folder / "motion.npz",
         folder / "frames",
-        orbit=True,
+        camera=CameraSettings.of(settings),
         size=settings.size,
         video=video,
         device=settings.device,
@@ -228,7 +234,7 @@ def sweep(settings: SweepSettings, progress: bool = True) -> SweepResult:
         _run(settings, combos, simulate_combination, (), simulated, bar, "simulate")
         lo, hi = np.min(corners, axis=(0, 1)), np.max(corners, axis=(0, 1))  # world metres
         framing = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])  # its corners:
-        # one orbit for all, so the stills compare at one scale (the box's 8 corners, whatever the rotation)
+        # one framing for all, so the stills compare at one scale (the box's 8 corners, whatever the rotation)
         bar.reset(total=len(combos))
         _run(settings, combos, render_combination, (framing,), done, bar, "render")
     entries = index["combinations"]

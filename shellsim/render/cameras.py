@@ -1,16 +1,258 @@
-"""Cameras for rendering motions: an orbit about the up axis that frames a set of points."""
+"""Cameras for rendering motions, in world metres (z up): fixed (a position and a look-at point, or a preset
+framed to the motion), an orbit over a given arc per clip, or a camera that follows the body's centre of mass.
+
+:class:`CameraSettings` is the one vocabulary (its option fields are those of ``render``, ``simulate`` and
+``sweep``, copied by :func:`camera_option`); :func:`motion_track` sums a motion up for it (each frame's box
+and centre of mass); :meth:`CameraSettings.shot` turns both into a :class:`Shot`, whose
+:meth:`Shot.camera_for_frame` is a pinhole camera in the world's frame. The asset renderer maps it into the
+asset's frame (:func:`shellsim.render.frames.asset_camera`); the pyvista surface renderer draws the world.
+:func:`orbit_camera` and :func:`orbit_framing` are one camera about a point and the distance of a sphere.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-#: Horizontal field of view of the orbit camera, degrees, and its elevation above the horizon.
+from shellsim.errors import SettingError
+from shellsim.settings import check_choice, check_range, floats, option
+from shellsim.world import UP
+
+#: Horizontal field of view of the cameras, degrees, and the elevation above the horizon of the orbit, the
+#: follow camera and the three-quarter preset.
 ORBIT_FOV_DEG = 40.0
-
-
 ORBIT_ELEVATION_DEG = 25.0
+#: The orbit's arc over a clip, degrees; the follow camera's smoothing time constant, seconds.
+ORBIT_DEGREES = 30.0
+FOLLOW_SECONDS = 0.5
+#: Room around the framed box: each half field of view is used up to 1 / MARGIN of its tangent.
+MARGIN = 1.05
+#: Presets: (azimuth, elevation) in degrees of the direction from the box's centre to the camera, the
+#: azimuth about up from +x towards +y; None: the settings' elevation.
+PRESETS = {"front": (-90.0, 0.0), "side": (0.0, 0.0), "top": (-90.0, 90.0), "three-quarter": (-45.0, None)}
+CAMERAS = ("orbit", "fixed", "follow", *PRESETS)
+#: The fields of :class:`CameraSettings` that are command-line options of the jobs that render motions.
+OPTIONS = ("camera", "orbit_degrees", "camera_position", "look_at")
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """The camera of a motion's frames, in world metres; ``fov`` (horizontal, degrees), ``elevation``
+    (degrees above the horizon) and ``follow_seconds`` (the follow camera's smoothing time constant) are
+    settable from Python only."""
+
+    camera: str | None = option(
+        help="camera of a motion's frames, in world metres (z up): orbit (an arc of --orbit-degrees about "
+        "the motion), fixed (at --camera-position looking at --look-at), follow (tracks the body's centre of "
+        "mass smoothly) or a preset that keeps the whole motion in view: front (from -y), side (from +x), "
+        "top (from +z), three-quarter",
+        choices=CAMERAS,
+        shown_default="orbit",
+    )
+    orbit_degrees: float | None = option(
+        help="the orbit's arc over the whole clip in degrees (360: one turn)",
+        shown_default=f"{ORBIT_DEGREES:g} degrees with the orbit camera",
+    )
+    camera_position: tuple[float, float, float] | None = option(
+        help="X,Y,Z in metres of the fixed camera", parse=floats(3), metavar="X,Y,Z"
+    )
+    look_at: tuple[float, float, float] | None = option(
+        help="X,Y,Z in metres the fixed camera looks at",
+        parse=floats(3),
+        metavar="X,Y,Z",
+        shown_default="the centre of the motion's box",
+    )
+    fov: float = ORBIT_FOV_DEG
+    elevation: float = ORBIT_ELEVATION_DEG
+    follow_seconds: float = FOLLOW_SECONDS
+
+    def __post_init__(self):
+        if self.camera is not None:
+            check_choice("camera", self.camera, CAMERAS)
+        if self.orbit_degrees is not None:
+            if self.kind != "orbit":
+                raise SettingError("orbit_degrees", f"sets an orbit's arc, not the {self.kind} {{camera}}")
+            check_range("orbit_degrees", self.orbit_degrees, -3600, 3600, "an arc in degrees")
+        if (self.kind == "fixed") != (self.camera_position is not None):
+            raise SettingError("camera_position", "needed by the fixed {camera}, and by no other")
+        if self.look_at is not None:
+            if self.kind != "fixed":
+                raise SettingError("look_at", "sets where the fixed {camera} looks")
+            if np.allclose(self.look_at, self.camera_position):
+                raise SettingError("look_at", "must differ from {camera_position}")
+        check_range("fov", self.fov, 0, 180, "a field of view in degrees", "()")
+        check_range("elevation", self.elevation, -90, 90, "an angle in degrees")
+        check_range("follow_seconds", self.follow_seconds, 0, math.inf, "a time in seconds", "()")
+
+    @classmethod
+    def of(cls, settings) -> CameraSettings:
+        """The camera of a job's ``settings``, which declare the :data:`OPTIONS` (:func:`camera_option`)."""
+        return cls(**{name: getattr(settings, name) for name in OPTIONS})
+
+    @property
+    def kind(self) -> str:
+        """The camera: ``camera``, else "orbit"."""
+        return self.camera or "orbit"
+
+    def shot(self, track: MotionTrack, width: int, height: int, up=UP, box=None) -> Shot:
+        """The :class:`Shot` of this camera over the motion summed up by ``track``, ``width`` x ``height``
+        pixels, ``up`` (3,) the world's up axis. Orbit and presets keep ``box`` (2, 3) (default: the box of
+        every frame) in view at every frame; follow keeps each frame's box in view."""
+        from neural.data import look_at
+
+        up = _unit(up)
+        n = len(track.times)
+        box = np.stack([track.lo.min(0), track.hi.max(0)]) if box is None else np.asarray(box, np.float64)
+        centre = np.broadcast_to(box.mean(0), (n, 3))
+        corners = np.broadcast_to(_corners(box), (n, 8, 3))
+        focal = 0.5 * width / math.tan(0.5 * math.radians(self.fov))
+        if self.kind == "fixed":
+            target = centre[0] if self.look_at is None else np.asarray(self.look_at, np.float64)
+            eye = np.asarray(self.camera_position, np.float64)
+            vertical = np.linalg.norm(np.cross(_unit(eye - target), up)) < 1e-6  # looking along up
+            c2w = look_at(eye, target, _basis(up)[1] if vertical else up)
+            return Shot(np.broadcast_to(c2w, (n, 4, 4)).copy(), focal, width, height, self.kind)
+        elevation = self.elevation
+        if self.kind == "orbit":
+            degrees = ORBIT_DEGREES if self.orbit_degrees is None else self.orbit_degrees
+            steps = np.arange(n) / (n - 1) if n > 1 else np.full(1, 0.5)
+            azimuth = PRESETS["three-quarter"][0] + degrees * (steps - 0.5)
+        elif self.kind == "follow":
+            azimuth = np.full(n, PRESETS["three-quarter"][0])
+            centre = smoothed(track.centre, track.times, self.follow_seconds)
+            corners = np.stack([_corners(b) for b in np.stack([track.lo, track.hi], 1)])
+        else:
+            azimuth, preset_elevation = PRESETS[self.kind]
+            azimuth = np.full(n, azimuth)
+            elevation = self.elevation if preset_elevation is None else preset_elevation
+        rotation = _rotations(up, np.radians(azimuth), math.radians(elevation))  # (n, 3, 3)
+        distance = _fit_distance(corners, centre, rotation, 0.5 * width / focal, 0.5 * height / focal)
+        c2w = np.tile(np.eye(4), (n, 1, 1))
+        c2w[:, :3, :3] = rotation
+        c2w[:, :3, 3] = centre + distance[:, None] * rotation[:, :, 2]
+        return Shot(c2w, focal, width, height, self.kind)
+
+
+def camera_option(name: str):
+    """A dataclass field for a job's settings: the option ``name`` of :class:`CameraSettings` (its help,
+    parser and default), so that every job that renders a motion declares the same camera options."""
+    field = CameraSettings.__dataclass_fields__[name]
+    return dataclasses.field(default=field.default, metadata=field.metadata)
+
+
+@dataclass(frozen=True)
+class Shot:
+    """The world-frame camera of every frame of a clip: ``c2w`` (F, 4, 4) OpenGL camera-to-world in metres,
+    ``focal`` in pixels, ``width`` x ``height`` pixels, principal point at the image centre."""
+
+    c2w: np.ndarray
+    focal: float
+    width: int
+    height: int
+    name: str
+
+    def camera_for_frame(self, k: int):
+        """A one-camera :class:`neural.data.Cameras` (world frame) of motion frame ``k``."""
+        from neural.data import Cameras
+
+        f, w, h = self.focal, self.width, self.height
+        c2w = self.c2w[k][None]
+        return Cameras(c2w, [f], [f], [0.5 * w], [0.5 * h], [w], [h], np.zeros((1, 4)), [self.name])
+
+
+@dataclass(frozen=True)
+class MotionTrack:
+    """What cameras frame, per frame of a motion (world metres): ``lo``, ``hi`` (F, 3) the corners of frame
+    k's box, ``centre`` (F, 3) its centre of mass, ``times`` (F,) seconds."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    centre: np.ndarray
+    times: np.ndarray
+
+
+def mass_weights(rest_vertices, tets) -> np.ndarray:
+    """(V,) each vertex's share of the rest volume: a quarter of the volume of each tet (T, 4) it belongs
+    to, so that ``weights @ positions / weights.sum()`` is the centre of mass of a body of uniform density
+    whose tets keep their mass (linear in the positions, exact for a rigid motion)."""
+    from shellsim.cage.geometry import tet_volumes
+
+    tets = np.asarray(tets)
+    weights = np.zeros(len(rest_vertices))
+    np.add.at(weights, tets.reshape(-1), np.repeat(np.abs(tet_volumes(rest_vertices, tets)) / 4, 4))
+    return weights
+
+
+def motion_track(batches, weights, times) -> MotionTrack:
+    """The :class:`MotionTrack` of a motion whose frames, in order, are the arrays (n, V, 3) of ``batches``
+    (e.g. :func:`shellsim.motion.read.iter_frames`), ``weights`` (V,) of :func:`mass_weights`, ``times``
+    (F,) seconds."""
+    weights = np.asarray(weights, np.float64) / float(np.sum(weights))
+    lo, hi, centre = [], [], []
+    for batch in batches:
+        batch = np.asarray(batch, np.float64)
+        lo.append(batch.min(axis=1))
+        hi.append(batch.max(axis=1))
+        centre.append(np.einsum("v,nvi->ni", weights, batch))
+    times = np.asarray(times, np.float64)
+    return MotionTrack(np.concatenate(lo), np.concatenate(hi), np.concatenate(centre), times)
+
+
+def smoothed(points, times, seconds: float) -> np.ndarray:
+    """(F, 3) exponential smoothing of ``points`` (F, 3) at ``times`` (F,) with time constant ``seconds``:
+    ``s_0 = p_0``, ``s_k = s_(k-1) + (1 - exp(-(t_k - t_(k-1)) / seconds)) (p_k - s_(k-1))``; computed over
+    the whole motion, so each frame's value is the same whichever frames are rendered."""
+    points = np.asarray(points, np.float64)
+    gains = 1.0 - np.exp(-np.diff(np.asarray(times, np.float64)) / seconds)
+    out = points.copy()
+    for k, gain in enumerate(gains, start=1):
+        out[k] = out[k - 1] + gain * (points[k] - out[k - 1])
+    return out
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _basis(up) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (3,) that make a right-handed frame with ``up``: +x and +y for up = +z."""
+    e1 = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = _unit(e1 - (e1 @ up) * up)
+    return e1, np.cross(up, e1)
+
+
+def _rotations(up, azimuth, elevation: float) -> np.ndarray:
+    """(n, 3, 3) camera axes (columns: right, image up, back) of cameras at ``azimuth`` (n,) radians about
+    ``up`` (3,) and ``elevation`` radians above the horizon, looking at their target; image up is ``up``
+    tilted with the view (at elevation 90 degrees the horizontal direction away from the camera)."""
+    e1, e2 = _basis(up)
+    flat = np.cos(azimuth)[:, None] * e1 + np.sin(azimuth)[:, None] * e2  # (n, 3)
+    back = math.cos(elevation) * flat + math.sin(elevation) * up
+    image_up = -math.sin(elevation) * flat + math.cos(elevation) * up
+    return np.stack([np.cross(image_up, back), image_up, back], axis=2)
+
+
+def _corners(box) -> np.ndarray:
+    """(8, 3) corners of the box (2, 3) of lower and upper corners."""
+    box = np.asarray(box, np.float64)
+    return np.array([[box[(k >> a) & 1, a] for a in range(3)] for k in range(8)])
+
+
+def _fit_distance(corners, target, rotation, tan_x: float, tan_y: float) -> np.ndarray:
+    """(n,) the least distance from ``target`` (n, 3) along each camera's back axis (column 2 of
+    ``rotation`` (n, 3, 3)) at which every point of ``corners`` (n, P, 3) projects inside the image whose
+    half widths are ``tan_x``, ``tan_y`` (tangents of the half fields of view) shrunk by :data:`MARGIN`: a
+    point at (x, y, z) in the camera's axes about the target needs ``D >= z + MARGIN |x| / tan_x`` and
+    ``D >= z + MARGIN |y| / tan_y``."""
+    local = np.einsum("npi,nij->npj", corners - target[:, None], rotation)
+    x, y, z = np.abs(local[..., 0]), np.abs(local[..., 1]), local[..., 2]
+    need = np.maximum(z + MARGIN * x / tan_x, z + MARGIN * y / tan_y).max(axis=1)
+    size = np.linalg.norm(corners - target[:, None], axis=2).max(axis=1)
+    return np.maximum(need, z.max(axis=1) + 1e-3 * np.maximum(size, 1e-9))
 
 
 def orbit_camera(
@@ -26,34 +268,18 @@ def orbit_camera(
     """One pinhole camera (a ``Cameras`` of length 1) at ``distance`` from ``center`` (3,), ``elevation_deg``
     above the plane normal to ``up`` (3,), at ``azimuth`` radians around ``up``, looking at ``center``
     with a horizontal field of view ``fov_deg``, imaging ``width`` x ``height`` pixels."""
-    from neural.data import Cameras, look_at
-
-    up = np.asarray(up, dtype=np.float64)
-    up = up / np.linalg.norm(up)
-    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(up, e1)
-    el = math.radians(elevation_deg)
-    view = math.cos(el) * (math.cos(azimuth) * e1 + math.sin(azimuth) * e2) + math.sin(el) * up
-    c2w = look_at(np.asarray(center, dtype=np.float64) + distance * view, center, up)
+    rotation = _rotations(_unit(up), np.array([azimuth]), math.radians(elevation_deg))[0]
+    c2w = np.eye(4)
+    c2w[:3, :3] = rotation
+    c2w[:3, 3] = np.asarray(center, np.float64) + distance * rotation[:, 2]
     focal = 0.5 * width / math.tan(0.5 * math.radians(fov_deg))
-    return Cameras(
-        c2w[None],
-        [focal],
-        [focal],
-        [0.5 * width],
-        [0.5 * height],
-        [width],
-        [height],
-        np.zeros((1, 4)),
-        ["orbit"],
-    )
+    return Shot(c2w[None], focal, width, height, "orbit").camera_for_frame(0)
 
 
 def orbit_framing(points) -> tuple[np.ndarray, float]:
     """Centre (3,) and distance of an orbit that keeps ``points`` (N, 3) in view: the bounding box's
     centre and the distance at which its circumscribed sphere fills ``ORBIT_FOV_DEG`` (with 5% room)."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    points = np.asarray(points, np.float64).reshape(-1, 3)
     lo, hi = points.min(axis=0), points.max(axis=0)
     radius = 0.5 * float(np.linalg.norm(hi - lo))
-    return 0.5 * (lo + hi), 1.05 * radius / math.sin(0.5 * math.radians(ORBIT_FOV_DEG))
+    return 0.5 * (lo + hi), MARGIN * radius / math.sin(0.5 * math.radians(ORBIT_FOV_DEG))

@@ -18,11 +18,58 @@ from neural.errors import write_failures
 from shellsim.deform.renderer import DeformedRenderer
 from shellsim.io.png import asset_identity, digest, frame_record, renderer_identity, save_png, stale_reason
 from shellsim.io.video import write_video
-from shellsim.render.cameras import orbit_camera, orbit_framing
+from shellsim.render.cameras import CameraSettings, mass_weights, motion_track
 from shellsim.render.result import RenderResult
 from shellsim.settings import parse_frames
 
 log = logging.getLogger(__name__)
+
+#: (W, H) of a motion's frames when neither a size nor a camera file gives one.
+VIDEO_SIZE = (512, 512)
+#: Jittered rays per pixel of a motion's frames by default (:func:`antialiased`); rest views take 1, the
+#: pixel-centre rays that ``shellsim eval`` scores.
+MOTION_ANTIALIAS = 4
+#: Seed of the sub-pixel offsets of :func:`pixel_offsets`: fixed, so a frame is the same every time.
+JITTER_SEED = 0
+
+
+def pixel_offsets(samples: int) -> np.ndarray:
+    """(samples, 2) sub-pixel offsets (dx, dy) in pixels, in [-0.5, 0.5)^2: multi-jittered sampling (Chiu,
+    Shirley and Wang 1994, its canonical arrangement): one point in each cell (a, b) of a g x h grid (g h =
+    ``samples``, g the largest divisor <= sqrt(samples)) and in each of the ``samples`` columns and rows,
+    ``dx + 0.5 = (a + (b + u) / h) / g``, ``dy + 0.5 = (b + (a + v) / g) / h`` with u, v uniform in [0, 1)
+    drawn with :data:`JITTER_SEED`; ``samples`` = 1 is the pixel centre (0, 0)."""
+    if not (isinstance(samples, int) and samples >= 1):
+        raise ValueError(f"samples: expected a positive integer, got {samples!r}")
+    if samples == 1:
+        return np.zeros((1, 2))
+    g = max(d for d in range(1, math.isqrt(samples) + 1) if samples % d == 0)
+    h = samples // g
+    a, b = (c.reshape(-1) for c in np.meshgrid(np.arange(g), np.arange(h), indexing="ij"))
+    u, v = np.random.default_rng(JITTER_SEED).random((2, samples))
+    return np.stack([(a + (b + u) / h) / g, (b + (a + v) / g) / h], -1) - 0.5
+
+
+def antialiased(render, samples: int):
+    """``render_one(view) -> (image, stats)`` averaging ``samples`` renders of the one-camera ``Cameras``
+    ``view`` by ``render(view) -> (image (H, W, 3), stats)``, each with its principal point moved so that
+    pixel (i, j) casts its ray through (j + 0.5 + dx, i + 0.5 + dy) for the offsets of
+    :func:`pixel_offsets` (jittered supersampling with a box filter: a pixel approaches the mean colour
+    over its square). Stats are summed over the passes (``ms``, ``<stage>_ms``, ``samples_per_pixel``:
+    field samples per pixel of the frame, ``counts``). ``samples`` = 1 is ``render`` itself."""
+    offsets = pixel_offsets(samples)
+    if samples == 1:
+        return render
+
+    def render_one(view):
+        total, stats = None, {}
+        for dx, dy in offsets:  # px + dx - cx = px - (cx - dx)
+            image, pass_stats = render(dataclasses.replace(view, cx=view.cx - dx, cy=view.cy - dy))
+            total = image.astype(np.float64) if total is None else total + image
+            stats = {k: stats.get(k, 0) + v for k, v in pass_stats.items()}
+        return (total / samples).astype(np.float32), stats
+
+    return render_one
 
 
 def render_frames(
@@ -107,22 +154,25 @@ def render_views(
     overwrite: bool = False,
     progress: bool = True,
     ray: str | None = None,
+    antialias: int = 1,
 ) -> RenderResult:
     """Render every camera of a ``transforms*.json``-style camera file (images may be absent) at rest to
     ``out_dir/<frame name>.png`` (the listed image's name, else ``frame_<index>``); ``size`` = (W, H)
     overrides the file's. A PNG already there is kept only when its record (:func:`frame_record`) says it
     shows this asset from this camera at this size, unless ``overwrite``; others are rendered again. With
-    ``ray`` ("local" or a cluster address) each frame is a Ray task. Returns the :class:`RenderResult`
-    (counts, mean ms per frame and per stage)."""
+    ``ray`` ("local" or a cluster address) each frame is a Ray task. ``antialias``: jittered rays per pixel
+    (:func:`antialiased`; 1, the default: the pixel-centre rays ``shellsim eval`` scores). Returns the
+    :class:`RenderResult` (counts, mean ms per frame and per stage)."""
     from neural.asset import load_asset
     from neural.data import load_camera_file
 
+    pixel_offsets(antialias)  # checked before the asset loads
     cameras = load_camera_file(cameras_path, *(size or (None, None)))
     names = list(cameras.names)
     if len(set(names)) != len(names):
         names = [f"{i:05d}" for i in range(len(cameras))]
     asset = load_asset(asset_spec)
-    identity, settings = asset_identity(asset), renderer_identity(asset)
+    identity, settings = asset_identity(asset), renderer_identity(asset, antialias)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = []
@@ -130,39 +180,71 @@ def render_views(
         view = cameras.subset([i])
         jobs.append((out_dir / f"{names[i]}.png", frame_record("rest", view, identity, settings), view))
     if ray is None:
-        recipe = functools.partial(_view_frames, asset, None, device)
+        recipe = functools.partial(_view_frames, asset, None, device, antialias)
     else:
-        recipe = functools.partial(view_recipe, str(asset.root.resolve()), device)
+        recipe = functools.partial(view_recipe, str(asset.root.resolve()), device, antialias)
     return render_frames(jobs, out_dir, overwrite, progress, recipe, ray)
 
 
-def _view_frames(asset, cage, device: str, frame=None):
-    """``render_one(view)`` of :func:`render_frames`: ``view`` (a one-camera ``Cameras``) -> (image, stats),
-    at rest, or with ``cage`` and ``frame`` (k -> (V, 3) cage positions of frame k, :func:`motion_frames`)
-    for payloads ``(view, k)``."""
+def _view_frames(asset, cage, device: str, antialias: int, frame=None, world=None):
+    """``render_one(view)`` of :func:`render_frames`: ``view`` (a one-camera ``Cameras``) -> (image, stats)
+    with ``antialias`` jittered rays per pixel (:func:`antialiased`), at rest, or with ``cage`` and
+    ``frame`` (k -> (V, 3) cage positions of frame k, :func:`motion_frames`) for payloads ``(view, k)``;
+    ``world``: (look, placement) of :func:`motion_world` behind the body (None: the asset's background)."""
     device, field = _field(asset, device)
-    renderer = DeformedRenderer(asset, field, cage, device)
+    renderer = DeformedRenderer(asset, field, cage, device, None, *(world or (None, None)))
     if frame is None:
-        return lambda view: renderer.render(view, 0)
-    return lambda job: renderer.render(job[0], 0, frame(job[1]))
+        return antialiased(lambda view: renderer.render(view, 0), antialias)
+
+    def render_one(job):
+        positions = frame(job[1])
+        return antialiased(lambda view: renderer.render(view, 0, positions), antialias)(job[0])
+
+    return render_one
 
 
-def view_recipe(asset_path: str, device: str):
+def view_recipe(asset_path: str, device: str, antialias: int):
     """In a Ray worker: the rest ``render_one`` of the asset at ``asset_path``."""
     from neural.asset import load_asset
 
-    return _view_frames(load_asset(asset_path), None, device)
+    return _view_frames(load_asset(asset_path), None, device, antialias)
 
 
-def motion_recipe(asset_path: str, motion_path: str, device: str):
-    """In a Ray worker: the ``render_one((view, frame))`` of a motion of the asset at ``asset_path``."""
+def motion_recipe(asset_path: str, motion_path: str, device: str, antialias: int, look=None):
+    """In a Ray worker: the ``render_one((view, frame))`` of a motion of the asset at ``asset_path`` (``look``
+    as :func:`motion_world`'s)."""
     from neural.asset import load_asset
     from shellsim.cage.store import cage_for_motion
     from shellsim.motion.read import read_motion_info
 
     asset, motion = load_asset(asset_path), read_motion_info(motion_path)
     cage = cage_for_motion(asset, motion, motion_path)
-    return _view_frames(asset, cage, device, motion_frames(motion, motion_path))
+    frame = motion_frames(motion, motion_path)
+    return _view_frames(asset, cage, device, antialias, frame, motion_world(motion, look))
+
+
+def motion_world(motion, look=None):
+    """(look, placement) of the world behind a motion's body, or None for motions made before the world was
+    in metres (no placement: the asset's background). ``look``: a :class:`neural.render.ground.WorldLook`
+    (None: the default one); its ground is drawn only for motions that have one (not simulated without a
+    ground), the others have the sky alone."""
+    from neural.render.ground import WorldLook
+    from shellsim.world import Placement
+
+    if not motion.placement:
+        return None
+    look = WorldLook() if look is None else look
+    has_ground = motion.settings.get("drop_height", 0.0) is not None
+    placement = Placement.from_dict(motion.placement, motion.path or "motion")
+    return dataclasses.replace(look, ground=look.ground and has_ground), placement
+
+
+def world_record(world) -> dict | None:
+    """JSON of :func:`motion_world`'s (look, placement) for the frames' records (None stays None)."""
+    if world is None:
+        return None
+    look, placement = world
+    return {"look": dataclasses.asdict(look), "placement": placement.as_dict()}
 
 
 def motion_frames(motion, motion_path):
@@ -183,14 +265,18 @@ def asset_frame(motion, points) -> np.ndarray:
     return placement.to_asset(points).astype(np.float32)
 
 
-def asset_up(motion, asset) -> np.ndarray:
-    """(3,) the world's up axis in the asset's frame for ``motion`` (the asset's own up for motions made
-    before the world was in metres)."""
-    from shellsim.world import UP, Placement
+def asset_camera(motion, view):
+    """The one-camera :class:`neural.data.Cameras` ``view`` (world frame) of ``motion`` in the asset's frame:
+    its camera-to-world composed with the inverse of the placement (``R^T`` turns the axes, the position
+    goes through :meth:`Placement.to_asset`); the placement's scale moves the camera with the points, so the
+    image is the same."""
+    from shellsim.world import Placement
 
-    if not motion.placement:
-        return np.asarray(asset.up, np.float64)
-    return Placement.from_dict(motion.placement, motion.path or "motion").rotation.T @ np.array(UP)
+    placement = Placement.from_dict(motion.placement, motion.path or "motion")
+    c2w = view.c2w.copy()
+    c2w[:, :3, :3] = placement.rotation.T @ c2w[:, :3, :3]
+    c2w[:, :3, 3] = placement.to_asset(c2w[:, :3, 3])
+    return dataclasses.replace(view, c2w=c2w)
 
 
 def motion_frame_ids(motion, positions) -> list[str]:
@@ -205,7 +291,7 @@ def render_motion(
     motion_path,
     out_dir,
     cameras=None,
-    orbit: bool = False,
+    camera: CameraSettings | None = None,
     frames: str | None = None,
     size: tuple[int, int] | None = None,
     video=None,
@@ -215,63 +301,73 @@ def render_motion(
     progress: bool = True,
     ray: str | None = None,
     framing=None,
+    antialias: int = MOTION_ANTIALIAS,
+    look=None,
 ) -> RenderResult:
     """Render frames of a motion to ``out_dir/<k:05d>.png`` (``k`` the motion frame), optionally an MP4.
 
     asset_spec : asset directory or shipped name; motion_path : ``.npz`` of :mod:`shellsim.motion.format` made
         for this asset's cage (else an :class:`InputError`)
-    cameras : camera file (its first camera views every frame) or None with ``orbit``: a camera circling the
-        bounding box of the cage over the whole motion about the asset's up axis, one revolution over the
-        whole motion
+    cameras : camera file in the asset's frame (its first camera views every frame), or None
+    camera : :class:`~shellsim.render.cameras.CameraSettings` of a camera in world metres (not with
+        ``cameras``; neither: ``CameraSettings()``, an orbit of 30 degrees over the clip)
     frames : ``"a:b"`` spec of :func:`parse_frames` (None: all)
-    size : (W, H); default the camera file's, or 400 x 400 for the orbit
+    size : (W, H); default the camera file's, or :data:`VIDEO_SIZE` for ``camera``
     video : MP4 path assembled from the frames ``frames`` at ``fps`` (default: the motion's)
     overwrite : render every frame again; without it a PNG on disk is kept only when its record
         (:func:`frame_record`: motion frame, camera, size, asset, renderer settings) matches, so an
         interrupted render resumes and frames of another motion, camera or size are rendered again
     ray : "local" or a Ray cluster address: each frame a Ray task (:func:`render_frames`)
-    framing : (N, 3) world points the orbit keeps in view (default: every cage vertex of the whole motion),
-        so that several motions can be seen by the same orbit
+    framing : (N, 3) world points whose box an orbit or preset ``camera`` keeps in view (default: the box of
+        every frame), so that several motions can be seen by the same camera
+    antialias : jittered rays per pixel, averaged (:func:`antialiased`; 1: one ray through each pixel's
+        centre)
+    look : :class:`neural.render.ground.WorldLook` of the world behind the body (ground, light, shadows,
+        sky); None: :func:`motion_world`'s default (the ground for a motion that has one)
     The motion, ``frames`` and the camera file are checked before the asset and its field load.
     Returns the :class:`RenderResult` (counts, mean ms per frame and per stage, ``video``).
     """
     from neural.asset import load_asset
     from neural.data import load_camera_file
     from shellsim.cage.store import cage_for_motion
-    from shellsim.motion.read import frame_bounds, iter_frames, read_motion_info
+    from shellsim.motion.read import iter_frames, read_motion_info
+    from shellsim.world import UP
 
-    if (cameras is None) == (not orbit):
-        raise ValueError("give exactly one of cameras and orbit=True")
+    if cameras is not None and camera is not None:
+        raise ValueError("camera: not with cameras (a camera file)")
     if fps is not None and not (fps > 0 and math.isfinite(fps)):
         raise ValueError(f"fps: expected a positive number, got {fps}")
+    pixel_offsets(antialias)
     motion = read_motion_info(motion_path)
     indices = parse_frames(frames, motion.n_frames, source=str(motion_path))
-    if orbit:
-        width, height = size or (400, 400)
-        if framing is None:  # the box of every frame, read a batch at a time
-            points = frame_bounds(motion_path, lambda positions: asset_frame(motion, positions))
-        else:
-            points = asset_frame(motion, framing)
-        center, distance = orbit_framing(points)
+    if cameras is None:  # every frame's box and centre of mass, read a batch at a time
+        weights = mass_weights(motion.rest_vertices, motion.tets)
+        batches = iter_frames(motion_path, range(motion.n_frames))
+        track = motion_track(batches, weights, motion.times)
     else:
         view = load_camera_file(cameras, *(size or (None, None))).subset([0])
     asset = load_asset(asset_spec)
     cage = cage_for_motion(asset, motion, str(motion_path))
-    up = asset_up(motion, asset)
-    identity, settings = asset_identity(asset, cage), renderer_identity(asset)
+    if cameras is None:
+        box = None if framing is None else np.stack([np.min(framing, 0), np.max(framing, 0)])
+        up = UP if motion.placement else asset.up  # motions made before the world was in metres: the asset's
+        shot = (camera or CameraSettings()).shot(track, *(size or VIDEO_SIZE), up=up, box=box)
+    world = motion_world(motion, look)
+    identity, settings = asset_identity(asset, cage), renderer_identity(asset, antialias, world_record(world))
     frame_ids = motion_frame_ids(motion, (p for batch in iter_frames(motion_path, indices) for p in batch))
     out_dir = Path(out_dir)
     jobs = []
     for k, frame_id in zip(indices, frame_ids, strict=True):
-        if orbit:
-            view = orbit_camera(center, distance, up, 2 * math.pi * k / motion.n_frames, width, height)
+        if cameras is None:
+            view = asset_camera(motion, shot.camera_for_frame(k))
         jobs.append((out_dir / f"{k:05d}.png", frame_record(frame_id, view, identity, settings), (view, k)))
     out_dir.mkdir(parents=True, exist_ok=True)
     if ray is None:
-        recipe = functools.partial(_view_frames, asset, cage, device, motion_frames(motion, motion_path))
+        frame = motion_frames(motion, motion_path)
+        recipe = functools.partial(_view_frames, asset, cage, device, antialias, frame, world)
     else:
         paths = str(asset.root.resolve()), str(Path(motion_path).resolve())
-        recipe = functools.partial(motion_recipe, *paths, device)
+        recipe = functools.partial(motion_recipe, *paths, device, antialias, look)
     result = render_frames(jobs, out_dir, overwrite, progress, recipe, ray)
     if video is not None:
         fps = motion_fps(motion) if fps is None else fps

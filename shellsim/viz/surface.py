@@ -5,7 +5,8 @@ A motion made by ``shellsim simulate --mesh`` carries the mesh's surface embedde
 interpolation of the frame's cage vertices in its rest tet (paper Sec. 5). A motion without one shows the
 boundary of its cage. :class:`SurfaceRenderer` draws that surface, opaque and shaded, through a pinhole
 camera of :class:`neural.data.Cameras`; :func:`render_surface_motion` renders a motion's frames to PNGs
-(and an MP4) with the orbiting camera and the frame records of :func:`shellsim.render.frames.render_motion`
+(and an MP4) with the cameras of :mod:`shellsim.render.cameras` and the frame records of
+:func:`shellsim.render.frames.render_motion`
 (a PNG already there is kept only when it records the same motion frame, camera, size and surface);
 :func:`surface_plotter` is the inspector's view of it (surface, cage wireframe, frame slider).
 """
@@ -108,25 +109,27 @@ def render_surface_motion(
     fps: float | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    camera=None,
 ) -> RenderResult:
-    """Render a motion's surface to ``out_dir/<k:05d>.png`` (and an MP4) with the orbiting camera of
-    :func:`shellsim.render.frames.render_motion` about the motion's up axis; ``frames``, ``size`` (default
-    400 x 400), ``video``, ``fps`` and ``overwrite`` as there. Returns its
+    """Render a motion's surface to ``out_dir/<k:05d>.png`` (and an MP4) seen by ``camera``
+    (:class:`~shellsim.render.cameras.CameraSettings` in world metres about the motion's up axis; None:
+    the default orbit) as :func:`shellsim.render.frames.render_motion` would; ``frames``, ``size`` (default
+    :data:`~shellsim.render.frames.VIDEO_SIZE`), ``video``, ``fps`` and ``overwrite`` as there. Returns its
     :class:`~shellsim.render.result.RenderResult` (counts, ``ms``, ``video``)."""
     from shellsim.io.png import digest, frame_record
     from shellsim.io.video import write_video
     from shellsim.motion.read import load_motion
-    from shellsim.render.cameras import orbit_camera, orbit_framing
-    from shellsim.render.frames import motion_fps, motion_frame_ids, render_frames
+    from shellsim.render.cameras import CameraSettings, mass_weights, motion_track
+    from shellsim.render.frames import VIDEO_SIZE, motion_fps, motion_frame_ids, render_frames
     from shellsim.settings import parse_frames
 
     motion = load_motion(motion_path)
     indices = parse_frames(frames, motion.n_frames, source=str(motion_path))
     if fps is not None and not (fps > 0 and math.isfinite(fps)):
         raise ValueError(f"fps: expected a positive number, got {fps}")
-    width, height = size or (400, 400)
-    center, distance = orbit_framing(motion.positions)
-    up = _motion_up(motion)
+    width, height = size or VIDEO_SIZE
+    track = motion_track([motion.positions], mass_weights(motion.rest_vertices, motion.tets), motion.times)
+    shot = (camera or CameraSettings()).shot(track, width, height, up=_motion_up(motion))
     s = motion.surface
     drawn = digest("surface", *((s.tet, s.bary, s.faces) if s is not None else ("cage boundary",)))
     settings = digest("pyvista surface", SURFACE_COLOR)
@@ -134,7 +137,7 @@ def render_surface_motion(
     out_dir = Path(out_dir)
     jobs = []
     for k in indices:
-        view = orbit_camera(center, distance, up, 2 * math.pi * k / motion.n_frames, width, height)
+        view = shot.camera_for_frame(k)
         jobs.append((out_dir / f"{k:05d}.png", frame_record(frame_ids[k], view, drawn, settings), (view, k)))
     out_dir.mkdir(parents=True, exist_ok=True)
     renderer = SurfaceRenderer(motion, width, height)

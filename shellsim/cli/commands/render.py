@@ -15,8 +15,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render an asset at rest (every camera of a camera file) or a motion file (PNG frames, MP4)",
         description="Without --motion: render every camera of a transforms*.json-style camera file (its "
         "images may be absent) to OUT/<frame name>.png with narrow-band rendering (paper Sec. 3.4). With "
-        "--motion: render each motion frame k, seen by the first camera of --cameras or by a camera "
-        "orbiting the asset (--orbit), to OUT/<k:05d>.png, deforming the shells with the cage and mapping "
+        "--motion: render each motion frame k, seen by the first camera of --cameras or by --camera (world "
+        "metres: an orbit of --orbit-degrees, a fixed or preset view, or one following the body), to "
+        "OUT/<k:05d>.png, deforming the shells with the cage and mapping "
         "every sample back to rest space (paper Sec. 5). Each PNG records what made it (motion frame, "
         "camera, size, asset, renderer settings): one already in OUT is kept only when all of these match, "
         "so an interrupted render resumes, and rendered again otherwise; --overwrite renders all again.",

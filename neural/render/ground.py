@@ -1,0 +1,168 @@
+"""A visible world behind a field: a checkered ground lit by a directional light and a sky, with the field's
+shadows on it (issue 41).
+
+The world is metres, z up, the ground at z = 0. The renderer works in the field's (asset's) frame, which a
+similarity ``x_world = s R x + t`` (:class:`WorldFrame`) places in the world; a ray ``o + t d`` there is the
+world ray ``(s R o + t) + t' (s R d)`` with the same parameter. :func:`world_backdrop` gives what each camera
+ray sees behind the field (the ``backdrop`` of :func:`neural.render.view.render_pixels`, composited under the
+field's samples with their transmittance, Eq. 2):
+
+- **ground**: a ray from above the ground that goes down meets it at ``t_g = -z(o_w) / z(d_w)``, the point
+  ``p = o_w + t_g d_w``; its albedo is the checker of ``square`` metres,
+  ``ground_colors[(floor(p_x / square) + floor(p_y / square)) mod 2]``, lit by Lambert's law with ambient
+  (sky) light: ``albedo * (ambient + diffuse * max(l_z, 0) * V)``, ``l`` the unit direction toward the light
+  and ``V`` the light's visibility from ``p``: the field's transmittance ``T = prod_i (1 - alpha_i)`` along
+  the shadow ray from ``p`` toward the light (:func:`neural.render.view.transmittance`, with the camera rays'
+  sampler and map to rest space, so a deformed body's shadow moves with it and fur casts a soft one);
+- **sky** elsewhere: ``horizon + (zenith - horizon) * max(d_z / |d|, 0)`` (a plain colour when both agree).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:  # torch is imported where the images are made: the settings stay light for the jobs
+    import torch
+
+
+def _colour(name: str, value) -> tuple[float, float, float]:
+    """``value`` as an RGB triple in [0, 1]; else a ValueError naming ``name``."""
+    rgb = tuple(float(v) for v in np.asarray(value, np.float64).reshape(-1))
+    if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
+        raise ValueError(f"{name}: expected 3 numbers in [0, 1], got {value!r}")
+    return rgb
+
+
+@dataclass(frozen=True)
+class WorldLook:
+    """How the world behind a body looks: settings only (recorded with every frame).
+
+    ground : draw the ground plane z = 0 (else only the sky)
+    square : side of the checker's squares in metres (the ground's scale)
+    ground_colors : the checker's two RGB colours in [0, 1]
+    light : (3,) direction toward the directional light in world coordinates (any length, z > 0 lights the
+        ground from above)
+    ambient, diffuse : the sky's and the light's share of a lit ground point's brightness
+    shadows : shadow rays through the field (else the light is never blocked)
+    zenith, horizon : RGB of the sky straight up and at the horizon (and below it)
+    """
+
+    ground: bool = True
+    square: float = 0.1
+    ground_colors: tuple = ((0.82, 0.82, 0.80), (0.62, 0.63, 0.62))
+    light: tuple = (0.35, 0.5, 1.0)
+    ambient: float = 0.35
+    diffuse: float = 0.65
+    shadows: bool = True
+    zenith: tuple = (0.62, 0.74, 0.90)
+    horizon: tuple = (0.93, 0.94, 0.96)
+
+    def __post_init__(self):
+        if not (math.isfinite(self.square) and self.square > 0):
+            raise ValueError(f"square: expected a positive number of metres, got {self.square!r}")
+        colors = np.asarray(self.ground_colors, np.float64)
+        if colors.shape != (2, 3):
+            raise ValueError(f"ground_colors: expected two RGB colours, got {self.ground_colors!r}")
+        object.__setattr__(self, "ground_colors", tuple(_colour("ground_colors", c) for c in colors))
+        light = tuple(float(v) for v in np.asarray(self.light, np.float64).reshape(-1))
+        if len(light) != 3 or not np.isfinite(light).all() or np.linalg.norm(light) == 0:
+            raise ValueError(f"light: expected a non-zero direction x, y, z, got {self.light!r}")
+        object.__setattr__(self, "light", light)
+        for name in ("ambient", "diffuse"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: expected a number >= 0, got {value!r}")
+        for name in ("zenith", "horizon"):
+            object.__setattr__(self, name, _colour(name, getattr(self, name)))
+
+    def light_unit(self) -> np.ndarray:
+        """(3,) unit direction toward the light (world)."""
+        light = np.asarray(self.light, np.float64)
+        return light / np.linalg.norm(light)
+
+
+@dataclass(frozen=True)
+class WorldFrame:
+    """The similarity ``x_world = scale * rotation @ x + translation`` from the renderer's frame (the field's)
+    to the world: scale > 0, rotation (3, 3) orthonormal, translation (3,) metres."""
+
+    scale: float = 1.0
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+def ground_hits(frame: WorldFrame, origins: torch.Tensor, dirs: torch.Tensor):
+    """Where rays ``origins``, ``dirs`` (R, 3) of the renderer's frame meet the ground z = 0 of the world:
+    ``hit`` (R,) bool (from above it, going down), ``t`` (R,) ray parameter (inf without a hit),
+    ``points`` (R, 3) world hit points and the world directions ``dirs_w`` (R, 3) (``scale R d``)."""
+    import torch
+
+    rotation = torch.as_tensor(frame.rotation, dtype=torch.float64, device=origins.device)
+    translation = torch.as_tensor(frame.translation, dtype=torch.float64, device=origins.device)
+    o_w = frame.scale * origins.double() @ rotation.T + translation
+    d_w = frame.scale * dirs.double() @ rotation.T
+    hit = (o_w[:, 2] > 0) & (d_w[:, 2] < 0)
+    t = torch.where(hit, -o_w[:, 2] / torch.where(hit, d_w[:, 2], -1.0), math.inf)
+    points = o_w + torch.where(hit, t, 0.0)[:, None] * d_w
+    return hit, t, points, d_w
+
+
+def checker(look: WorldLook, points: torch.Tensor) -> torch.Tensor:
+    """Albedo (R, 3) of the ground at world ``points`` (R, 3): ``ground_colors[(floor(x / square) +
+    floor(y / square)) mod 2]``."""
+    import torch
+
+    cells = torch.floor(points[:, :2] / look.square).long().sum(dim=1) % 2
+    colors = torch.tensor(look.ground_colors, dtype=points.dtype, device=points.device)
+    return colors[cells]
+
+
+def sky(look: WorldLook, dirs_w: torch.Tensor) -> torch.Tensor:
+    """Sky colour (R, 3) along world directions ``dirs_w`` (R, 3): ``horizon + (zenith - horizon) *
+    max(d_z / |d|, 0)``."""
+    import torch
+
+    up = (dirs_w[:, 2] / dirs_w.norm(dim=1).clamp_min(1e-30)).clamp_min(0.0)[:, None]
+    zenith = torch.tensor(look.zenith, dtype=dirs_w.dtype, device=dirs_w.device)
+    horizon = torch.tensor(look.horizon, dtype=dirs_w.dtype, device=dirs_w.device)
+    return horizon + (zenith - horizon) * up
+
+
+def world_backdrop(
+    look: WorldLook,
+    frame: WorldFrame,
+    visibility: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
+):
+    """``backdrop(origins (R, 3), dirs (R, 3)) -> (R, 3)`` of :func:`neural.render.view.render_pixels`: the
+    sky and, with ``look.ground``, the lit checkered ground (module docstring) behind rays of the renderer's
+    frame (``frame`` places it in the world). ``visibility(origins (G, 3), dirs (G, 3)) -> (G,)``: the
+    light's visibility along shadow rays of the renderer's frame (the field's transmittance, e.g.
+    :func:`neural.render.view.transmittance`); None, or ``look.shadows`` False: nothing blocks the light."""
+    import torch
+
+    light = look.light_unit()
+    light_here = torch.as_tensor(np.asarray(frame.rotation).T @ light)  # toward the light, renderer's frame
+    lit = look.diffuse * max(float(light[2]), 0.0)
+
+    def backdrop(origins: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+        hit, t, points, dirs_w = ground_hits(frame, origins, dirs)
+        color = sky(look, dirs_w)
+        if not look.ground:
+            return color.to(dirs.dtype)
+        ground = torch.nonzero(hit).squeeze(1)
+        shade = torch.full((len(ground),), look.ambient + lit, dtype=torch.float64, device=dirs.device)
+        if visibility is not None and look.shadows and lit > 0 and len(ground):
+            starts = origins.index_select(0, ground) + t[ground, None].to(dirs.dtype) * dirs.index_select(
+                0, ground
+            )
+            towards = light_here.to(starts).expand(len(ground), 3)
+            shade = look.ambient + lit * visibility(starts, towards).double()
+        color[ground] = checker(look, points.index_select(0, ground)) * shade[:, None]
+        return color.to(dirs.dtype)
+
+    return backdrop

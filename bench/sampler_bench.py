@@ -18,14 +18,12 @@ import math
 import statistics
 import time
 from dataclasses import dataclass
-
-import torch
-from fullray_samplers import importance_samples, uniform_samples  # bench/, beside this script
+from typing import TYPE_CHECKING
 
 from neural.device import configure_process, pick_device
-from neural.render.fullray import ray_aabb, render_rays, stepped_samples
-from neural.render.occupancy import OccupancyGrid
-from neural.render.samples import RaySamples
+
+if TYPE_CHECKING:  # torch loads in the functions, after configure_process
+    import torch
 
 RADIUS = 0.5
 
@@ -47,17 +45,23 @@ class SphereField:
         return x.norm(dim=1) - RADIUS
 
     def sdf_kernel(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.sdf(x), torch.full((x.shape[0],), self.inv_s, device=x.device)
+        return self.sdf(x), x.new_full((x.shape[0],), self.inv_s)
 
     def geometry(self, x: torch.Tensor) -> Geometry:
         dist = x.norm(dim=1)
-        return Geometry(dist - RADIUS, torch.full_like(dist, self.inv_s), x / dist[:, None].clamp(min=1e-9))
+        return Geometry(
+            dist - RADIUS, dist.new_full(dist.shape, self.inv_s), x / dist[:, None].clamp(min=1e-9)
+        )
 
     def radiance(self, x: torch.Tensor, d: torch.Tensor, geo: Geometry) -> torch.Tensor:
+        import torch
+
         return torch.sigmoid(torch.stack([3 * x[:, 0] + d[:, 2], 3 * x[:, 1], 2 * x[:, 2] - d[:, 0]], dim=1))
 
 
 def rays(n: int, device: str) -> tuple[torch.Tensor, torch.Tensor]:
+    import torch
+
     g = torch.Generator().manual_seed(0)
     origins = torch.randn(n, 3, generator=g)
     origins = 3.0 * origins / origins.norm(dim=1, keepdim=True)
@@ -67,6 +71,8 @@ def rays(n: int, device: str) -> tuple[torch.Tensor, torch.Tensor]:
 
 def timed(fn, repeats: int) -> tuple[object, float]:
     """(result, median ms) of ``fn()`` over ``repeats`` runs after one warm-up run."""
+    import torch
+
     result = fn()
     times = []
     for _ in range(repeats):
@@ -81,6 +87,10 @@ def timed(fn, repeats: int) -> tuple[object, float]:
 
 
 def render_chunked(field, origins, dirs, sampler, chunk: int) -> dict[str, torch.Tensor]:
+    import torch
+
+    from neural.render.fullray import render_rays
+
     outs = []
     bg = torch.ones(3, device=origins.device)
     for start in range(0, origins.shape[0], chunk):
@@ -91,6 +101,14 @@ def render_chunked(field, origins, dirs, sampler, chunk: int) -> dict[str, torch
 
 
 def main() -> None:
+    # here, after configure_process (run first): torch loads with them
+    import torch
+    from fullray_samplers import importance_samples, uniform_samples  # bench/, beside this script
+
+    from neural.render.fullray import ray_aabb, stepped_samples
+    from neural.render.occupancy import OccupancyGrid
+    from neural.render.samples import RaySamples
+
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -1,6 +1,6 @@
 """`shellsim export`: USD, VTU series and PLY files read back by pxr, pyvista and trimesh, against an affine
 motion whose deformed shells and volume ratios are known in closed form; the USD colours of M+ against a
-field of one known colour."""
+field of one known colour, and the PLY colours against the USD ones."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from shellsim.cage.embed import embed_points
 from shellsim.cli.main import main
-from shellsim.io.export import AnimatedMesh, up_rotation
+from shellsim.io.export import AnimatedMesh, up_rotation, write_ply_sequence
 from shellsim.motion.format import Motion, Surface, save_motion
 
 FRAMES = 4
@@ -111,9 +111,9 @@ def test_usd_holds_the_deformed_shell_and_cage_per_time_code(rod, tmp_path):
     assert colors.shape == rest_outer.vertices.shape and colors.min() >= 0 and colors.max() <= 1
 
 
-def test_usd_colours_of_a_one_colour_field_are_that_colour(tmp_path):
+def test_usd_and_ply_colours_of_a_one_colour_field_are_that_colour(tmp_path):
     """A sphere field of one colour, sharp enough (kernel 1/500) to be opaque within its band: every M+
-    vertex's colour in the stage is that colour, not the white background."""
+    vertex's colour in the stage and in a PLY frame is that colour, not the white background."""
     from pxr import Usd, UsdGeom
 
     from neural.asset import load_asset
@@ -135,6 +135,48 @@ def test_usd_colours_of_a_one_colour_field_are_that_colour(tmp_path):
     colors = np.asarray(shell.GetDisplayColorPrimvar().Get())
     assert colors.shape == (len(outer.vertices), 3)
     np.testing.assert_allclose(colors, np.broadcast_to(color, colors.shape), atol=0.01)
+    ply = tmp_path / "ply"
+    args = ["export", "--asset", str(root), "--motion", str(tmp_path / "m.npz"), "--out", str(ply)]
+    assert main([*args, "--format", "ply", "--frames", "2"]) == 0
+    rgba = trimesh.load(ply / "outer_shell_00002.ply", process=False).visual.vertex_colors
+    np.testing.assert_allclose(rgba / 255, np.broadcast_to((*color, 1.0), rgba.shape), atol=0.01 + 1 / 255)
+
+
+def test_ply_frames_carry_the_usd_colours_of_m_plus(rod, tmp_path):
+    """Every PLY frame of M+ holds the USD stage's per-vertex colours (uint8 RGBA, opaque, to 1/255); the
+    colours leave the points as a PLY without colours has them."""
+    from pxr import Usd, UsdGeom
+
+    root, cage = rod
+    motion = tmp_path / "m.npz"
+    write_motion(motion, cage)
+    usd, ply = tmp_path / "rod.usda", tmp_path / "ply"
+    args = ["export", "--asset", str(root), "--motion", str(motion)]
+    for out, format in ((usd, "usd"), (ply, "ply")):
+        assert main([*args, "--out", str(out), "--format", format]) == 0
+    stage = Usd.Stage.Open(str(usd))
+    shell = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/outer_shell"))
+    usd_colors = np.asarray(shell.GetDisplayColorPrimvar().Get())
+    rest_outer = trimesh.load(root / "shell_outer.ply", process=False)
+    files = sorted(ply.glob("*.ply"))
+    assert [f.name for f in files] == [f"outer_shell_{k:05d}.ply" for k in range(FRAMES)]
+    for k, f in enumerate(files):
+        mesh = trimesh.load(f, process=False)
+        assert mesh.visual.kind == "vertex"
+        colors = mesh.visual.vertex_colors
+        assert colors.dtype == np.uint8 and colors.shape == (len(rest_outer.vertices), 4)
+        assert (colors[:, 3] == 255).all()
+        np.testing.assert_allclose(colors[:, :3] / 255, usd_colors, atol=1 / 255)
+        assert np.array_equal(mesh.faces, rest_outer.faces)
+        assert np.abs(mesh.vertices - moved(rest_outer.vertices, k)).max() < 1e-5
+
+    def sequence(name, colors):
+        mesh = AnimatedMesh("m", rest_outer.faces, lambda k: moved(rest_outer.vertices, k), colors)
+        return [trimesh.load(f, process=False) for f in write_ply_sequence(tmp_path / name, mesh, [1, 3])]
+
+    for coloured, bare in zip(sequence("coloured", usd_colors), sequence("bare", None), strict=True):
+        assert bare.visual.kind is None and coloured.visual.kind == "vertex"
+        assert np.array_equal(coloured.vertices, bare.vertices) and np.array_equal(coloured.faces, bare.faces)
 
 
 @pytest.mark.parametrize(

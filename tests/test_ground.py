@@ -21,6 +21,7 @@ from neural.asset import load_asset, load_field
 from neural.data import Cameras
 from neural.render.fullray import stepped_samples
 from neural.render.ground import WorldFrame, WorldLook, world_backdrop
+from neural.render.obstacles import Obstacles
 from neural.render.view import render_camera, transmittance
 from shellsim.cage.store import load_or_build_cage
 from shellsim.deform.renderer import DeformedRenderer
@@ -215,7 +216,7 @@ def test_a_deformed_body_on_the_ground_casts_its_shadow(tmp_path):
     image, stats = renderer.render(camera(EYE, size=24), 0, renderer.cage.vertices)
     assert image.shape == (24, 24, 3) and stats["world_ms"] > 0 and not np.allclose(image[-1], 1.0)
     # the frames' record holds the world; views at rest keep the record they had
-    world = world_record((look, placement))
+    world = world_record((look, placement, Obstacles()))
     assert renderer_identity(asset, 1, None) == renderer_identity(asset)
     assert renderer_identity(asset, 1, world) != renderer_identity(asset)
 

@@ -14,7 +14,13 @@ field's samples with their transmittance, Eq. 2):
   and ``V`` the light's visibility from ``p``: the field's transmittance ``T = prod_i (1 - alpha_i)`` along
   the shadow ray from ``p`` toward the light (:func:`neural.render.view.transmittance`, with the camera rays'
   sampler and map to rest space, so a deformed body's shadow moves with it and fur casts a soft one);
+- **obstacles** (:mod:`neural.render.obstacles`: boxes and spheres met in closed form) where one is nearer
+  than the ground: ``obstacle_color * (ambient + diffuse * max(n.l, 0) * V)``, ``n`` the outward normal;
 - **sky** elsewhere: ``horizon + (zenith - horizon) * max(d_z / |d|, 0)`` (a plain colour when both agree).
+
+``V`` is also 0 where an obstacle stands between the point and the light (a shadow ray from ``p + eps n``,
+``eps`` = :data:`SHADOW_OFFSET`, met in closed form; obstacles are opaque). An obstacle hides the body's
+samples behind it: :func:`obstacle_t_max` is the ``t_max`` of :func:`neural.render.view.render_pixels`.
 """
 
 from __future__ import annotations
@@ -26,8 +32,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .obstacles import Obstacles, blocked, obstacle_hits
+
 if TYPE_CHECKING:  # torch is imported where the images are made: the settings stay light for the jobs
     import torch
+
+#: Metres a shadow ray starts off its surface, along the normal (so that the surface does not shadow itself).
+SHADOW_OFFSET = 1e-6
 
 
 def _colour(name: str, value) -> tuple[float, float, float]:
@@ -50,6 +61,7 @@ class WorldLook:
     ambient, diffuse : the sky's and the light's share of a lit ground point's brightness
     shadows : shadow rays through the field (else the light is never blocked)
     zenith, horizon : RGB of the sky straight up and at the horizon (and below it)
+    obstacle_color : RGB albedo of the static obstacles (boxes, spheres)
     """
 
     ground: bool = True
@@ -61,6 +73,7 @@ class WorldLook:
     shadows: bool = True
     zenith: tuple = (0.62, 0.74, 0.90)
     horizon: tuple = (0.93, 0.94, 0.96)
+    obstacle_color: tuple = (0.78, 0.52, 0.36)
 
     def __post_init__(self):
         if not (math.isfinite(self.square) and self.square > 0):
@@ -77,7 +90,7 @@ class WorldLook:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: expected a number >= 0, got {value!r}")
-        for name in ("zenith", "horizon"):
+        for name in ("zenith", "horizon", "obstacle_color"):
             object.__setattr__(self, name, _colour(name, getattr(self, name)))
 
     def light_unit(self) -> np.ndarray:
@@ -96,20 +109,33 @@ class WorldFrame:
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
+def to_world(frame: WorldFrame, origins: torch.Tensor, dirs: torch.Tensor):
+    """World rays ``(s R o + t, s R d)`` (R, 3) float64 of rays ``origins``, ``dirs`` (R, 3) of the renderer's
+    frame (the same ray parameter)."""
+    import torch
+
+    rotation = torch.as_tensor(frame.rotation, dtype=torch.float64, device=origins.device)
+    translation = torch.as_tensor(frame.translation, dtype=torch.float64, device=origins.device)
+    return frame.scale * origins.double() @ rotation.T + translation, frame.scale * dirs.double() @ rotation.T
+
+
 def ground_hits(frame: WorldFrame, origins: torch.Tensor, dirs: torch.Tensor):
     """Where rays ``origins``, ``dirs`` (R, 3) of the renderer's frame meet the ground z = 0 of the world:
     ``hit`` (R,) bool (from above it, going down), ``t`` (R,) ray parameter (inf without a hit),
     ``points`` (R, 3) world hit points and the world directions ``dirs_w`` (R, 3) (``scale R d``)."""
     import torch
 
-    rotation = torch.as_tensor(frame.rotation, dtype=torch.float64, device=origins.device)
-    translation = torch.as_tensor(frame.translation, dtype=torch.float64, device=origins.device)
-    o_w = frame.scale * origins.double() @ rotation.T + translation
-    d_w = frame.scale * dirs.double() @ rotation.T
+    o_w, d_w = to_world(frame, origins, dirs)
     hit = (o_w[:, 2] > 0) & (d_w[:, 2] < 0)
     t = torch.where(hit, -o_w[:, 2] / torch.where(hit, d_w[:, 2], -1.0), math.inf)
     points = o_w + torch.where(hit, t, 0.0)[:, None] * d_w
     return hit, t, points, d_w
+
+
+def obstacle_t_max(frame: WorldFrame, obstacles: Obstacles, origins: torch.Tensor, dirs: torch.Tensor):
+    """(R,) float64 ray parameter of the nearest obstacle in front of rays ``origins``, ``dirs`` (R, 3) of the
+    renderer's frame (inf where none): the body's samples beyond it are hidden."""
+    return obstacle_hits(obstacles, *to_world(frame, origins, dirs))[0]
 
 
 def checker(look: WorldLook, points: torch.Tensor) -> torch.Tensor:
@@ -137,32 +163,64 @@ def world_backdrop(
     look: WorldLook,
     frame: WorldFrame,
     visibility: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
+    obstacles: Obstacles | None = None,
 ):
     """``backdrop(origins (R, 3), dirs (R, 3)) -> (R, 3)`` of :func:`neural.render.view.render_pixels`: the
-    sky and, with ``look.ground``, the lit checkered ground (module docstring) behind rays of the renderer's
-    frame (``frame`` places it in the world). ``visibility(origins (G, 3), dirs (G, 3)) -> (G,)``: the
-    light's visibility along shadow rays of the renderer's frame (the field's transmittance, e.g.
-    :func:`neural.render.view.transmittance`); None, or ``look.shadows`` False: nothing blocks the light."""
+    sky, with ``look.ground`` the lit checkered ground and the lit ``obstacles`` (module docstring) behind
+    rays of the renderer's frame (``frame`` places it in the world), the nearest surface of each ray.
+    ``visibility(origins (G, 3), dirs (G, 3)) -> (G,)``: the light's visibility along shadow rays of the
+    renderer's frame (the field's transmittance, e.g. :func:`neural.render.view.transmittance`); None: the
+    field blocks no light. With ``look.shadows`` False nothing blocks it."""
     import torch
 
+    obstacles = Obstacles() if obstacles is None else obstacles
     light = look.light_unit()
     light_here = torch.as_tensor(np.asarray(frame.rotation).T @ light)  # toward the light, renderer's frame
-    lit = look.diffuse * max(float(light[2]), 0.0)
 
     def backdrop(origins: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+        light_w = torch.as_tensor(light, device=dirs.device)
+
+        def shade(rays, t, points_w, normals_w):
+            """Lambert shade (K,) float64 of the world ``points_w`` (K, 3) with outward ``normals_w`` (K, 3)
+            that rays ``rays`` (K,) meet at ``t`` (K,): ``ambient + diffuse * max(n.l, 0) * V``."""
+            cos = look.diffuse * (normals_w @ light_w).clamp_min(0.0)
+            value = look.ambient + cos
+            lit = torch.nonzero(cos > 0).squeeze(1)
+            if not look.shadows or not len(lit) or (visibility is None and not obstacles):
+                return value
+            visible = torch.ones(len(lit), dtype=torch.float64, device=dirs.device)
+            if obstacles:
+                starts_w = points_w[lit] + SHADOW_OFFSET * normals_w[lit]
+                visible = visible * ~blocked(obstacles, starts_w, light_w.expand(len(lit), 3))
+            if visibility is not None:
+                on = rays[lit]
+                starts = origins.index_select(0, on) + t[lit, None].to(dirs.dtype) * dirs.index_select(0, on)
+                visible = visible * visibility(starts, light_here.to(starts).expand(len(lit), 3)).double()
+            value[lit] = look.ambient + cos[lit] * visible
+            return value
+
         hit, t, points, dirs_w = ground_hits(frame, origins, dirs)
         color = sky(look, dirs_w)
-        if not look.ground:
-            return color.to(dirs.dtype)
-        ground = torch.nonzero(hit).squeeze(1)
-        shade = torch.full((len(ground),), look.ambient + lit, dtype=torch.float64, device=dirs.device)
-        if visibility is not None and look.shadows and lit > 0 and len(ground):
-            starts = origins.index_select(0, ground) + t[ground, None].to(dirs.dtype) * dirs.index_select(
-                0, ground
-            )
-            towards = light_here.to(starts).expand(len(ground), 3)
-            shade = look.ambient + lit * visibility(starts, towards).double()
-        color[ground] = checker(look, points.index_select(0, ground)) * shade[:, None]
+        t_obstacle = None
+        if obstacles:
+            o_w = to_world(frame, origins, dirs)[0]
+            t_obstacle, normals = obstacle_hits(obstacles, o_w, dirs_w)
+            hit = hit & (t < t_obstacle)
+        if look.ground:
+            ground = torch.nonzero(hit).squeeze(1)
+            up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64, device=dirs.device).expand(len(ground), 3)
+            ground_points = points.index_select(0, ground)
+            shades = shade(ground, t[ground], ground_points, up)
+            color[ground] = checker(look, ground_points) * shades[:, None]
+        else:
+            t = torch.full_like(t, math.inf)
+        if t_obstacle is not None:
+            seen = torch.nonzero(torch.isfinite(t_obstacle) & (t_obstacle < t)).squeeze(1)
+            t_seen = t_obstacle[seen]
+            points_w = o_w[seen] + t_seen[:, None] * dirs_w[seen]
+            shades = shade(seen, t_seen, points_w, normals[seen])
+            albedo = torch.tensor(look.obstacle_color, dtype=torch.float64, device=dirs.device)
+            color[seen] = albedo * shades[:, None]
         return color.to(dirs.dtype)
 
     return backdrop

@@ -204,15 +204,18 @@ def render_pixels(
     to_rest: RestMap | None = None,
     chunk: int | None = None,
     backdrop=None,
+    t_max: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict]:
     """Colours (R, 3) (unclamped) of rays ``origins``, ``dirs`` (R, 3) on the field's device: sample, map to
     rest space with ``to_rest`` (None: no map), shade over ``background`` (3,), ``chunk`` rays at a time
     (None: the sampler's ``rays_per_chunk``, else :data:`RAY_CHUNK`). ``backdrop(origins (r, 3), dirs (r, 3))
     -> (r, 3)``: what each ray sees behind the field instead of ``background`` (a lit ground and a sky,
-    :mod:`neural.render.ground`); ``color = sum_i w_i c_i + T backdrop`` (Eq. 2). Stats: ``ms``, per stage
-    ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside ``to_rest``) and
-    ``counts`` (R,) int64 samples per ray that were mapped and evaluated (dropped ones included, those after
-    a ray's termination not)."""
+    :mod:`neural.render.ground`); ``color = sum_i w_i c_i + T backdrop`` (Eq. 2). ``t_max`` (R,): the ray
+    parameter of a surface in front of the backdrop that hides the field beyond it (an obstacle,
+    :func:`neural.render.ground.obstacle_t_max`): samples with ``t > t_max`` get zero opacity. Stats:
+    ``ms``, per stage ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside
+    ``to_rest``) and ``counts`` (R,) int64 samples per ray that were mapped and evaluated (dropped ones
+    included, those after a ray's termination or beyond ``t_max`` not)."""
     times = dict.fromkeys(STAGES, 0.0)
     start = time.perf_counter()
     chunk = chunk or getattr(sampler, "rays_per_chunk", RAY_CHUNK)
@@ -221,6 +224,9 @@ def render_pixels(
         o, d = origins[i : i + chunk], dirs[i : i + chunk]
         tick = time.perf_counter()
         samples = sampler(o, d)
+        if t_max is not None:
+            near = t_max[i : i + chunk].to(samples.t_mid.device, torch.float64)
+            samples = samples.select(samples.t_mid.double() <= near.index_select(0, samples.ray_indices))
         times["sample"] += time.perf_counter() - tick
 
         def locate(index, o=o, d=d, samples=samples):
@@ -261,12 +267,14 @@ def render_camera(
     to_rest: RestMap | None = None,
     chunk: int | None = None,
     backdrop=None,
+    t_max: torch.Tensor | None = None,
 ) -> tuple[np.ndarray, dict]:
-    """Render camera ``index`` through :func:`render_pixels` (``backdrop`` as there): image (H, W, 3)
+    """Render camera ``index`` through :func:`render_pixels` (``backdrop``, ``t_max`` (H W,) of the rays
+    of :func:`neural.data.camera_rays` as there): image (H, W, 3)
     float32 in [0, 1] and its stats, with ``counts`` (H, W) and ``ms`` including the camera rays."""
     start = time.perf_counter()
     origins, dirs = camera_rays(cameras, index, device=background.device)
-    colors, stats = render_pixels(field, origins, dirs, sampler, background, to_rest, chunk, backdrop)
+    colors, stats = render_pixels(field, origins, dirs, sampler, background, to_rest, chunk, backdrop, t_max)
     h, w = int(cameras.height[index]), int(cameras.width[index])
     stats["counts"] = stats["counts"].reshape(h, w)
     image = colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy()

@@ -21,7 +21,9 @@ to rest space. :class:`DeformedRenderer`
    :class:`~shellsim.world.Placement`, over the world's lit ground and sky
    (:func:`~neural.render.ground.world_backdrop`), its shadow rays cast through the same deformed shells,
    mapped to rest space alike and attenuated by the field's transmittance
-   (:func:`~neural.render.view.transmittance`).
+   (:func:`~neural.render.view.transmittance`); the world's static obstacles
+   (:class:`~neural.render.obstacles.Obstacles`) are drawn there too, and hide the body's samples behind
+   them (each ray's ``t_max``, :func:`~neural.render.ground.obstacle_t_max`).
 
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
 pipeline without a map, with the asset's rest sampler, exactly what ``shellsim eval`` measures.
@@ -53,15 +55,19 @@ class DeformedRenderer:
         sky); None: the asset's background colour
     placement : :class:`shellsim.world.Placement` of the asset's frame in the world (with ``look``; None: the
         identity)
+    obstacles : :class:`neural.render.obstacles.Obstacles` of the world, drawn with ``look`` (None: none)
 
     State: the rest sampler (:func:`neural.render.view.asset_sampler`, Embree scenes built once), the field,
     the cage, Warp meshes of the shells refitted to each deformed frame and the inverse map updated to it
     (both built on the first one): the renderer draws one frame at a time.
     """
 
-    def __init__(self, asset, field, cage, device: str = "cpu", config=None, look=None, placement=None):
+    def __init__(
+        self, asset, field, cage, device: str = "cpu", config=None, look=None, placement=None, obstacles=None
+    ):
         from neural.device import warp_device
         from neural.render.ground import WorldFrame
+        from neural.render.obstacles import Obstacles
         from neural.render.view import asset_sampler
         from shellsim.world import Placement
 
@@ -81,6 +87,7 @@ class DeformedRenderer:
         self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
         self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
         self.look = look
+        self.obstacles = Obstacles() if obstacles is None else obstacles
         placement = Placement() if placement is None else placement
         self.world = WorldFrame(placement.scale, placement.rotation, placement.translation)
         self._deformed = None  # WarpCaster, built for the first deformed frame
@@ -127,23 +134,33 @@ class DeformedRenderer:
         (V, 3) (None: at rest, exactly :func:`neural.render.view.render_camera` with the asset's sampler),
         and the stats of ``render_camera`` plus ``build_ms`` (shell deformation, refitting their BVHs and
         updating the inverse map; both built on the first deformed frame) and ``ms`` with it. With a ``look``
-        the world is behind the body, its shadow rays sampled and mapped as the camera rays are."""
-        from neural.render.ground import world_backdrop
+        the world is behind the body, its shadow rays sampled and mapped as the camera rays are, and its
+        obstacles hide what is behind them."""
+        from neural.data import camera_rays
+        from neural.render.ground import obstacle_t_max, world_backdrop
         from neural.render.view import render_camera, transmittance
 
         start = time.perf_counter()
         sampler, to_rest = self._frame(positions)
         build = time.perf_counter() - start
-        backdrop = None
+        backdrop = t_max = None
+        hidden = 0.0  # seconds of the obstacles' t_max, a part of the world's stage
         if self.look is not None:
 
             def visibility(origins, dirs):
                 return transmittance(self.field, origins, dirs, sampler, to_rest)
 
-            backdrop = world_backdrop(self.look, self.world, visibility)
+            backdrop = world_backdrop(self.look, self.world, visibility, self.obstacles)
+            if self.obstacles:
+                tick = time.perf_counter()
+                rays = camera_rays(cameras, index, device=self.device)
+                t_max = obstacle_t_max(self.world, self.obstacles, *rays)
+                hidden = time.perf_counter() - tick
         image, stats = render_camera(
-            self.field, cameras, index, sampler, self.background, to_rest, backdrop=backdrop
+            self.field, cameras, index, sampler, self.background, to_rest, backdrop=backdrop, t_max=t_max
         )
         stats["build_ms"] = 1000.0 * build
+        if t_max is not None:
+            stats["world_ms"] += 1000.0 * hidden
         stats["ms"] = 1000.0 * (time.perf_counter() - start)
         return image, stats

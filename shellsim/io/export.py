@@ -184,13 +184,19 @@ def write_ply_sequence(
     frames: Sequence[int],
     progress: Callable[[], None] | None = None,
 ) -> list[Path]:
-    """One binary PLY per frame, ``directory/<name>_NNNNN.ply``, of ``mesh`` at that frame."""
+    """One binary PLY per frame, ``directory/<name>_NNNNN.ply``, of ``mesh`` at that frame; its ``colors``
+    become every frame's per-vertex colours (uint8 RGBA, opaque)."""
     import trimesh
 
     directory = Path(directory)
+    rgba = None
+    if mesh.colors is not None:
+        rgba = np.full((len(mesh.colors), 4), 255, np.uint8)
+        rgba[:, :3] = np.round(mesh.colors * 255)
     written = []
     for frame in frames:
-        surface = trimesh.Trimesh(np.asarray(mesh.points(frame), np.float64), mesh.faces, process=False)
+        points = np.asarray(mesh.points(frame), np.float64)
+        surface = trimesh.Trimesh(points, mesh.faces, vertex_colors=rgba, process=False)
         target = directory / f"{mesh.name}_{frame:05d}.ply"
         written.append(write_atomically(target, lambda tmp, s=surface: s.export(str(tmp), file_type="ply")))
         if progress:

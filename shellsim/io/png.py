@@ -111,8 +111,9 @@ def renderer_identity(asset, antialias: int = 1, world: dict | None = None) -> s
     """Digest of the narrow-band renderer's settings for ``asset`` (its sampling and background), the
     jittered rays per pixel ``antialias`` (:func:`shellsim.render.frames.antialiased`; 1, one ray through
     each pixel's centre, leaves the digest as it was before antialiasing, so those PNGs stay valid) and the
-    ``world`` behind the body (JSON: its look and the body's placement, :func:`shellsim.render.frames.
-    motion_world`; None, the asset's background, leaves the digest as it was)."""
+    ``world`` around the body (JSON: its look, the body's placement and the static obstacles,
+    :func:`shellsim.render.frames.world_record`; None, the asset's background, leaves the digest as it
+    was)."""
     from dataclasses import asdict
 
     settings = {"narrowband": asdict(asset.narrowband_config()), "background": list(asset.background)}

@@ -61,9 +61,9 @@ def _compact(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _meshes(settings: ExportSettings, motion):
-    """The moving meshes of ``motion`` (list of AnimatedMesh): the asset's M+ (through its cage; for USD
-    with the field's colour at each vertex, :func:`shellsim.render.shell_colors.shell_colors`), the surface
-    a 'simulate --mesh' motion carries, and the cage's boundary last, a guide (not rendered)."""
+    """The moving meshes of ``motion`` (list of AnimatedMesh): the asset's M+ (through its cage, with the
+    field's colour at each vertex, :func:`shellsim.render.shell_colors.shell_colors`), the surface a
+    'simulate --mesh' motion carries, and the cage's boundary last, a guide (not rendered)."""
     from shellsim.cage.geometry import boundary_faces
     from shellsim.cage.store import cage_for_motion
     from shellsim.deform.inverse_map import deform_points
@@ -71,17 +71,13 @@ def _meshes(settings: ExportSettings, motion):
 
     meshes = []
     if settings.asset is not None:
-        from neural.asset import load_asset
+        from neural.asset import load_asset, load_field
+        from shellsim.render.shell_colors import shell_colors
 
         asset = load_asset(settings.asset)
         cage = cage_for_motion(asset, motion, settings.motion)
         outer = np.asarray(asset.outer_mesh().faces, np.int64)
-        colors = None
-        if settings.format == "usd":
-            from neural.asset import load_field
-            from shellsim.render.shell_colors import shell_colors
-
-            colors = shell_colors(asset, load_field(asset, "cpu"))
+        colors = shell_colors(asset, load_field(asset, "cpu"))
         meshes.append(
             AnimatedMesh(
                 "outer_shell",

@@ -190,9 +190,10 @@ def _view_frames(asset, cage, device: str, antialias: int, frame=None, world=Non
     """``render_one(view)`` of :func:`render_frames`: ``view`` (a one-camera ``Cameras``) -> (image, stats)
     with ``antialias`` jittered rays per pixel (:func:`antialiased`), at rest, or with ``cage`` and
     ``frame`` (k -> (V, 3) cage positions of frame k, :func:`motion_frames`) for payloads ``(view, k)``;
-    ``world``: (look, placement) of :func:`motion_world` behind the body (None: the asset's background)."""
+    ``world``: (look, placement, obstacles) of :func:`motion_world` around the body (None: the asset's
+    background)."""
     device, field = _field(asset, device)
-    renderer = DeformedRenderer(asset, field, cage, device, None, *(world or (None, None)))
+    renderer = DeformedRenderer(asset, field, cage, device, None, *(world or (None, None, None)))
     if frame is None:
         return antialiased(lambda view: renderer.render(view, 0), antialias)
 
@@ -224,11 +225,13 @@ def motion_recipe(asset_path: str, motion_path: str, device: str, antialias: int
 
 
 def motion_world(motion, look=None):
-    """(look, placement) of the world behind a motion's body, or None for motions made before the world was
-    in metres (no placement: the asset's background). ``look``: a :class:`neural.render.ground.WorldLook`
-    (None: the default one); its ground is drawn only for motions that have one (not simulated without a
-    ground), the others have the sky alone."""
+    """(look, placement, obstacles) of the world around a motion's body, or None for motions made before the
+    world was in metres (no placement: the asset's background). ``look``: a
+    :class:`neural.render.ground.WorldLook` (None: the default one); its ground is drawn only for motions
+    that have one (not simulated without a ground), the others have the sky alone. ``obstacles``: the
+    :class:`neural.render.obstacles.Obstacles` of the motion's settings (``box``, ``sphere``)."""
     from neural.render.ground import WorldLook
+    from neural.render.obstacles import Obstacles
     from shellsim.world import Placement
 
     if not motion.placement:
@@ -236,15 +239,21 @@ def motion_world(motion, look=None):
     look = WorldLook() if look is None else look
     has_ground = motion.settings.get("drop_height", 0.0) is not None
     placement = Placement.from_dict(motion.placement, motion.path or "motion")
-    return dataclasses.replace(look, ground=look.ground and has_ground), placement
+    obstacles = Obstacles(motion.settings.get("box") or (), motion.settings.get("sphere") or ())
+    return dataclasses.replace(look, ground=look.ground and has_ground), placement, obstacles
 
 
 def world_record(world) -> dict | None:
-    """JSON of :func:`motion_world`'s (look, placement) for the frames' records (None stays None)."""
+    """JSON of :func:`motion_world`'s (look, placement, obstacles) for the frames' records (None stays
+    None)."""
     if world is None:
         return None
-    look, placement = world
-    return {"look": dataclasses.asdict(look), "placement": placement.as_dict()}
+    look, placement, obstacles = world
+    return {
+        "look": dataclasses.asdict(look),
+        "placement": placement.as_dict(),
+        "obstacles": dataclasses.asdict(obstacles),
+    }
 
 
 def motion_frames(motion, motion_path):

@@ -1,4 +1,4 @@
-"""Colours of an asset's outer shell M+ from its field, so that an export keeps the look (USD colours).
+"""Colours of an asset's outer shell M+ from its field, so that an export keeps the look (USD, PLY).
 
 Each M+ vertex gets the colour a camera looking straight at it sees: one ray, cast from just outside the
 vertex along its inward normal, rendered by the asset's own pipeline (:func:`neural.render.view.render_pixels`

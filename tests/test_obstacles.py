@@ -18,7 +18,7 @@ from test_ground import FRAME, PLACEMENT, checker_albedo, open_shade, stepped_sa
 
 from neural.config import NarrowBandConfig
 from neural.data import Cameras, camera_rays
-from neural.render.ground import WorldLook, obstacle_t_max, world_backdrop
+from neural.render.ground import WorldLook, surface_t_max, world_backdrop
 from neural.render.obstacles import Obstacles
 from neural.render.view import render_camera
 from shellsim.io.png import renderer_identity
@@ -59,7 +59,7 @@ def render(cameras, obstacles, field=None, look=LOOK, sampler=None):
     front of it, through the pipeline with the obstacles' ``t_max``."""
     field = SphereField(0.01, 1000.0, (50.0, 50.0, 50.0)) if field is None else field
     sampler = stepped_sampler(1.0, far=0.5) if sampler is None else sampler
-    t_max = obstacle_t_max(FRAME, obstacles, *camera_rays(cameras, 0))
+    t_max = surface_t_max(look, FRAME, obstacles, *camera_rays(cameras, 0))
     backdrop = world_backdrop(look, FRAME, None, obstacles)
     return render_camera(field, cameras, 0, sampler, torch.ones(3), backdrop=backdrop, t_max=t_max)[0]
 
@@ -155,6 +155,39 @@ def test_an_obstacle_hides_the_body_behind_it_and_not_in_front(wall_y):
     else:  # behind: the body composites over it as without it
         np.testing.assert_allclose(image[body_px], alone[body_px], atol=1e-4)
         assert is_obstacle(image)[left & (rho > radius + 1.0)].all()
+
+
+def test_the_ground_hides_the_body_below_it():
+    """An opaque sphere body half sunk into the ground (centre at z = 0), seen from above at a slant: a pixel
+    whose ray meets the sphere first below z = 0 shows the ground (the ray meets z = 0 first), one meeting it
+    above shows the body; without the ground both show the body."""
+    body = np.array([0.0, 0.0, 0.0])
+    eye = body + np.array([0.0, -0.8, 0.5])
+    cameras, c2w_w = world_camera(eye, body)
+    field = opaque_body(body, 0.2)
+    sampler = stepped_sampler(0.2 / PLACEMENT.scale / 300, far=4.0)
+    look = WorldLook(light=LOOK.light, shadows=False)
+    image = render(cameras, Obstacles(), field, look, sampler)
+    without = render(cameras, Obstacles(), field, WorldLook(ground=False, light=LOOK.light), sampler)
+    u, v = pixel_centres()  # each pixel's world ray, and where it first meets the sphere (closed form)
+    cam = np.stack([(u - SIZE / 2) / FOCAL, -(v - SIZE / 2) / FOCAL, -np.ones_like(u)], -1)
+    d = cam @ c2w_w[:3, :3].T
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    oc = eye - body
+    b = d @ oc
+    disc = b**2 - (oc @ oc - 0.2**2)
+    t = -b - np.sqrt(np.maximum(disc, 0.0))
+    z = eye[2] + t * d[..., 2]
+    seen = disc > 0.01  # away from the silhouette
+    below, above = seen & (z < -0.005), seen & (z > 0.005)
+    assert below.sum() > 20 and above.sum() > 20
+    hits = eye + (-eye[2] / d[..., 2])[..., None] * d  # where each ray meets z = 0
+    cell = hits[..., :2] / look.square
+    below &= (np.abs(cell - np.round(cell)) > 1e-3).all(axis=-1)  # off the checker's edges
+    ground = np.array([open_shade(look) * checker_albedo(look, x, y) for x, y, _ in hits[below]])
+    np.testing.assert_allclose(image[below], ground, atol=1e-5)
+    np.testing.assert_allclose(image[above], without[above], atol=1e-5)
+    assert np.abs(without[below] - image[below]).max() > 0.05  # the body was there before the ground hid it
 
 
 def test_a_box_shadows_the_ground_and_a_sphere_shadows_the_box():

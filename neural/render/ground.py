@@ -20,7 +20,8 @@ field's samples with their transmittance, Eq. 2):
 
 ``V`` is also 0 where an obstacle stands between the point and the light (a shadow ray from ``p + eps n``,
 ``eps`` = :data:`SHADOW_OFFSET`, met in closed form; obstacles are opaque). An obstacle hides the body's
-samples behind it: :func:`obstacle_t_max` is the ``t_max`` of :func:`neural.render.view.render_pixels`.
+samples behind it, and the ground those below z = 0: :func:`surface_t_max` (the ground and the obstacles)
+is the ``t_max`` of :func:`neural.render.view.render_pixels`.
 """
 
 from __future__ import annotations
@@ -132,10 +133,21 @@ def ground_hits(frame: WorldFrame, origins: torch.Tensor, dirs: torch.Tensor):
     return hit, t, points, d_w
 
 
-def obstacle_t_max(frame: WorldFrame, obstacles: Obstacles, origins: torch.Tensor, dirs: torch.Tensor):
-    """(R,) float64 ray parameter of the nearest obstacle in front of rays ``origins``, ``dirs`` (R, 3) of the
-    renderer's frame (inf where none): the body's samples beyond it are hidden."""
-    return obstacle_hits(obstacles, *to_world(frame, origins, dirs))[0]
+def surface_t_max(look: WorldLook, frame: WorldFrame, obstacles: Obstacles | None, origins, dirs):
+    """(R,) float64 ray parameter of the nearest opaque world surface in front of rays ``origins``, ``dirs``
+    (R, 3) of the renderer's frame: the ground (when drawn) and the obstacles (inf where none). The body's
+    samples beyond it are hidden: a body resting on the ground shows nothing of its shells below z = 0, and
+    an obstacle hides what is behind it."""
+    import torch
+
+    t = (
+        ground_hits(frame, origins, dirs)[1]
+        if look.ground
+        else torch.full_like(origins[:, 0], math.inf).double()
+    )
+    if obstacles:
+        t = torch.minimum(t, obstacle_hits(obstacles, *to_world(frame, origins, dirs))[0])
+    return t
 
 
 def checker(look: WorldLook, points: torch.Tensor) -> torch.Tensor:

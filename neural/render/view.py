@@ -212,7 +212,7 @@ def render_pixels(
     -> (r, 3)``: what each ray sees behind the field instead of ``background`` (a lit ground and a sky,
     :mod:`neural.render.ground`); ``color = sum_i w_i c_i + T backdrop`` (Eq. 2). ``t_max`` (R,): the ray
     parameter of a surface in front of the backdrop that hides the field beyond it (an obstacle,
-    :func:`neural.render.ground.obstacle_t_max`): samples with ``t > t_max`` get zero opacity. Stats:
+    :func:`neural.render.ground.surface_t_max`): samples with ``t > t_max`` get zero opacity. Stats:
     ``ms``, per stage ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside
     ``to_rest``) and ``counts`` (R,) int64 samples per ray that were mapped and evaluated (dropped ones
     included, those after a ray's termination or beyond ``t_max`` not)."""

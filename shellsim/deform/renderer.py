@@ -23,7 +23,8 @@ to rest space. :class:`DeformedRenderer`
    mapped to rest space alike and attenuated by the field's transmittance
    (:func:`~neural.render.view.transmittance`); the world's static obstacles
    (:class:`~neural.render.obstacles.Obstacles`) are drawn there too, and hide the body's samples behind
-   them (each ray's ``t_max``, :func:`~neural.render.ground.obstacle_t_max`).
+   them, and the ground hides the shells below z = 0 (each ray's ``t_max``,
+   :func:`~neural.render.ground.surface_t_max`).
 
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
 pipeline without a map, with the asset's rest sampler, exactly what ``shellsim eval`` measures.
@@ -137,24 +138,24 @@ class DeformedRenderer:
         the world is behind the body, its shadow rays sampled and mapped as the camera rays are, and its
         obstacles hide what is behind them."""
         from neural.data import camera_rays
-        from neural.render.ground import obstacle_t_max, world_backdrop
+        from neural.render.ground import surface_t_max, world_backdrop
         from neural.render.view import render_camera, transmittance
 
         start = time.perf_counter()
         sampler, to_rest = self._frame(positions)
         build = time.perf_counter() - start
         backdrop = t_max = None
-        hidden = 0.0  # seconds of the obstacles' t_max, a part of the world's stage
+        hidden = 0.0  # seconds of the surfaces' t_max, a part of the world's stage
         if self.look is not None:
 
             def visibility(origins, dirs):
                 return transmittance(self.field, origins, dirs, sampler, to_rest)
 
             backdrop = world_backdrop(self.look, self.world, visibility, self.obstacles)
-            if self.obstacles:
+            if self.look.ground or self.obstacles:
                 tick = time.perf_counter()
                 rays = camera_rays(cameras, index, device=self.device)
-                t_max = obstacle_t_max(self.world, self.obstacles, *rays)
+                t_max = surface_t_max(self.look, self.world, self.obstacles, *rays)
                 hidden = time.perf_counter() - tick
         image, stats = render_camera(
             self.field, cameras, index, sampler, self.background, to_rest, backdrop=backdrop, t_max=t_max

@@ -111,8 +111,10 @@ def hold_output(path) -> Iterator[Path]:
         _held[key] = (fd, depth + 1)
     else:
         _held[key] = (_acquire(path, lock), 1)
-        remove_stale_temporaries(path)  # of writers killed mid-write: only the lock's holder may
     try:
+        if _held[key][1] == 1:
+            with contextlib.suppress(OSError):  # best effort: a folder that cannot be listed keeps them
+                remove_stale_temporaries(path)  # of writers killed mid-write: only the lock's holder may
         yield path
     finally:
         fd, depth = _held[key]

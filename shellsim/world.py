@@ -25,6 +25,12 @@ UP = (0.0, 0.0, 1.0)
 BODY_SIZE = 0.3
 
 
+def has_ground(settings: dict) -> bool:
+    """Whether the motion whose producer's ``settings`` these are has a ground at z = 0: a simulation records
+    ``drop_height`` None when made without one; a wind animation's body stands on it."""
+    return settings.get("drop_height", 0.0) is not None
+
+
 def up_rotation(up) -> np.ndarray:
     """(3, 3) the smallest rotation R with R @ up = +z (half a turn about x for up = -z)."""
     u = np.asarray(up, np.float64)

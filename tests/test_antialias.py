@@ -17,7 +17,8 @@ import torch
 
 from neural.data import Cameras, camera_rays
 from shellsim.io.png import renderer_identity
-from shellsim.render.frames import MOTION_ANTIALIAS, antialiased, pixel_offsets
+from shellsim.render.cameras import MOTION_ANTIALIAS
+from shellsim.render.frames import antialiased, pixel_offsets
 
 W, H = 48, 36
 FOCAL = 40.0

@@ -50,6 +50,11 @@ def _colour(name: str, value) -> tuple[float, float, float]:
     return rgb
 
 
+#: Version of how the world is drawn, kept in the frames' records (:mod:`shellsim.io.png`): raise it when the
+#: shading of the ground, the obstacles, the shadows or the sky changes, so that frames made before re-render.
+WORLD_RENDERER = 2
+
+
 @dataclass(frozen=True)
 class WorldLook:
     """How the world behind a body looks: settings only (recorded with every frame).

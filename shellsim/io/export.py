@@ -58,17 +58,14 @@ def require_usd() -> None:
 def up_rotation(up: Sequence[float]) -> tuple[np.ndarray, str]:
     """(R (3, 3), axis): USD knows only a Y or Z up axis. An up of +Y or +Z is kept (R = I); any other is
     turned onto +Z by the smallest rotation R (R @ up = +Z)."""
+    from shellsim.world import up_rotation as onto_z
+
     u = np.asarray(up, np.float64)
     u = u / np.linalg.norm(u)
     for axis, target in (("Y", (0.0, 1.0, 0.0)), ("Z", (0.0, 0.0, 1.0))):
         if np.allclose(u, target, atol=1e-9):
             return np.eye(3), axis
-    z = np.array([0.0, 0.0, 1.0])
-    v, c = np.cross(u, z), float(u @ z)
-    if np.linalg.norm(v) < 1e-12:  # up = -Z: half a turn about X
-        return np.diag([1.0, -1.0, -1.0]), "Z"
-    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + k + k @ k / (1.0 + c), "Z"
+    return onto_z(u), "Z"
 
 
 def _usd_name(name: str) -> str:

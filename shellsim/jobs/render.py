@@ -14,13 +14,11 @@ from neural.device import DEVICES
 from shellsim.errors import SettingError
 from shellsim.io.outputs import check_writable_dir, check_writable_file, holds_outputs, lock_output
 from shellsim.memory import check_memory, render_bytes
-from shellsim.render.cameras import OPTIONS, CameraSettings, camera_option
+from shellsim.render.cameras import MOTION_ANTIALIAS, OPTIONS, VIDEO_SIZE, CameraSettings, camera_option
 from shellsim.render.result import RenderResult
 from shellsim.render.world import WorldSettings, world_option
 from shellsim.settings import check_choice, check_required, device_setting, option
 
-ORBIT_SIZE = 512  # pixels a side of the orbit's frames when no size is given
-MOTION_ANTIALIAS = 4  # jittered rays per pixel of a motion's frames when none is given
 MOTION_ONLY = ("frames", "video", "fps", *OPTIONS)
 
 
@@ -45,7 +43,9 @@ class RenderSettings:
     look_at: tuple[float, float, float] | None = camera_option("look_at")
     out: str = option(help="directory of the PNG frames", required=True)
     frames: str | None = option(help="with --motion: frames START:END (END exclusive)", shown_default="all")
-    width: int | None = option(help="image width", shown_default=f"the camera file's; --camera: {ORBIT_SIZE}")
+    width: int | None = option(
+        help="image width", shown_default=f"the camera file's; --camera: {VIDEO_SIZE[0]}"
+    )
     height: int | None = option(
         help="image height; the file's pixel intrinsics are scaled to the size",
         shown_default="the camera file's, or its aspect ratio with --width alone; --camera: as --width",
@@ -103,12 +103,17 @@ class RenderSettings:
             raise SettingError("ray", "renders an asset's frames; a motion's own surface is drawn here")
         if self.asset is None and self.antialias is not None:
             raise SettingError("antialias", "renders an asset's frames; pyvista draws a motion's own surface")
+        for name in ([] if self.ground else ["ground"]) + world.changed():
+            if self.asset is None:
+                raise SettingError(
+                    name, "sets the world around an asset's frames; pyvista draws a motion's own surface"
+                )
 
     def size(self) -> tuple[int | None, int | None] | None:
         """(W, H) of the frames: None, the camera file's; a missing side keeps the file's aspect ratio;
         a motion's world camera makes square ones."""
         if self.cameras is None:
-            side = self.width or self.height or ORBIT_SIZE
+            side = self.width or self.height or VIDEO_SIZE[0]
             return (self.width or side, self.height or side)
         if self.width is None and self.height is None:
             return None

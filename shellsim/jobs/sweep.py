@@ -204,7 +204,7 @@ def sweep(settings: SweepSettings, progress: bool = True) -> SweepResult:
     ``OUT/index.json`` as each finishes and ``OUT/contact_sheet.png`` at the end."""
     from tqdm import tqdm
 
-    from neural.files import write_atomically
+    from neural.files import write_text_atomically
     from shellsim.io.outputs import check_writable_dir, lock_output
     from shellsim.viz.contact_sheet import contact_sheet
 
@@ -221,7 +221,7 @@ def sweep(settings: SweepSettings, progress: bool = True) -> SweepResult:
     def done(i: int, entry: dict) -> None:
         index["combinations"][i] = entry
         listed = {**index, "combinations": [e for e in index["combinations"] if e]}
-        write_atomically(out / "index.json", lambda tmp: tmp.write_text(json.dumps(listed, indent=1)))
+        write_text_atomically(out / "index.json", json.dumps(listed, indent=1))
         bar.update()
 
     corners = [None] * len(combos)

@@ -21,6 +21,12 @@ from shellsim.errors import SettingError
 from shellsim.settings import check_choice, check_range, floats, option
 from shellsim.world import UP
 
+#: (W, H) of a motion's frames when neither a size nor a camera file gives one.
+VIDEO_SIZE = (512, 512)
+#: Jittered rays per pixel of a motion's frames by default (:func:`shellsim.render.frames.antialiased`); rest
+#: views take 1, the pixel-centre rays that ``shellsim eval`` scores.
+MOTION_ANTIALIAS = 4
+
 #: Horizontal field of view of the cameras, degrees, and the elevation above the horizon of the orbit, the
 #: follow camera and the three-quarter preset.
 ORBIT_FOV_DEG = 40.0

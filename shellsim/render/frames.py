@@ -15,20 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import write_failures
-from shellsim.deform.renderer import DeformedRenderer
 from shellsim.io.png import asset_identity, digest, frame_record, renderer_identity, save_png, stale_reason
 from shellsim.io.video import write_video
-from shellsim.render.cameras import CameraSettings, mass_weights, motion_track
+from shellsim.render.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, CameraSettings, mass_weights, motion_track
 from shellsim.render.result import RenderResult
 from shellsim.settings import parse_frames
 
 log = logging.getLogger(__name__)
 
-#: (W, H) of a motion's frames when neither a size nor a camera file gives one.
-VIDEO_SIZE = (512, 512)
-#: Jittered rays per pixel of a motion's frames by default (:func:`antialiased`); rest views take 1, the
-#: pixel-centre rays that ``shellsim eval`` scores.
-MOTION_ANTIALIAS = 4
 #: Seed of the sub-pixel offsets of :func:`pixel_offsets`: fixed, so a frame is the same every time.
 JITTER_SEED = 0
 
@@ -193,6 +187,8 @@ def _view_frames(asset, cage, device: str, antialias: int, frame=None, world=Non
     ``world``: (look, placement, obstacles) of :func:`motion_world` around the body (None: the asset's
     background)."""
     device, field = _field(asset, device)
+    from shellsim.deform.renderer import DeformedRenderer
+
     renderer = DeformedRenderer(asset, field, cage, device, None, *(world or (None, None, None)))
     if frame is None:
         return antialiased(lambda view: renderer.render(view, 0), antialias)
@@ -232,15 +228,14 @@ def motion_world(motion, look=None):
     :class:`neural.render.obstacles.Obstacles` of the motion's settings (``box``, ``sphere``)."""
     from neural.render.ground import WorldLook
     from neural.render.obstacles import Obstacles
-    from shellsim.world import Placement
+    from shellsim.world import Placement, has_ground
 
     if not motion.placement:
         return None
     look = WorldLook() if look is None else look
-    has_ground = motion.settings.get("drop_height", 0.0) is not None
     placement = Placement.from_dict(motion.placement, motion.path or "motion")
     obstacles = Obstacles(motion.settings.get("box") or (), motion.settings.get("sphere") or ())
-    return dataclasses.replace(look, ground=look.ground and has_ground), placement, obstacles
+    return dataclasses.replace(look, ground=look.ground and has_ground(motion.settings)), placement, obstacles
 
 
 def world_record(world) -> dict | None:
@@ -248,8 +243,11 @@ def world_record(world) -> dict | None:
     None)."""
     if world is None:
         return None
+    from neural.render.ground import WORLD_RENDERER
+
     look, placement, obstacles = world
     return {
+        "renderer": WORLD_RENDERER,
         "look": dataclasses.asdict(look),
         "placement": placement.as_dict(),
         "obstacles": dataclasses.asdict(obstacles),

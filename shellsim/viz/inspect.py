@@ -37,7 +37,7 @@ import numpy as np
 
 from neural.errors import InputError, ShellsimError
 from shellsim.cage.embed import interpolate
-from shellsim.world import GROUND_Z
+from shellsim.world import GROUND_Z, has_ground
 
 #: Point-data array of ``M+`` holding the colouring, per ``color`` option.
 SCALARS = {"width": "shell width", "kernel": "kernel size s"}
@@ -181,10 +181,11 @@ def build_scene(asset, cage, motion=None, color: str = "width", frame: int = 0, 
 
 def world_scene(motion) -> dict:
     """The world a motion was simulated in, to draw beside its body: ``"ground"`` (the plane z = 0 under
-    the motion, 1.5 times its extent, when the simulation had a ground) and ``"sphere k"`` / ``"box k"``
+    the motion, 1.5 times its extent, when it has one: :func:`shellsim.world.has_ground`) and ``"sphere k"``
+    / ``"box k"``
     (its obstacles, as its settings give them), pyvista meshes in the motion's frame (world metres; the
     asset's units for motions made before the world was in metres, which draw no ground). Empty for a
-    motion without them (wind)."""
+    motion without them."""
     pv = _pyvista()
     scene = {}
     settings = motion.settings or {}
@@ -192,7 +193,7 @@ def world_scene(motion) -> dict:
         scene[f"sphere {k + 1}"] = pv.Sphere(r, (x, y, z), theta_resolution=32, phi_resolution=32)
     for k, (x, y, z, hx, hy, hz) in enumerate(settings.get("box") or ()):
         scene[f"box {k + 1}"] = pv.Box(bounds=(x - hx, x + hx, y - hy, y + hy, z - hz, z + hz))
-    if motion.placement and settings.get("drop_height") is not None:
+    if motion.placement and has_ground(settings):
         points = motion.positions.reshape(-1, 3)
         lo, hi = points.min(0), points.max(0)
         centre, extent = 0.5 * (lo + hi), 1.5 * float((hi - lo)[:2].max())

@@ -114,13 +114,13 @@ def render_surface_motion(
     """Render a motion's surface to ``out_dir/<k:05d>.png`` (and an MP4) seen by ``camera``
     (:class:`~shellsim.render.cameras.CameraSettings` in world metres about the motion's up axis; None:
     the default orbit) as :func:`shellsim.render.frames.render_motion` would; ``frames``, ``size`` (default
-    :data:`~shellsim.render.frames.VIDEO_SIZE`), ``video``, ``fps`` and ``overwrite`` as there. Returns its
+    :data:`~shellsim.render.cameras.VIDEO_SIZE`), ``video``, ``fps`` and ``overwrite`` as there. Returns its
     :class:`~shellsim.render.result.RenderResult` (counts, ``ms``, ``video``)."""
     from shellsim.io.png import digest, frame_record
     from shellsim.io.video import write_video
     from shellsim.motion.read import load_motion
-    from shellsim.render.cameras import CameraSettings, mass_weights, motion_track
-    from shellsim.render.frames import VIDEO_SIZE, motion_fps, motion_frame_ids, render_frames
+    from shellsim.render.cameras import VIDEO_SIZE, CameraSettings, mass_weights, motion_track
+    from shellsim.render.frames import motion_fps, motion_frame_ids, render_frames
     from shellsim.settings import parse_frames
 
     motion = load_motion(motion_path)

@@ -23,8 +23,9 @@ class Control:
     pinned : (V,) bool, the held vertices (None: none); targets : (V, 3) where they are held [m] (None:
     their rest positions; rows of free vertices are ignored); forces : (V, 3) external forces [N] (None:
     none; rows of pinned vertices are ignored).
-    Host: ``pinned`` (V,) bool (read-only numpy). Device (Warp, on the model's device): ``pinned_wp`` (V,)
-    int32, ``targets_wp`` (V,) vec3d, ``forces_wp`` (V,) vec3d.
+    Host: ``pinned`` (V,) bool (read-only numpy), ``min_free_mass`` [kg] (the lightest free vertex's mass,
+    1 when every vertex is pinned: it bounds the Newton step's tolerance). Device (Warp, on the model's
+    device): ``pinned_wp`` (V,) int32, ``targets_wp`` (V,) vec3d, ``forces_wp`` (V,) vec3d.
     """
 
     def __init__(self, model, pinned=None, targets=None, forces=None):
@@ -46,6 +47,8 @@ class Control:
         targets = self._model.rest_vertices if targets is None else check_vectors("targets", targets, n)
         pinned.setflags(write=False)
         self.pinned = pinned
+        free = self._model.masses[~pinned]
+        self.min_free_mass = float(free.min()) if len(free) else 1.0
         self.pinned_wp.assign(wp.array(pinned.astype(np.int32), dtype=wp.int32, device=self.pinned_wp.device))
         self.targets_wp.assign(wp.array(targets, dtype=vec3, device=self.targets_wp.device))
 

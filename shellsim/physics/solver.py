@@ -335,8 +335,7 @@ class ImplicitSolver:
         # energy, min_det, force_norm stay those of x from here on
         # Newton stops once the step is below tol; H >= M / h^2 bounds |d| <= |force| h^2 / m_min
         tol = s.newton_tol * model.size * h
-        free = model.masses[~control.pinned]
-        force_tol = tol * (float(free.min()) if len(free) else 1.0) / (h * h)
+        force_tol = tol * control.min_free_mass / (h * h)
         iterations = 0
         forcing = Forcing(s.cg_tol, self._loosest_solve)
         moved = math.inf  # bound on how far x moved since the tets' Hessian blocks were evaluated

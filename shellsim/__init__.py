@@ -11,6 +11,7 @@ Jobs (settings -> function -> result):
     TrainSettings -> train -> TrainResult            ExtractSettings -> extract -> ExtractResult
     PosesSettings -> poses -> PosesResult            CageSettings -> cage_job -> CageResult
     SimulateSettings -> simulate -> SimulateResult   WindJobSettings -> wind -> WindResult
+    SceneSettings -> scene_job -> SceneResult
     RenderSettings -> render_job -> RenderResult     EvalSettings -> evaluate -> EvalResult (ViewMetrics)
     ExportSettings -> export -> ExportResult         SweepSettings -> sweep -> SweepResult
     InspectSettings -> inspect -> the screenshot's path (None after an interactive view)
@@ -18,9 +19,10 @@ Rendering without settings: render_views(asset, cameras, out, ...) and render_mo
     -> RenderResult.
 Errors: ShellsimError (anything a user can act on), SettingError (a setting's value, naming the field).
 
-The jobs of ``shellsim cage`` and ``shellsim render`` are ``cage_job`` and ``render_job`` here:
-``shellsim.cage`` and ``shellsim.render`` are sub-packages. ``shellsim.physics`` (model, state, control,
-solver, driver, wind) and ``shellsim.motion.format`` work on plain numpy arrays and do not need torch.
+The jobs of ``shellsim cage``, ``shellsim render`` and ``shellsim scene`` are ``cage_job``, ``render_job`` and
+``scene_job`` here: ``shellsim.cage``, ``shellsim.render`` and ``shellsim.scene`` are sub-packages.
+``shellsim.physics`` (model, state, control, solver, driver, wind) and ``shellsim.motion.format`` work on
+plain numpy arrays and do not need torch.
 """
 
 import importlib
@@ -46,6 +48,9 @@ _EXPORTS = {
     "SimulateSettings": ("shellsim.jobs.simulate", "SimulateSettings"),
     "SimulateResult": ("shellsim.jobs.simulate", "SimulateResult"),
     "simulate": ("shellsim.jobs.simulate", "simulate"),
+    "SceneSettings": ("shellsim.jobs.scene", "SceneSettings"),
+    "SceneResult": ("shellsim.jobs.scene", "SceneResult"),
+    "scene_job": ("shellsim.jobs.scene", "scene"),
     "WindJobSettings": ("shellsim.jobs.wind", "WindJobSettings"),
     "WindResult": ("shellsim.jobs.wind", "WindResult"),
     "wind": ("shellsim.jobs.wind", "wind"),

@@ -21,6 +21,8 @@ from neural.errors import InputError
 #: Height of the ground plane (metres); the world's up axis.
 GROUND_Z = 0.0
 UP = (0.0, 0.0, 1.0)
+#: Metres per unit of a mesh file's coordinates (a mesh body's or collider's ``units``).
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 #: Size in metres of a body's largest extent when none is given.
 BODY_SIZE = 0.3
 

@@ -32,6 +32,7 @@ COMMANDS = (
     "eval",
     "cage",
     "simulate",
+    "scene",
     "wind",
     "inspect",
     "export",

@@ -41,12 +41,10 @@ from shellsim.settings import (
     pixels,
     resume_option,
 )
-from shellsim.world import BODY_SIZE, GROUND_Z, UP, describe_placement, place_on_ground
+from shellsim.world import BODY_SIZE, GROUND_Z, UNITS, UP, describe_placement, place_on_ground
 
 log = logging.getLogger(__name__)
 
-#: Metres per unit of a mesh file's coordinates (``units``).
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 MAX_SUBSTEPS = 1000  # per frame; a retried frame runs up to 4 times as many
 #: The settings that do not change the motion (not compared when a file is continued).
 NOT_MOTION = (

@@ -223,7 +223,7 @@ def partition_tets(
 
 
 @dataclass
-class _Step:
+class StepInputs:
     """The arrays and length of the step being solved: ``x`` the iterate (state_out's positions), ``x_prev``
     the start (state_in's), ``pinned`` (V,) int32 the control's pins."""
 
@@ -293,30 +293,7 @@ class ImplicitSolver:
         h = float(dt)
         stats = SolveStats()
         x_in, x = state_in.positions, state_out.positions
-        step = _Step(h, x, x_in, control.pinned_wp)
-        wp.launch(
-            predict,
-            n,
-            [
-                x_in,
-                state_in.velocities,
-                model.masses_wp,
-                control.pinned_wp,
-                control.targets_wp,
-                control.forces_wp,
-                h,
-                vec3(*model.gravity),
-                self._x_tilde,
-            ],
-            device=dev,
-        )
-        wp.launch(store_deformation, model.n_tets, [x_in, self._tets, self._dm_inv, self._f_prev], device=dev)
-        wp.launch(
-            lag_friction,
-            n,
-            [x_in, model.masses_wp, model.colliders, f64(s.contact_stiffness), self._fn, self._fn_normal],
-            device=dev,
-        )
+        step = self.prepare(state_in, state_out, control, h)
 
         # start from the inertial prediction plus the previous step's correction, or from the prediction
         # alone, whichever has the lower energy and inverts no tet (else from x^n); the former, most often
@@ -324,14 +301,14 @@ class ImplicitSolver:
         start_energy, start_weight = math.inf, None
         for weight in (0.0, 1.0):
             wp.launch(step_positions, n, [self._x_tilde, self._correction, weight, self._x_trial], device=dev)
-            energy, min_det, force_norm = self._evaluate(self._x_trial, step, FORCE if weight else ENERGY)
+            energy, min_det, force_norm = self.evaluate(self._x_trial, step, FORCE if weight else ENERGY)
             if min_det > 0 and energy < math.inf and energy <= start_energy:
                 wp.copy(x, self._x_trial)
                 start_energy, start_weight = energy, weight
         if start_weight is None:
             wp.copy(x, x_in)
         if start_weight != 1.0:
-            energy, min_det, force_norm = self._evaluate(x, step, FORCE)
+            energy, min_det, force_norm = self.evaluate(x, step, FORCE)
         # energy, min_det, force_norm stay those of x from here on
         # Newton stops once the step is below tol; H >= M / h^2 bounds |d| <= |force| h^2 / m_min
         tol = s.newton_tol * model.size * h
@@ -347,7 +324,7 @@ class ImplicitSolver:
                 stats.converged = True
                 break
             fresh = moved > ELASTIC_HESSIAN_REUSE * tol
-            self._evaluate(x, step, HESSIAN, fresh_tets=fresh)
+            self.evaluate(x, step, HESSIAN, fresh_tets=fresh)
             moved = 0.0 if fresh else moved
             stats.hessians += fresh
             self._d.zero_()
@@ -386,6 +363,59 @@ class ImplicitSolver:
         stats.max_speed = float(self._scalars.numpy()[0])
         return stats
 
+    def prepare(self, state_in: State, state_out: State, control: Control, h: float) -> StepInputs:
+        """The fixed inputs of a step of ``h`` [s] from ``state_in`` whose iterate is ``state_out``'s
+        positions: the inertial prediction, the deformation gradients at the start (damping) and the lagged
+        friction of the penalty colliders. :meth:`evaluate` then measures any iterate."""
+        dev, model = self.device, self.model
+        n = model.n_vertices
+        x_in = state_in.positions
+        wp.launch(
+            predict,
+            n,
+            [
+                x_in,
+                state_in.velocities,
+                model.masses_wp,
+                control.pinned_wp,
+                control.targets_wp,
+                control.forces_wp,
+                h,
+                vec3(*model.gravity),
+                self._x_tilde,
+            ],
+            device=dev,
+        )
+        wp.launch(store_deformation, model.n_tets, [x_in, self._tets, self._dm_inv, self._f_prev], device=dev)
+        s = model.settings
+        wp.launch(
+            lag_friction,
+            n,
+            [x_in, model.masses_wp, model.colliders, f64(s.contact_stiffness), self._fn, self._fn_normal],
+            device=dev,
+        )
+        return StepInputs(h, state_out.positions, x_in, control.pinned_wp)
+
+    @property
+    def prediction(self) -> np.ndarray:
+        """(V, 3) the inertial prediction of the step last prepared (pinned vertices: their targets)."""
+        return self._x_tilde.numpy()
+
+    @property
+    def force(self) -> np.ndarray:
+        """(V, 3) ``-dE/dx`` of the last FORCE :meth:`evaluate` (zero on pinned vertices)."""
+        return self._force.numpy()
+
+    def hessian_matrix(self):
+        """The last HESSIAN :meth:`evaluate`'s matrix as a ``scipy.sparse.bsr_matrix`` (3V, 3V) with 3x3
+        blocks (pinned vertices: identity rows and zero columns)."""
+        from scipy.sparse import bsr_matrix
+
+        n = self.model.n_vertices
+        return bsr_matrix(
+            (self._values.numpy(), self._columns.numpy(), self._offsets.numpy()), shape=(3 * n, 3 * n)
+        )
+
     def _max_step(self) -> float:
         """max_i |d_i| of the Newton step in ``d``."""
         self._scalars.zero_()
@@ -393,10 +423,10 @@ class ImplicitSolver:
         return float(self._scalars.numpy()[0])
 
     def _line_search(
-        self, energy: float, min_det: float, step: _Step, tries: int = 12, order: int = FORCE
+        self, energy: float, min_det: float, step: StepInputs, tries: int = 12, order: int = FORCE
     ) -> tuple[float, float, float] | None:
         """Backtrack x + alpha d, alpha = 1, 1/2, ... (``tries`` values) until E decreases (and no tet inverts
-        that was not); move x there and return :meth:`_evaluate` (``order``) of the new x, or None if no
+        that was not); move x there and return :meth:`evaluate` (``order``) of the new x, or None if no
         alpha does."""
         alpha = 1.0
         for _ in range(tries):
@@ -406,7 +436,7 @@ class ImplicitSolver:
                 [step.x, self._d, alpha, self._x_trial],
                 device=self.device,
             )
-            evaluation = self._evaluate(self._x_trial, step, order)
+            evaluation = self.evaluate(self._x_trial, step, order)
             trial, trial_det, _ = evaluation
             if trial <= energy and (trial_det > 0 or min_det <= 0):
                 wp.copy(step.x, self._x_trial)
@@ -414,8 +444,8 @@ class ImplicitSolver:
             alpha *= 0.5
         return None
 
-    def _evaluate(
-        self, x: wp.array, step: _Step, order: int, fresh_tets: bool = True
+    def evaluate(
+        self, x: wp.array, step: StepInputs, order: int, fresh_tets: bool = True
     ) -> tuple[float, float, float] | None:
         """ENERGY, FORCE: the incremental potential at ``x``, min det F and |force| (0 for ENERGY); FORCE
         fills the force. HESSIAN: only the Hessian blocks and the block-Jacobi preconditioner (None), the
@@ -481,8 +511,8 @@ class ImplicitSolver:
             wp.copy(self._values, self._elastic_values)
         return self._vertex_terms(x, step, order)
 
-    def _vertex_terms(self, x: wp.array, step: _Step, order: int) -> tuple[float, float, float] | None:
-        """:meth:`_evaluate`'s per-vertex terms (added to the tets' sums and blocks) and its result."""
+    def _vertex_terms(self, x: wp.array, step: StepInputs, order: int) -> tuple[float, float, float] | None:
+        """:meth:`evaluate`'s per-vertex terms (added to the tets' sums and blocks) and its result."""
         model = self.model
         s, h = model.settings, step.h
         wp.launch(

@@ -10,10 +10,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from neural.errors import InputError
+
 Vec3 = tuple[float, float, float]
 
 
-class SceneError(ValueError):
+class SceneError(InputError):
     """A scene file is wrong: one line ``FILE: [table] key: problem``."""
 
 
@@ -47,14 +49,15 @@ class CageSpec:
 
 @dataclass(frozen=True)
 class BodySpec:
-    """One ``[[body]]``: an asset (a shipped name or a directory) or a closed triangle mesh, placed in the world.
+    """One ``[[body]]``: an asset (a shipped name or a directory) or a closed triangle mesh, placed in the
+    world.
 
-    The body is turned so the asset's up axis is +z (a mesh is taken as z up), scaled so its largest extent is
-    ``size`` metres (a mesh without ``size`` keeps its own size in ``units``), rotated by ``rotation`` (degrees
-    about the world x, y, then z axes, through its bounding-box centre), and moved so the bottom centre of its
-    bounding box is at ``position``. ``material`` is a preset of :mod:`shellsim.physics.materials`;
-    ``youngs`` [Pa], ``poisson``, ``density`` [kg/m^3] override it. ``velocity`` [m/s] and ``spin`` [rad/s,
-    about the centre of mass] start it moving.
+    The body is turned so the asset's up axis is +z (a mesh is taken as z up), scaled so its largest extent
+    is ``size`` metres (a mesh without ``size`` keeps its own size in ``units``), rotated by ``rotation``
+    (degrees about the world x, y, then z axes, through its bounding-box centre), and moved so the bottom
+    centre of its bounding box is at ``position``. ``material`` is a preset of
+    :mod:`shellsim.physics.materials`; ``youngs`` [Pa], ``poisson``, ``density`` [kg/m^3] override it.
+    ``velocity`` [m/s] and ``spin`` [rad/s, about the centre of mass] start it moving.
     """
 
     name: str
@@ -151,7 +154,7 @@ class CameraSpec:
     ``kind``: ``orbit`` (around ``target`` at ``distance`` [m] and ``elevation`` [degrees], turning by
     ``degrees`` over the shot from ``azimuth``), ``fixed`` (at ``position`` looking at ``target``) or
     ``follow`` (like fixed, its target following the centre of the body ``body``). ``fov`` [degrees]
-    vertical; ``target`` None: the centre of the bodies at t = 0.
+    horizontal (as :mod:`shellsim.render.cameras`); ``target`` None: the centre of the bodies at t = 0.
     """
 
     name: str

@@ -177,9 +177,8 @@ def total_drag(action, body, t, h=0.01, velocity=0.0):
     return inp[body.name].forces.sum(0)
 
 
-@pytest.mark.parametrize("flip", [False, True])
-def test_wind_on_a_plate_facing_it_is_half_rho_cd_a_u2(flip):
-    facing = plate("p", 0, flip)
+def test_wind_on_a_plate_facing_it_is_half_rho_cd_a_u2_and_nothing_on_its_back():
+    facing = plate("p", 0, flip=True)  # its normal points into the wind (-x)
     expected = 0.5 * AIR_DENSITY * 1.3 * 4.0 * 3.0**2
     np.testing.assert_allclose(total_drag(wind(), facing, 1.0), (expected, 0, 0), atol=1e-12)
     np.testing.assert_allclose(
@@ -187,6 +186,7 @@ def test_wind_on_a_plate_facing_it_is_half_rho_cd_a_u2(flip):
     )  # half ramp
     np.testing.assert_allclose(total_drag(wind(), facing, 1.0, velocity=1.0), (expected * 4 / 9, 0, 0))
     assert not total_drag(wind(), facing, 2.0).any()  # after the window
+    assert not total_drag(wind(), plate("b", 0), 1.0).any()  # the air blows on its back: no pressure there
     edge_on = plate("q", 1)
     both = Actions([wind()], [facing, edge_on]).inputs(
         1.0, 0.01, {"p": facing.rest, "q": edge_on.rest}, {"p": np.zeros((4, 3)), "q": np.zeros((4, 3))}
@@ -195,8 +195,17 @@ def test_wind_on_a_plate_facing_it_is_half_rho_cd_a_u2(flip):
     assert np.abs(both["q"].forces).max() < 1e-12
 
 
+def test_wind_on_a_closed_cube_is_the_drag_equation_on_its_front_face():
+    import trimesh
+
+    cube = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    body = BodyInfo("c", np.asarray(cube.vertices), np.ones(8), np.asarray(cube.faces))
+    expected = 0.5 * AIR_DENSITY * 1.3 * 4.0 * 3.0**2  # front face 2 m x 2 m
+    np.testing.assert_allclose(total_drag(wind(), body, 1.0), (expected, 0, 0), atol=1e-9)
+
+
 def test_gusts_and_turbulence_stay_within_their_bounds():
-    facing = plate("p", 0)
+    facing = plate("p", 0, flip=True)
     calm = 0.5 * AIR_DENSITY * 1.3 * 4.0 * 3.0**2
     gusty = wind(gust=0.3, turbulence=0.5, gust_frequency=2.0)
     totals = np.array([total_drag(gusty, facing, t) for t in np.linspace(0.3, 1.7, 50)])

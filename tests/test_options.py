@@ -158,5 +158,5 @@ def test_repeat_options_say_so_in_their_help():
         for action in command._actions:
             says = "(repeat for several)" in (action.help or "")
             assert says == isinstance(action, argparse._AppendAction), (name, action.option_strings)
-            repeated += [action.option_strings[0]] * says
+            repeated += action.option_strings[:1] * says
     assert {"--pin", "--sphere", "--box"} <= set(repeated)

@@ -1,6 +1,6 @@
 """The scene job: a shot of several bodies, static colliders and timed actions, read from a scene file.
 
-The file (:mod:`shellsim.scene.file`, schema in ``docs/scene_file.md``) is read and checked before anything
+The file (:mod:`shellsim.scene.file`, schema in the README) is read and checked before anything
 heavy runs; then every body's cage and collision surface are loaded or built (cached), the bodies placed
 (:mod:`shellsim.scene.build`) and the first instant checked (bodies overlapping each other, a collider or the
 ground; a region that selects nothing). One implicit solve moves every body per substep
@@ -9,11 +9,11 @@ visible surfaces, the colliders and the ground (:mod:`shellsim.physics.ipc`), an
 pushes and wind (:mod:`shellsim.scene.actions`).
 
 The motion (``OUT/motion.npz``, format 3, :mod:`shellsim.motion.format`) holds the cages of all bodies one
-after the other; its header's ``asset`` lists the ``bodies`` (name, source, cage digest in the asset's frame,
-placement, vertex and tet ranges) and its ``settings`` are the whole scene as read (world, bodies,
-colliders, actions, cameras). ``frames`` shortens the shot; a later run with more frames, or after an
-interruption, continues the motion when the scene is unchanged, and refuses a changed one unless
-``overwrite``.
+after the other, and their collision surfaces as its surface; its header's ``asset`` lists the ``bodies``
+(name, source, cage digest in the asset's frame, placement, vertex and tet ranges) and its ``settings`` are
+the whole scene as read (world, bodies, colliders, actions, cameras). ``frames`` shortens the shot; a later
+run with more frames, or after an interruption, continues the motion when the scene is unchanged, and refuses
+a changed one unless ``overwrite``.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ ACTION_STATE = "action_"
 class SceneSettings:
     """What :func:`scene` does."""
 
-    scene: str = option(help="the scene file (TOML; schema in docs/scene_file.md)", required=True)
+    scene: str = option(help="the scene file (TOML; its schema is in the README)", required=True)
     out: str | None = option(
         help="output directory: motion.npz (the shot's motion)", shown_default="the scene file without .toml"
     )
@@ -196,6 +196,7 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
             out,
             np.concatenate([b.rest for b in bodies]),
             np.concatenate([b.tets + start for b, start in zip(bodies, starts, strict=False)]),
+            surface=_surfaces(bodies),
             producer=PRODUCER,
             settings=record,
             asset={"bodies": _body_records(bodies, starts)},
@@ -261,6 +262,21 @@ def _body_records(bodies, starts) -> list[dict]:
         )
         tet_start += len(body.tets)
     return records
+
+
+def _surfaces(bodies):
+    """Every body's collision surface (its visible surface) as one
+    :class:`shellsim.motion.format.Surface` of the concatenated cage."""
+    from shellsim.motion.format import Surface
+
+    tets, bary, faces, tet_start, vertex_start = [], [], [], 0, 0
+    for body in bodies:
+        tets.append(np.asarray(body.surface.tet, np.int64) + tet_start)
+        bary.append(np.asarray(body.surface.bary, np.float64))
+        faces.append(np.asarray(body.surface.faces, np.int64) + vertex_start)
+        tet_start += len(body.tets)
+        vertex_start += len(body.surface.tet)
+    return Surface(np.concatenate(tets), np.concatenate(bary), np.concatenate(faces))
 
 
 def _check_bodies(motion, bodies, out: Path) -> None:

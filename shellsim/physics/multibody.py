@@ -8,12 +8,11 @@ cage vertices ``x`` (N, 3) at once
 
     E(x) = sum_b E_b(x_b) + kappa B(W x) + D(W (x - x^n))
 
-by Newton's method: the Hessian is the block diagonal of the bodies' plus ``W^T H_contact W``, solved directly
-(SuperLU, :func:`solve_spd`); every step is first shortened to the collision-free fraction that continuous
+by Newton's method: the Hessian is the block diagonal of the bodies' plus ``W^T H_contact W``, solved by
+:class:`NewtonSystems`; every step is first shortened to the collision-free fraction that continuous
 collision detection finds, then halved until ``E`` decreases and no tet inverts. Newton starts from the
-inertial prediction when the way there is free of contact, else from the last step's end. Pinned vertices
-(timed pins, grabs) have identity rows whose right-hand side moves them to their targets, as far as contact
-lets them.
+inertial prediction when the way there is free of contact, else from the last step's end with the pinned
+vertices (timed pins, grabs) at their targets, as far as contact lets them; their rows are the identity.
 
 :class:`SceneDriver` runs frames of substeps with the checks and retries of
 :class:`shellsim.physics.driver.FrameDriver`, asking a schedule for each substep's pins and forces.
@@ -43,6 +42,9 @@ CONTACT_NEWTON_ITERATIONS = 40
 #: Newton's step tolerance with contact is at most this fraction of the barrier's reach ``dhat``, so that the
 #: gaps the barrier balances are resolved.
 NEWTON_TOL_GAP = 0.01
+#: Conjugate-gradient iterations a Newton system may take with an earlier Hessian's factorisation as its
+#: preconditioner before the current Hessian is factorised.
+REUSE_ITERATIONS = 25
 #: Halvings of a step in the line search.
 LINE_SEARCH_TRIES = 16
 
@@ -63,6 +65,7 @@ class SceneSolver:
         rest = np.concatenate([m.rest_vertices for m in self.models])
         self.size = float(np.linalg.norm(rest.max(0) - rest.min(0)))
         self._tol_size = min(m.size for m in self.models)
+        self.systems = NewtonSystems()
 
     def split(self, x: np.ndarray) -> list[np.ndarray]:
         """The bodies' rows of global positions ``x`` (N, 3)."""
@@ -109,19 +112,26 @@ class SceneSolver:
             return energy, min_det, force
 
         tol = s.newton_tol * self._tol_size * h
+        held = x_n.copy()
+        held[pinned] = x_tilde[pinned]
         start_fraction = 1.0
         if contact is not None:
             _, _, force = self._bodies(x_n, steps, FORCE)
             contact.begin_step(x_n, h, -force, float(self.masses.mean()) / (h * h), self.size)
             _, start_fraction = contact.candidates(x_n, x_tilde)
+            if start_fraction < 1.0 and pinned.any():
+                _, pin_fraction = contact.candidates(x_n, held)
+                held = x_n + pin_fraction * (held - x_n)
             tol = min(tol, NEWTON_TOL_GAP * contact.dhat)
-        # the prediction when the way there is free of contact, else the last step's end (a start clamped
-        # short of a contact sits closer than the last step's balanced gap, and a loose Newton test could
-        # take it as the answer)
-        x = x_tilde.copy() if start_fraction >= 1.0 else x_n.copy()
+        # the prediction when the way there is free of contact and inverts no tet; else the last step's end
+        # with the pinned vertices moved to their targets (as far as contact lets them): a start clamped short
+        # of a contact would sit closer than the last step's balanced gap, and a loose Newton test could take
+        # it as the answer. The line search only lowers E, so the pins must be at their targets from the
+        # start.
+        x = x_tilde.copy() if start_fraction >= 1.0 else held
         energy, min_det, _ = total(x)
-        if not (min_det > 0 and math.isfinite(energy)):
-            x = x_n.copy()
+        if x is not held and not (min_det > 0 and math.isfinite(energy)):
+            x = held
         for iteration in range(1, max(s.newton_iterations, CONTACT_NEWTON_ITERATIONS) + 1):
             stats.newton_iterations = iteration
             energy, min_det, force = total(x, order=FORCE)
@@ -135,7 +145,7 @@ class SceneSolver:
             stats.hessians += 1
             rhs = force
             rhs[pinned] = x_tilde[pinned] - x[pinned]
-            d = solve_spd(hessian, rhs.ravel()).reshape(-1, 3)
+            d = self.systems.solve(hessian, rhs.ravel()).reshape(-1, 3)
             if not np.isfinite(d).all():
                 return stats
             length = float(np.linalg.norm(d, axis=1).max(initial=0.0))
@@ -169,17 +179,36 @@ class SceneSolver:
         return stats
 
 
-def solve_spd(matrix: sp.spmatrix, rhs: np.ndarray) -> np.ndarray:
-    """``matrix^-1 rhs`` for a sparse symmetric positive definite ``matrix`` (n, n), ``rhs`` (n,): SuperLU
-    with the minimum-degree ordering of ``A^T + A`` and symmetric pivoting (twice as fast as the default
-    column ordering on cage Hessians); all nan where the factorisation fails (a singular matrix)."""
-    from scipy.sparse.linalg import splu
+class NewtonSystems:
+    """Solves a run's Newton systems ``H d = r`` (H sparse symmetric positive definite, (n, n)): conjugate
+    gradients preconditioned by the exact factorisation (SuperLU, minimum-degree ordering of ``A^T + A``,
+    symmetric pivoting) of an earlier ``H``, refactored from the current one when CG would need more than
+    :data:`REUSE_ITERATIONS`. Consecutive Hessians of a trajectory differ little, so one factorisation
+    serves many steps (a factorisation costs some 40 solves with it on cage Hessians)."""
 
-    try:
-        factor = splu(matrix.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
-    except RuntimeError:
-        return np.full(len(rhs), np.nan)
-    return factor.solve(rhs)
+    def __init__(self, rtol: float = 1e-4):
+        self.rtol = rtol
+        self._factor = None
+        self.factorisations = 0
+
+    def solve(self, matrix: sp.spmatrix, rhs: np.ndarray) -> np.ndarray:
+        """``d`` (n,) with ``|H d - r| <= rtol |r|`` (all nan where ``H`` cannot be factorised)."""
+        from scipy.sparse.linalg import LinearOperator, cg, splu
+
+        matrix = matrix.tocsc()
+        n = len(rhs)
+        if self._factor is not None and self._factor.shape == matrix.shape:
+            preconditioner = LinearOperator((n, n), matvec=self._factor.solve)
+            d, info = cg(matrix, rhs, rtol=self.rtol, maxiter=REUSE_ITERATIONS, M=preconditioner)
+            if info == 0:
+                return d
+        try:
+            self._factor = splu(matrix, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+        except RuntimeError:
+            self._factor = None
+            return np.full(n, np.nan)
+        self.factorisations += 1
+        return self._factor.solve(rhs)
 
 
 class Schedule(Protocol):

@@ -255,14 +255,16 @@ class _Air:
     def drag(self, faces: np.ndarray, x: np.ndarray, v: np.ndarray, t: float) -> np.ndarray:
         """(V, 3) drag forces [N] at time ``t`` [s] on a body at ``x`` (V, 3) [m] moving at ``v`` (V, 3)
         [m/s]: on each face (B, 3) of area ``A`` and outward normal ``n``, with ``w`` the air's velocity at
-        its centroid relative to the mean of its vertices' velocities,
-        ``0.5 rho C_d A |w . n| (w . n) n``, shared equally by its vertices."""
+        its centroid relative to the mean of its vertices' velocities, the pressure of the air it faces,
+        ``0.5 rho C_d A (w . n)^2`` along ``-n`` where ``w . n < 0`` (nothing on the faces turned away: a
+        closed body feels the drag equation's ``0.5 rho C_d A_front |w|^2``), shared equally by its
+        vertices."""
         corners = np.asarray(x, np.float64)[faces]  # (B, 3, 3)
         area_normal = 0.5 * np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         area = np.linalg.norm(area_normal, axis=1)
         normal = area_normal / np.maximum(area, 1e-300)[:, None]
         w = self.velocity(corners.mean(1), t) - np.asarray(v, np.float64)[faces].mean(1)
-        wn = (w * normal).sum(1)
+        wn = np.minimum((w * normal).sum(1), 0.0)  # only the faces the air blows onto
         force = (0.5 * AIR_DENSITY * self._action.drag_coefficient * area * np.abs(wn) * wn)[:, None] * normal
         out = np.zeros((len(x), 3))
         np.add.at(out, faces, force[:, None, :] / 3.0)

@@ -95,3 +95,21 @@ def save_embedded_cage(asset, verts, tets):
     )
     save_cage(asset.cage_path, cage)
     return cage
+
+
+def save_collision_surface(asset, cage, mesh):
+    """``mesh`` (a closed trimesh inside ``cage``) stored as ``asset``'s own collision surface, for assets
+    whose field is a placeholder (its zero level set cannot be taken)."""
+    from shellsim.cage.collision import (
+        MAX_FACES,
+        OWN_FILE,
+        RESOLUTION,
+        save_surface,
+        surface_key,
+        surface_of_mesh,
+    )
+    from shellsim.motion.format import cage_digest
+
+    surface = surface_of_mesh(mesh.vertices, mesh.faces, cage.vertices, cage.tets)
+    key = surface_key(asset.digest(), cage_digest(cage.vertices, cage.tets), MAX_FACES, RESOLUTION)
+    save_surface(asset.root / OWN_FILE, key, surface)

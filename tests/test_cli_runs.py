@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
+from meshes import kuhn_grid, save_collision_surface, save_embedded_cage, write_asset_dir
 
 from shellsim.cli import main as cli
 from shellsim.cli.main import Terminated, main
@@ -24,7 +24,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def rod_asset(root: Path, with_cage: bool = True) -> Path:
-    """A minimal z-up asset (cylinder shells, placeholder field), with a hand-made Kuhn-box cage.npz."""
+    """A minimal z-up asset (cylinder shells, placeholder field), with a hand-made Kuhn-box cage.npz and M- as
+    its collision surface."""
     from neural.asset import load_asset
 
     outer = trimesh.creation.cylinder(radius=0.15, height=1.0, sections=24)
@@ -34,7 +35,8 @@ def rod_asset(root: Path, with_cage: bool = True) -> Path:
     asset = load_asset(write_asset_dir(root, outer, inner, "rod", center=(0, 0, 0.5), up=(0, 0, 1)))
     if with_cage:
         verts, tets, _ = kuhn_grid(0.0, (0.4, 0.4, 1.1), (2, 2, 6))
-        save_embedded_cage(asset, verts - [0.2, 0.2, 0.05], tets)
+        cage = save_embedded_cage(asset, verts - [0.2, 0.2, 0.05], tets)
+        save_collision_surface(asset, cage, inner)
     return asset.root
 
 

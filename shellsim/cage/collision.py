@@ -23,8 +23,9 @@ How it is made (:func:`surface_of_asset`):
    decimate less (:data:`GROWTH` times the faces, at most :data:`TRIES` tries), else refuse.
 
 The result is cached (``CACHE/collision/*.npz``, no pickle), keyed by the asset's content digest, the
-cage's digest and the settings. A mesh body (:func:`surface_of_mesh`) uses its closed input mesh, steps
-2-4 only.
+cage's digest and the settings; an asset may carry its own (:data:`OWN_FILE`, as the shipped ones do),
+read first when its key matches. A mesh body (:func:`surface_of_mesh`) uses its closed input mesh, steps 2-4
+only.
 """
 
 from __future__ import annotations
@@ -61,6 +62,14 @@ OUTSIDE_TOL = 2 * UNDILATED_EPSILON
 #: Each retry decimates to this many times the faces of the previous try, at most ``TRIES`` tries.
 GROWTH = 1.5
 TRIES = 4
+
+#: Faces of a collision surface (about), and grid cells along the cage's diagonal where its level set is
+#: taken.
+MAX_FACES = 2000
+RESOLUTION = 256
+
+#: The file in an asset directory that holds the collision surface of the asset's own cage.
+OWN_FILE = "collision.npz"
 
 #: SDF evaluations per call into the field.
 CHUNK = 1 << 18
@@ -187,7 +196,7 @@ def _check_max_faces(max_faces: int) -> None:
 
 
 def surface_of_mesh(
-    vertices, faces, cage_vertices, cage_tets, max_faces: int = 2000, *, what: str = "mesh"
+    vertices, faces, cage_vertices, cage_tets, max_faces: int = MAX_FACES, *, what: str = "mesh"
 ) -> CollisionSurface:
     """The collision surface of a mesh body: the closed mesh ``vertices`` (N, 3), ``faces`` (F, 3) itself,
     decimated only when it has more than ``max_faces`` faces, embedded in the cage ``cage_vertices`` (V, 3),
@@ -264,8 +273,11 @@ def surface_key(asset_digest: str, cage_digest: str, max_faces: int, resolution:
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()
 
 
-def _read_cached(path: Path, key: str, cage_vertices, cage_tets) -> CollisionSurface | None:
-    """The surface cached at ``path`` for ``key``, or None when there is none or it is unusable (logged)."""
+def _read_cached(
+    path: Path, key: str, cage_vertices, cage_tets, own: bool = False
+) -> CollisionSurface | None:
+    """The surface stored at ``path`` for ``key``, or None when there is none or it is unusable (logged; an
+    asset's ``own`` file made for another cage or settings is passed over quietly)."""
     from shellsim.io.npz import load_npz
 
     if not path.is_file():
@@ -273,6 +285,8 @@ def _read_cached(path: Path, key: str, cage_vertices, cage_tets) -> CollisionSur
     try:
         arrays = load_npz(path, ("key", "faces", "tet", "bary"), "collision surface")
         if arrays["key"].shape != () or str(arrays["key"]) != key:
+            if own:
+                return None
             raise ValueError("made for another asset, cage or settings")
         return _carried(cage_vertices, cage_tets, arrays["faces"], arrays["tet"], arrays["bary"])
     except (InputError, ValueError) as err:
@@ -280,14 +294,23 @@ def _read_cached(path: Path, key: str, cage_vertices, cage_tets) -> CollisionSur
         return None
 
 
-def surface_of_asset(asset, cage, max_faces: int = 2000, resolution: int = 256) -> CollisionSurface:
+def save_surface(path, key: str, surface: CollisionSurface) -> None:
+    """Store ``surface`` for :func:`surface_key` ``key`` at ``path`` (an asset's :data:`OWN_FILE` or the
+    cache's): its faces and embedding, no vertices (they follow from the cage)."""
+    from shellsim.io.npz import save_npz
+
+    save_npz(path, key=np.array(key), faces=surface.faces, tet=surface.tet, bary=surface.bary)
+
+
+def surface_of_asset(
+    asset, cage, max_faces: int = MAX_FACES, resolution: int = RESOLUTION
+) -> CollisionSurface:
     """The collision surface of ``asset`` (:class:`neural.asset.Asset`) in ``cage`` (``.vertices`` (V, 3),
     ``.tets`` (T, 4) in the asset's frame, e.g. :func:`shellsim.cage.store.load_or_build_cage`): its
     field's zero level set on a grid whose cell is the cage's bounding-box diagonal / ``resolution``,
     decimated to about ``max_faces`` faces (module docstring). Read from the cache when it holds it, else
     built and cached; an :class:`InputError` naming the asset when no usable surface comes out."""
     from neural.asset import load_field
-    from shellsim.io.npz import save_npz
     from shellsim.motion.format import cage_digest
 
     _check_max_faces(max_faces)
@@ -296,14 +319,15 @@ def surface_of_asset(asset, cage, max_faces: int = 2000, resolution: int = 256) 
     cage_vertices = check_points("cage vertices", cage.vertices)
     cage_tets = check_tets(cage.tets, len(cage_vertices))
     key = surface_key(asset.digest(), cage_digest(cage_vertices, cage_tets), max_faces, resolution)
+    surface = _read_cached(Path(asset.root) / OWN_FILE, key, cage_vertices, cage_tets, own=True)
     path = cached_surface_path(key)
-    surface = _read_cached(path, key, cage_vertices, cage_tets)
+    surface = surface or _read_cached(path, key, cage_vertices, cage_tets)
     if surface is not None:
         return surface
     start, what = time.perf_counter(), f"asset {asset.name!r}"
     vertices, faces = _level_set(load_field(asset, "cpu"), cage_vertices, resolution, what)
     surface = _decimated(vertices, faces, cage_vertices, cage_tets, max_faces, what)
-    save_npz(path, key=np.array(key), faces=surface.faces, tet=surface.tet, bary=surface.bary)
+    save_surface(path, key, surface)
     logger.info(
         "%s: collision surface of %d vertices, %d faces in %.1f s, cached in %s",
         what,

@@ -34,8 +34,6 @@ from shellsim.settings import check_range, device_setting, option, overwrite_opt
 log = logging.getLogger(__name__)
 
 PRODUCER = "shellsim scene"
-#: Faces of a body's collision surface (its visible surface, simplified).
-COLLISION_FACES = 2000
 #: Prefix of the actions' state arrays in the motion (after the velocities).
 ACTION_STATE = "action_"
 
@@ -145,7 +143,7 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
             return SceneResult(out, writer.n_frames, [], [b.name for b in spec.bodies])
 
     lift = 0.5 * world.contact_gap if world.ground else -np.inf
-    bodies = [build_body(b, lift, COLLISION_FACES) for b in spec.bodies]
+    bodies = [build_body(b, lift) for b in spec.bodies]
     colliders = [collider_mesh(c) for c in spec.colliders]
     check_start(spec, bodies, colliders)
     if writer is not None:

@@ -41,7 +41,7 @@ from shellsim.settings import (
     pixels,
     resume_option,
 )
-from shellsim.world import BODY_SIZE, GROUND_Z, UNITS, UP, describe_placement, place_on_ground
+from shellsim.world import BODY_SIZE, UNITS, UP, Placement, describe_placement, place_on_ground
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +100,9 @@ class SimulateSettings:
         shown_default="0.02",
     )
     drop_height: float = option(
-        0.1, help="height in metres of the body's lowest cage point above the ground (z = 0) at frame 0"
+        0.1,
+        help="height in metres of the body's lowest visible point above the ground (z = 0) at frame 0 (at "
+        "least half the contact gap, 0.5 mm)",
     )
     ground: bool = option(True, help="no ground plane", flag="--no-ground", negate=True)
     up: tuple[float, ...] | None = option(
@@ -282,10 +284,11 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     from shellsim.motion.format import cage_digest
     from shellsim.motion.writer import MotionWriter, motion_exists
     from shellsim.physics.control import Control
-    from shellsim.physics.driver import FrameDriver, SimulationError, restore_state
+    from shellsim.physics.driver import SimulationError, restore_state
     from shellsim.physics.driver import simulate as run_frames
     from shellsim.physics.materials import get_material
     from shellsim.physics.model import Model
+    from shellsim.physics.multibody import OneBodyDriver, SceneSolver
 
     s = settings
     out = lock_output(check_writable_file(s.out_path, "out"), "out")
@@ -317,13 +320,14 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         changes = describe_changes(writer.motion.settings, record, _OPTIONS)
         if changes:
             raise SettingError("out", f"made with other settings ({'; '.join(changes)}); {replace}", out)
-        _check_source(s, writer.motion)
+        contact_surface = _check_source(s, writer.motion)
         rest, tets = writer.motion.rest_vertices, writer.motion.tets
         log.info("resuming %s after frame %d", out, writer.n_frames - 1)
     else:
         writer = None
-        vertices, tets, up, surface, asset = _load_cage(s)
-        placement = _placement(s, vertices, s.up if s.up is not None else up)
+        vertices, tets, up, surface, asset, contact_surface = _load_cage(s)
+        visible = _interpolate(vertices, tets, contact_surface)
+        placement = _placement(s, vertices, s.up if s.up is not None else up, visible)
         rest = placement.to_world(vertices)
         log.info("%s", describe_placement(s.name, placement, rest))
         _check_obstacles(s, rest, tets)
@@ -331,7 +335,9 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     pinned = select_vertices(rules, rest, "pin")
     sim_settings = _sim_settings(s)
     model = Model(rest, tets, material, sim_settings, device=device)
-    control, driver = Control(model, pinned=pinned), FrameDriver(model)
+    contact = _contact(s, contact_surface, tets, len(rest))
+    driver = OneBodyDriver(SceneSolver([model], contact, sim_settings))
+    control = Control(model, pinned=pinned)
     state = model.state(s.velocity, s.spin)
     if writer is None:
         if s.resume:
@@ -343,6 +349,12 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
             "units": "metres: positions and rest_vertices in the world (z up, ground at z = 0), "
             "state velocities in m/s; the header's placement maps the asset's frame to the world",
             "sim_settings": sim_settings.as_dict(),
+            "contact": {
+                "model": "incremental potential contact (ipctk) on the visible surface",
+                "gap": contact.dhat,
+                "friction": s.friction,
+                "friction_velocity": contact.friction_velocity,
+            },
         }
         if out.exists():
             log.info("--overwrite: replacing %s", out)
@@ -388,16 +400,20 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
 
 def _check_source(s: SimulateSettings, motion) -> None:
     """An :class:`InputError` unless the motion being continued moves the asset's cage
-    (:meth:`shellsim.motion.format.Motion.check_against`) or was made from this content of the mesh file."""
+    (:meth:`shellsim.motion.format.Motion.check_against`) or was made from this content of the mesh file;
+    returns the surface contact acts on (:func:`_load_cage`)."""
     if s.asset:
-        motion.check_against(_asset_cage(s)[1])
-    elif motion.asset.get("digest") != _file_digest(Path(s.mesh)):
+        asset, cage = _asset_cage(s)
+        motion.check_against(cage)
+        return _collision_surface(asset, cage)
+    if motion.asset.get("digest") != _file_digest(Path(s.mesh)) or motion.surface is None:
         raise SettingError(
             "out",
             f"made from another content of {s.mesh} (changed since); give {{overwrite}} to start it anew, or "
             "another {out}",
             motion.path,
         )
+    return motion.surface
 
 
 def _file_digest(path: Path) -> str:
@@ -427,17 +443,15 @@ def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, devic
 
 
 def _sim_settings(s: SimulateSettings):
-    """The :class:`shellsim.physics.model.SimSettings` of the run, in world metres: the ground at z = 0."""
-    from shellsim.physics.contact import Box, Sphere
+    """The :class:`shellsim.physics.model.SimSettings` of the run, in world metres (z up): the body's own
+    terms; the ground and the obstacles are :func:`_contact`'s."""
     from shellsim.physics.model import SimSettings
 
     return SimSettings(
         dt=1.0 / s.fps,
         substeps=s.substeps,
         up=UP,
-        ground=GROUND_Z if s.ground else None,
-        spheres=tuple(Sphere(tuple(p[:3]), p[3]) for p in s.sphere),
-        boxes=tuple(Box(tuple(b[:3]), tuple(b[3:])) for b in s.box),
+        ground=None,
         friction=s.friction,
         damping=s.damping,
         max_stretch=s.max_stretch,
@@ -493,24 +507,70 @@ def _asset_cage(s: SimulateSettings):
     return asset, load_or_build_cage(asset, CageConfig(**config) if config else None)
 
 
+def _collision_surface(asset, cage):
+    """The asset's visible surface embedded in ``cage`` (:func:`shellsim.cage.collision.surface_of_asset`,
+    cached) as a :class:`shellsim.motion.format.Surface`."""
+    from shellsim.cage.collision import surface_of_asset
+    from shellsim.motion.format import Surface
+
+    found = surface_of_asset(asset, cage)
+    return Surface(np.asarray(found.tet, np.int64), np.asarray(found.bary), np.asarray(found.faces, np.int64))
+
+
+def _interpolate(vertices: np.ndarray, tets: np.ndarray, surface) -> np.ndarray:
+    """(S, 3) the points of ``surface`` (a :class:`shellsim.motion.format.Surface`) in the cage
+    ``vertices``."""
+    from shellsim.cage.embed import interpolate
+
+    return interpolate(vertices, tets, surface.tet, surface.bary)
+
+
+def _contact(s: SimulateSettings, surface, tets: np.ndarray, n_vertices: int):
+    """The :class:`shellsim.physics.ipc.Contact` of the body's visible ``surface`` (embedded in the cage of
+    ``tets``, ``n_vertices`` vertices) with the ground and the obstacles (as triangle meshes), every pair with
+    the Coulomb coefficient ``friction``."""
+    import scipy.sparse as sp
+    import trimesh
+
+    from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY, BodySurface, Contact, StaticSurface
+
+    corners = np.asarray(tets, np.int64)[surface.tet]  # (S, 4)
+    rows = np.repeat(np.arange(len(corners)), 4)
+    weights = sp.csr_matrix((surface.bary.ravel(), (rows, corners.ravel())), shape=(len(corners), n_vertices))
+    statics = []
+    for p in s.sphere:
+        ball = trimesh.creation.icosphere(subdivisions=3, radius=p[3])
+        statics.append(StaticSurface(np.asarray(ball.vertices) + p[:3], np.asarray(ball.faces), s.friction))
+    for b in s.box:
+        box = trimesh.creation.box(extents=2.0 * np.asarray(b[3:]))
+        statics.append(StaticSurface(np.asarray(box.vertices) + b[:3], np.asarray(box.faces), s.friction))
+    body = BodySurface(weights, surface.faces, s.friction)
+    ground = s.friction if s.ground else None
+    return Contact([body], [0], n_vertices, statics, CONTACT_GAP, FRICTION_VELOCITY, ground)
+
+
 def _load_cage(s: SimulateSettings):
-    """(vertices, tets, up, surface, asset) of the rest cage, world frame: an asset's cage
+    """(vertices, tets, up, surface, asset, contact) of the rest cage, world frame: an asset's cage
     (:func:`_asset_cage`, surface None), or a mesh tetrahedralised undilated and its surface embedded;
-    ``asset`` is the motion's record of what it moves (name or path, and content digest)."""
+    ``asset`` is the motion's record of what it moves (name or path, and content digest); ``contact`` the
+    surface contact acts on, embedded in the cage (:class:`shellsim.motion.format.Surface`): the asset's
+    visible surface (:func:`_collision_surface`), the mesh itself."""
     from neural.asset import load_mesh
     from shellsim.cage.build import CageConfig, build_cage
     from shellsim.memory import check_memory, mesh_bytes
 
     if s.asset:
         asset, cage = _asset_cage(s)
-        return cage.vertices, cage.tets, asset.up, None, {"name": asset.name, "digest": asset.digest()}
+        record = {"name": asset.name, "digest": asset.digest()}
+        return cage.vertices, cage.tets, asset.up, None, record, _collision_surface(asset, cage)
     mesh = load_mesh(Path(s.mesh))
     config = CageConfig(margin=0.0, **({"target_tets": s.tets} if s.tets else {}))
     needed, faces = mesh_bytes(len(mesh.faces), config.target_tets), f"a mesh of {len(mesh.faces):,} faces"
     check_memory("mesh", needed, faces, "to tetrahedralise and simulate")
     cage = build_cage(mesh, mesh, config, what=str(s.mesh))
     record = {"mesh": str(Path(s.mesh).resolve()), "digest": _file_digest(Path(s.mesh))}
-    return cage.vertices, cage.tets, np.array([0.0, 0.0, 1.0]), _mesh_surface(mesh, cage), record
+    surface = _mesh_surface(mesh, cage)
+    return cage.vertices, cage.tets, np.array([0.0, 0.0, 1.0]), surface, record, surface
 
 
 def _mesh_surface(mesh, cage):
@@ -522,14 +582,22 @@ def _mesh_surface(mesh, cage):
     return Surface(tet, bary, np.asarray(mesh.faces, np.int64))
 
 
-def _placement(s: SimulateSettings, vertices: np.ndarray, up):
+def _placement(s: SimulateSettings, vertices: np.ndarray, up, visible: np.ndarray):
     """The :class:`shellsim.world.Placement` of the body whose rest cage is ``vertices`` (V, 3, its own
-    frame; ``up`` (3,) its up axis): an asset scaled to ``size`` (default :data:`BODY_SIZE`) metres, a mesh
-    by its ``units`` or to ``size``; lowest point at ``drop_height``, centred over the origin."""
+    frame; ``up`` (3,) its up axis) and visible surface ``visible`` (S, 3): an asset scaled to ``size``
+    (default :data:`BODY_SIZE`) metres, a mesh by its ``units`` or to ``size``; centred over the origin, its
+    lowest visible point at ``drop_height`` (with a ground at least half the contact gap: contact needs
+    one)."""
+    from shellsim.physics.ipc import CONTACT_GAP
+
     up = np.asarray(up, np.float64)
     if s.asset or s.size is not None:
-        return place_on_ground(vertices, up, s.scale_size, s.drop_height)
-    return place_on_ground(vertices, up, None, s.drop_height, scale=UNITS[s.units or "m"])
+        base = place_on_ground(vertices, up, s.scale_size)
+    else:
+        base = place_on_ground(vertices, up, None, scale=UNITS[s.units or "m"])
+    height = max(s.drop_height, 0.5 * CONTACT_GAP) if s.ground else s.drop_height
+    lift = height - base.to_world(visible)[:, 2].min()
+    return Placement(base.scale, base.rotation, base.translation + np.array([0.0, 0.0, lift]))
 
 
 def _failure(err, out: Path, material) -> SettingError:

@@ -117,13 +117,7 @@ class FrameDriver:
                 stats.notes = [f"{n} substeps: {kind} {value:.3g}" for n, (kind, value, _) in failures]
                 if stats.max_stretch > s.max_stretch and not self._stretch_warned:
                     self._stretch_warned = True
-                    log.warning(
-                        "at t = %.3f s a tet is stretched to %.3g times its rest length, above %g; allowed, "
-                        "going on (warned once)",
-                        state.time,
-                        stats.max_stretch,
-                        s.max_stretch,
-                    )
+                    warn_stretched(state.time, stats.max_stretch, s.max_stretch)
                 return stats
             failures.append((stats.substeps, problem))
             log.debug(
@@ -169,6 +163,17 @@ class FrameDriver:
         if stats.max_stretch > s.max_stretch and not s.allow_stretch:
             return ("stretch", stats.max_stretch, s.max_stretch)
         return None
+
+
+def warn_stretched(t: float, stretch: float, limit: float) -> None:
+    """The one warning of a run whose frames may pass ``max_stretch`` (``allow_stretch``)."""
+    log.warning(
+        "at t = %.3f s a tet is stretched to %.3g times its rest length, above %g; allowed, going on "
+        "(warned once)",
+        t,
+        stretch,
+        limit,
+    )
 
 
 def restore_state(state: State, writer) -> None:

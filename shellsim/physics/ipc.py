@@ -38,6 +38,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+#: The barrier's reach ``dhat`` [m] unless a scene sets its own: contact forces act across gaps below it.
+CONTACT_GAP = 1.0e-3
+#: Sliding speed [m/s] below which friction is smoothed (static friction is this slow creep).
+FRICTION_VELOCITY = 1.0e-2
+
 
 @dataclass(frozen=True)
 class BodySurface:

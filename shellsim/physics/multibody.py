@@ -30,7 +30,7 @@ import scipy.sparse as sp
 import warp as wp
 
 from shellsim.physics.control import Control
-from shellsim.physics.driver import FrameStats, SimulationError
+from shellsim.physics.driver import FrameStats, SimulationError, warn_stretched
 from shellsim.physics.elastic import ENERGY, FORCE, HESSIAN, f64, max_principal_stretch, vec3
 from shellsim.physics.ipc import Contact
 from shellsim.physics.model import Model, SimSettings
@@ -225,7 +225,8 @@ class Schedule(Protocol):
 class SceneDriver:
     """Advances the bodies of ``solver`` by frames of ``settings.dt`` (``settings.substeps`` each), with
     ``schedule``'s pins and forces (None: none), checking every frame as
-    :class:`shellsim.physics.driver.FrameDriver` does and retrying a failed one with more substeps."""
+    :class:`shellsim.physics.driver.FrameDriver` does and retrying a failed one with more substeps (and
+    warning once of a stretch it allows)."""
 
     def __init__(self, solver: SceneSolver, schedule: Schedule | None = None):
         self.solver = solver
@@ -235,6 +236,7 @@ class SceneDriver:
         self._other = [m.state() for m in models]
         self._start = [m.state() for m in models]
         self._scalars = [wp.zeros(1, dtype=f64, device=m.device) for m in models]
+        self._stretch_warned = False
 
     def step(self, states: Sequence[State]) -> FrameStats:
         """Advance ``states`` one frame; redo it with more substeps while it is invalid, and raise
@@ -256,6 +258,9 @@ class SceneDriver:
             if problem is None:
                 stats.seconds = time.perf_counter() - start
                 stats.notes = [f"{n} substeps: {kind} {value:.3g}" for n, (kind, value, _) in failures]
+                if stats.max_stretch > s.max_stretch and not self._stretch_warned:
+                    self._stretch_warned = True
+                    warn_stretched(states[0].time, stats.max_stretch, s.max_stretch)
                 return stats
             failures.append((stats.substeps, problem))
         for saved, state in zip(self._start, states, strict=True):
@@ -310,3 +315,16 @@ class SceneDriver:
             device=m.device,
         )
         return float(scalars.numpy()[0])
+
+
+class OneBodyDriver:
+    """A :class:`SceneDriver` of one body behind the interface of
+    :class:`shellsim.physics.driver.FrameDriver` (``step(state, control)``), for
+    :func:`shellsim.physics.driver.simulate`."""
+
+    def __init__(self, solver: SceneSolver):
+        self.scene = SceneDriver(solver)
+
+    def step(self, state: State, control: Control) -> FrameStats:
+        self.scene.controls[0] = control
+        return self.scene.step([state])

@@ -75,7 +75,7 @@ def file_digest(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def build_body(spec: BodySpec, lift: float, max_faces: int) -> SceneBody:
+def build_body(spec: BodySpec, lift: float) -> SceneBody:
     """Load or build ``spec``'s cage and collision surface (cached) and place it (:func:`body_placement`)."""
     from neural.asset import load_asset, load_mesh
     from shellsim.cage.build import CageConfig, build_cage
@@ -88,13 +88,13 @@ def build_body(spec: BodySpec, lift: float, max_faces: int) -> SceneBody:
     if spec.asset is not None:
         asset = load_asset(spec.asset)
         cage = load_or_build_cage(asset, CageConfig(**overrides) if overrides else None)
-        surface = surface_of_asset(asset, cage, max_faces)
+        surface = surface_of_asset(asset, cage)
         up, source = asset.up, {"name": asset.name, "digest": asset.digest()}
     else:
         mesh = load_mesh(Path(spec.mesh))
         overrides["margin"] = 0.0
         cage = build_cage(mesh, mesh, CageConfig(**overrides), what=str(spec.mesh))
-        surface = surface_of_mesh(mesh.vertices, mesh.faces, cage.vertices, cage.tets, max_faces)
+        surface = surface_of_mesh(mesh.vertices, mesh.faces, cage.vertices, cage.tets)
         up, source = (
             (0.0, 0.0, 1.0),
             {"mesh": str(Path(spec.mesh).resolve()), "digest": file_digest(spec.mesh)},

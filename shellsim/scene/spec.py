@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from neural.errors import InputError
+from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY
 
 Vec3 = tuple[float, float, float]
 
@@ -31,8 +32,8 @@ class WorldSpec:
     ground_friction: float = 0.5  # Coulomb coefficient between the ground and a body
     damping: float = 0.0  # Kelvin-Voigt beta [s], for bodies that set none
     drag: float = 0.0  # velocity drag [1/s]
-    contact_gap: float = 1.0e-3  # the barrier's activation distance dhat [m]
-    friction_velocity: float = 1.0e-2  # sliding speed below which friction is smoothed [m/s]
+    contact_gap: float = CONTACT_GAP  # the barrier's activation distance dhat [m]
+    friction_velocity: float = FRICTION_VELOCITY  # sliding speed below which friction is smoothed [m/s]
 
     @property
     def duration(self) -> float:

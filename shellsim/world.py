@@ -111,7 +111,8 @@ def place_on_ground(vertices, up=UP, size: float | None = BODY_SIZE, height: flo
 
 
 def describe_placement(name: str, placement: Placement, world_vertices) -> str:
-    """One log line: the body's extent in metres, its lowest point and the ground."""
+    """One log line: the extent in metres of the body's ``world_vertices`` (N, 3; its visible surface, or its
+    cage), its lowest point and the ground."""
     w = np.asarray(world_vertices, np.float64)
     lo, hi = w.min(0), w.max(0)
     extent = " x ".join(f"{e:.3f}" for e in hi - lo)

@@ -1,15 +1,19 @@
 """The simulate job: drop an asset's cage (or a closed mesh, tetrahedralised) as an elastic body.
 
-Everything is in the world of :mod:`shellsim.world`: metres, z up, the ground at z = 0. The body is placed
-by :func:`shellsim.world.place_on_ground`: an asset's up axis turned onto +z and its largest extent scaled to
+Everything is in the world of :mod:`shellsim.world`: metres, z up, the ground at z = 0. The body is placed by
+:func:`shellsim.world.place_on_ground`: an asset's up axis turned onto +z and its largest extent scaled to
 ``size`` metres (default :data:`~shellsim.world.BODY_SIZE`); a ``mesh`` is the body itself, in metres (or
-``units``), scaled only when ``size`` asks; either way its lowest point ``drop_height`` above the ground and
-its bounding box centred over the origin. Obstacles, absolute pin rules and velocities are world metres; a
-pin rule in percent is relative to the body's bounding box. An obstacle that overlaps the body at frame 0 or
-a pin rule that selects nothing is refused before anything runs. The motion (:mod:`shellsim.motion.format`)
-stores world positions and the placement; its settings are :func:`motion_settings`, its asset and cage
-identified by content digest. An existing ``out`` made with the same settings is continued from its last
-frame and stored velocities; one made with other settings is refused unless ``overwrite``.
+``units``), scaled only when ``size`` asks; either way its lowest visible point ``drop_height`` above the
+ground and its bounding box centred over the origin. Contact with the ground and the obstacles acts on the
+visible surface (the asset's collision surface, a mesh's own; :mod:`shellsim.cage.collision`), by the
+incremental potential contact of :mod:`shellsim.physics.ipc`: the one-body case of the scene solver
+(:class:`shellsim.physics.multibody.OneBodyDriver`). Obstacles, absolute pin rules and velocities are world
+metres; a pin rule in percent is relative to the body's bounding box. An obstacle that overlaps the body at
+frame 0 or a pin rule that selects nothing is refused before anything runs. The motion
+(:mod:`shellsim.motion.format`) stores world positions and the placement; its settings are
+:func:`motion_settings`, its asset and cage identified by content digest. An existing ``out`` made with the
+same settings is continued from its last frame and stored velocities; one made with other settings is refused
+unless ``overwrite``.
 """
 
 from __future__ import annotations
@@ -329,7 +333,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         visible = _interpolate(vertices, tets, contact_surface)
         placement = _placement(s, vertices, s.up if s.up is not None else up, visible)
         rest = placement.to_world(vertices)
-        log.info("%s", describe_placement(s.name, placement, rest))
+        log.info("%s", describe_placement(s.name, placement, placement.to_world(visible)))
         _check_obstacles(s, rest, tets)
 
     pinned = select_vertices(rules, rest, "pin")

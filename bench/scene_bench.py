@@ -50,7 +50,7 @@ def run(scene: Path, out: Path, frames: int | None) -> dict:
         SceneSettings(scene=str(scene), out=str(out), frames=frames, overwrite=True), progress=False
     )
     wall = time.perf_counter() - start
-    substeps = sum(h.substeps for h in result.history)
+    substeps = max(sum(h.substeps for h in result.history), 1)
     return {
         "frames": result.frames,
         "ms_per_substep": 1e3 * sum(h.seconds for h in result.history) / substeps,
@@ -77,7 +77,7 @@ def main() -> None:
             scenes[f"{body['name']} alone"] = tmp / f"{body['name']}.toml"
             scenes[f"{body['name']} alone"].write_text(toml_text(alone))
         for path in scenes.values():  # build and cache the cages and collision surfaces, untimed
-            run(path, tmp / "warm", 1)
+            run(path, tmp / "warm", 2)
         figures = {
             name: run(path, tmp / name.replace(" ", "_"), args.frames) for name, path in scenes.items()
         }
@@ -91,7 +91,7 @@ def main() -> None:
         print(f"scene / (sum alone) = {ratio:.2f} (goal <= 3)")
         if args.examples:
             for path in sorted(EXAMPLES.glob("*.toml")):
-                run(path, tmp / "warm", 1)
+                run(path, tmp / "warm", 2)
                 f = run(path, tmp / path.stem, None)
                 print(f"example {path.name}: {f['frames']} frames in {f['wall_s']:.1f} s")
 

@@ -268,3 +268,33 @@ def test_a_malformed_scene_file_is_one_line_exit_2_and_writes_nothing(tmp_path, 
     assert err.startswith(f"shellsim: error: {scene}") and "\n" not in err and "Traceback" not in err
     assert words in err
     assert not out.exists()
+
+
+def test_a_shipped_asset_body_is_placed_by_its_visible_surface_and_recorded_under_its_own_name(tmp_path):
+    """The shipped LEGO (its cage and collision surface ship with it: nothing is built) as the body 'dozer',
+    its visible bottom 5 cm up: frame 0's lowest surface point is at 0.05 m, the cage reaches lower."""
+    motion = run_scene(
+        write_scene(
+            tmp_path,
+            """
+[world]
+frames = 2
+substeps = 2
+
+[[body]]
+name = "dozer"
+asset = "lego"
+size = 0.2
+position = [0.1, -0.2, 0.05]
+""",
+        )
+    )
+    (body,) = motion.asset["bodies"]
+    assert body["name"] == "dozer" and body["source"]["name"] == "lego"
+    assert body["vertices"] == [0, len(motion.rest_vertices)] and body["tets"] == [0, len(motion.tets)]
+    surface = motion.surface_points(0)
+    lo, hi = surface.min(0), surface.max(0)
+    assert lo[2] == pytest.approx(0.05, abs=1e-6)  # positions are stored as float32
+    assert (hi - lo).max() == pytest.approx(0.2, abs=1e-6)
+    np.testing.assert_allclose(0.5 * (lo[:2] + hi[:2]), [0.1, -0.2], atol=1e-6)
+    assert motion.rest_vertices[:, 2].min() < 0.05 - 1e-3  # the cage is dilated past the visible surface

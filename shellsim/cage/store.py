@@ -216,7 +216,16 @@ def cage_for_motion(asset, motion, source: str | None = None) -> Cage:
     :class:`~shellsim.motion.format.MotionInfo`) moves, found by the cage digest its header records
     (:func:`shellsim.motion.format.cage_digest`); an :class:`InputError` (``source: ...``, default the
     motion's file) saying how they differ when there is none. A motion recording another digest of the
-    asset (:meth:`neural.asset.Asset.digest`: a retrained field) is logged, and rendered all the same."""
+    asset (:meth:`neural.asset.Asset.digest`: a retrained field) is logged, and rendered all the same. A scene
+    motion moves several cages, not one asset's: an :class:`InputError` naming its bodies."""
+    bodies = motion.asset.get("bodies")
+    if bodies:
+        names = ", ".join(str(b.get("name")) for b in bodies)
+        raise InputError(
+            f"{source or motion.path or 'the motion'}: a scene motion of {len(bodies)} bodies ({names}), not "
+            "of one asset's cage; drawn with an asset's field it is not yet: draw the surfaces it carries "
+            "without an asset"
+        )
     made_for = motion.asset.get("digest")
     if made_for and "name" in motion.asset and made_for != asset.digest():
         logger.warning(

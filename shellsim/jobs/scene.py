@@ -244,14 +244,14 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
 
 
 def _body_records(bodies, starts) -> list[dict]:
-    """The motion's record of each body: name, source, cage digest (asset frame), placement, vertex and tet
-    ranges in the concatenated cage."""
+    """The motion's record of each body: name, source (the asset's name and digest, or the mesh's path and
+    digest), cage digest (asset frame), placement, vertex and tet ranges in the concatenated cage."""
     records, tet_start = [], 0
     for body, start, end in zip(bodies, starts[:-1], starts[1:], strict=True):
         records.append(
             {
                 "name": body.name,
-                **body.source,
+                "source": body.source,
                 "cage": body.cage_digest,
                 "placement": body.placement.as_dict(),
                 "vertices": [int(start), int(end)],
@@ -280,7 +280,10 @@ def _surfaces(bodies):
 def _check_bodies(motion, bodies, out: Path) -> None:
     """Refuse to continue ``motion`` when a body's source or cage changed since it was made."""
     for old, body in zip(motion.asset.get("bodies", []), bodies, strict=False):
-        if old.get("digest") != body.source["digest"] or old.get("cage") != body.cage_digest:
+        if (
+            old.get("source", {}).get("digest") != body.source["digest"]
+            or old.get("cage") != body.cage_digest
+        ):
             raise SettingError(
                 "out",
                 f"made with another content or cage of body '{body.name}' (changed since); give "

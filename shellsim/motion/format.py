@@ -17,9 +17,9 @@ plain, uncompressed ``.npz`` (``np.savez``'s layout: :func:`numpy.load` opens it
 
 A scene motion (``producer`` "shellsim scene") moves several bodies: its cage is every body's cage one after
 the other, its surface their collision surfaces, its ``settings`` the scene as read, and its ``asset`` holds
-``bodies``, a list of each body's ``name``, source (``name`` and ``digest`` of an asset, or ``mesh`` and
-``digest``), ``cage`` (digest in the asset's frame), ``placement`` and ``vertices`` / ``tets`` ranges ([start,
-end) of the concatenated arrays); its ``placement`` is ``{}``.
+``bodies``, a list of each body's ``name``, ``source`` (``name`` and ``digest`` of an asset, or ``mesh``
+and ``digest``), ``cage`` (digest in the asset's frame), ``placement`` and ``vertices`` / ``tets`` ranges
+([start, end) of the concatenated arrays); its ``placement`` is ``{}``.
 
 A run in progress writes the record log of :mod:`shellsim.motion.log` beside the file; that log's layout
 is also that of **format 2** files, still read and continued. **Format 1** (one ``.npz`` of

@@ -11,8 +11,11 @@ step's incremental potential gains (Li et al. 2020, "Incremental Potential Conta
     kappa B(U) + D(U - U^n)
 
 - ``B``: ipctk's log barrier summed over the point-triangle and edge-edge pairs closer than ``dhat``
-  (infinite at contact, zero beyond ``dhat``); ``kappa`` from ``ipctk.initial_barrier_stiffness`` at each
-  step and raised by ``ipctk.update_barrier_stiffness`` while the gaps shrink;
+  (infinite at contact, zero beyond ``dhat``); ``kappa`` from ``ipctk.initial_barrier_stiffness`` at the
+  first step, then raised by ``ipctk.update_barrier_stiffness`` while the gaps shrink, and kept from step to
+  step (the lagged friction takes its normal forces from the barrier at the step's start, which balances
+  the loads only with the stiffness the last step was solved with: a stiffness set afresh each step made
+  friction 20% too strong on a slope);
 - ``D``: lagged Coulomb friction, ipctk's ``FrictionPotential`` on the step's displacement with
   ``eps_v = friction_velocity * h`` (metres: the slip below which friction is smoothed), the normal forces
   and tangent bases of the contacts at the step's start; a pair's coefficient is the mean of its two sides'
@@ -22,6 +25,9 @@ Gradients and Hessians map back through ``W``: ``grad_x = W^T grad_U``, ``H_x = 
 Hessians are projected to positive semi-definite per contact (``CLAMP``). Continuous collision detection
 (``Candidates.compute_collision_free_stepsize``, Tight-Inclusion) bounds every step the Newton solver takes,
 so no two surfaces ever pass through each other and ``B`` stays finite.
+
+The ground is a plane of its own ipctk mesh holding the bodies' surfaces only (every pair of them filtered
+out): ipctk tests a plane against every vertex of a mesh, and a collider standing on the ground must not.
 
 Self-contact within one body is filtered out (``make_vertex_patches_filter``: a body's vertices share a
 patch): the surface is embedded in an elastic cage whose volume barrier already keeps it from folding
@@ -63,12 +69,43 @@ class StaticSurface:
     friction: float
 
 
+class _Part:
+    """One ipctk collision mesh of the contact and what it needs: ``rows`` of the collision vertices it holds
+    (its vertices ``U[rows]``), their map ``dof_map`` from the cage's degrees of freedom (3R, 3N), the
+    per-vertex Coulomb coefficients ``mu``, and ``plane_friction`` (the ground's coefficient when its mesh is
+    the ground's, whose plane-vertex pairs take the mean of the body's and the ground's)."""
+
+    def __init__(self, mesh, rows: slice, dof_map: sp.csr_matrix, mu: np.ndarray, plane_friction=None):
+        self.mesh, self.rows, self.dof_map, self.mu = mesh, rows, dof_map, mu
+        self.plane_friction = plane_friction
+
+    def collisions(self, ipctk, u: np.ndarray, dhat: float, candidates=None):
+        """The pairs within ``dhat`` at ``u`` (this part's vertices), among ``candidates`` (else found
+        afresh; through candidates, since ipctk 1.6 leaves the planes out of a build without them)."""
+        if candidates is None:
+            candidates = ipctk.Candidates()
+            candidates.build(self.mesh, u, dhat)
+        collisions = ipctk.NormalCollisions()
+        collisions.build(candidates, self.mesh, u, dhat)
+        return collisions
+
+    def tangential(self, ipctk, u: np.ndarray, collisions, barrier):
+        """The friction pairs of ``collisions`` at ``u`` (normal forces from ``barrier``), lagged."""
+        pairs = ipctk.TangentialCollisions()
+        pairs.build(self.mesh, u, collisions, barrier, self.mu, self.mu)
+        if self.plane_friction is not None:
+            for k in range(len(pairs)):
+                pair = pairs[k]
+                if isinstance(pair, ipctk.PlaneVertexTangentialCollision):
+                    pair.mu_s = pair.mu_k = 0.5 * (pair.mu_s + self.plane_friction)
+        return pairs
+
+
 class Contact:
     """Barrier contact and friction among ``bodies`` (their surfaces; body ``k``'s cage vertices are rows
     ``starts[k]:starts[k] + V_k`` of the global ``x`` (N, 3)), ``statics`` and, unless ``ground_friction`` is
     None, the ground z = 0 with that Coulomb coefficient; ``dhat`` [m] the barrier's reach,
-    ``friction_velocity`` [m/s]. ``kappa`` is the current barrier stiffness (set by
-    :meth:`begin_step`)."""
+    ``friction_velocity`` [m/s]. ``kappa`` is the current barrier stiffness (set by :meth:`begin_step`)."""
 
     def __init__(
         self,
@@ -91,7 +128,8 @@ class Contact:
             patch.append(np.full(w.shape[0], k))
             mu.append(np.full(w.shape[0], body.friction))
             offset += w.shape[0]
-        self.n_dynamic = offset
+        self.n_dynamic = n_dynamic = offset
+        dynamic_faces = len(faces)
         static_vertices = [np.zeros((0, 3))]
         for s in statics:
             static_vertices.append(np.asarray(s.vertices, np.float64))
@@ -99,34 +137,39 @@ class Contact:
             patch.append(np.full(len(s.vertices), len(bodies)))
             mu.append(np.full(len(s.vertices), s.friction))
             offset += len(s.vertices)
-        self.weights = sp.vstack([*blocks, sp.csr_matrix((offset - self.n_dynamic, n_vertices))]).tocsr()
+        self.weights = sp.vstack([*blocks, sp.csr_matrix((offset - n_dynamic, n_vertices))]).tocsr()
         self.static = np.concatenate(static_vertices)
         self.faces = np.concatenate(faces).astype(np.int32)
         self.friction = np.concatenate(mu)
         self.dhat, self.friction_velocity = float(dhat), float(friction_velocity)
         self.ground_friction = ground_friction
         self._ipctk = ipctk
-        self._dof_map = sp.kron(self.weights, sp.identity(3), format="csr")  # (3S, 3N)
-        self._edges = ipctk.edges(self.faces)
+        dof_map = sp.kron(self.weights, sp.identity(3), format="csr")  # (3S, 3N)
         self.kappa = 0.0
         self._kappa_max = 0.0
-        self._mesh = None
-        self._patch = np.concatenate(patch).astype(np.int32)
+        rest = np.ascontiguousarray(np.concatenate([np.zeros((n_dynamic, 3)), self.static]))
+        # the surfaces among themselves (rest positions only serve ipctk's adjacency; any will do)
+        mesh = ipctk.CollisionMesh(rest, ipctk.edges(self.faces), self.faces)
+        mesh.can_collide = ipctk.make_vertex_patches_filter(np.concatenate(patch).astype(np.int32))
+        self._parts = [_Part(mesh, slice(0, offset), dof_map, np.ascontiguousarray(self.friction))]
+        if ground_friction is not None:  # the bodies' surfaces and the plane, no pair among the surfaces
+            own = np.concatenate(faces[:dynamic_faces]).astype(np.int32)
+            ground = ipctk.CollisionMesh(rest[:n_dynamic], ipctk.edges(own), own)
+            ground.can_collide = ipctk.make_vertex_patches_filter(np.zeros(n_dynamic, np.int32))
+            ground.planes = [ipctk.Hyperplane(np.array([0.0, 0.0, 1.0]), np.zeros(3))]
+            mu_dynamic = np.ascontiguousarray(self.friction[:n_dynamic])
+            self._parts.append(
+                _Part(ground, slice(0, n_dynamic), dof_map[: 3 * n_dynamic], mu_dynamic, ground_friction)
+            )
 
     def surface(self, x: np.ndarray) -> np.ndarray:
         """(S, 3) the collision vertices for cage positions ``x`` (N, 3): the bodies' then the statics'."""
         moving = self.weights[: self.n_dynamic] @ x
         return np.ascontiguousarray(np.concatenate([moving, self.static]))
 
-    def mesh(self, rest: np.ndarray):
-        """The ``ipctk.CollisionMesh`` (built once, at the first positions ``rest`` (N, 3))."""
-        if self._mesh is None:
-            ipctk = self._ipctk
-            self._mesh = ipctk.CollisionMesh(self.surface(rest), self._edges, self.faces)
-            self._mesh.can_collide = ipctk.make_vertex_patches_filter(self._patch)
-            if self.ground_friction is not None:
-                self._mesh.planes = [ipctk.Hyperplane(np.array([0.0, 0.0, 1.0]), np.zeros(3))]
-        return self._mesh
+    def _each(self, u: np.ndarray):
+        """(part, its vertices) for the collision vertices ``u`` (S, 3)."""
+        return [(part, np.ascontiguousarray(u[part.rows])) for part in self._parts]
 
     # ------------------------------------------------------------------------------------------------------
     # one step
@@ -139,96 +182,95 @@ class Contact:
         (N, 3): ``grad_energy`` (N, 3) the gradient of the rest of the potential there, ``average_mass`` the
         mean vertex mass over ``h^2`` (the inertia term's scale), ``size`` the scene's bounding-box
         diagonal."""
-
         ipctk = self._ipctk
-        mesh = self.mesh(x_start)
         self._start = self.surface(x_start)
         self._size = size
         unit = ipctk.BarrierPotential(self.dhat, 1.0)
-        collisions = self._collisions(self._start)
-        grad_barrier = self._dof_map.T @ unit.gradient(collisions, mesh, self._start)
-        self.kappa, self._kappa_max = ipctk.initial_barrier_stiffness(
-            size, unit.barrier, self.dhat, average_mass, grad_energy.ravel(), grad_barrier
-        )
+        found = [(part, u, part.collisions(ipctk, u, self.dhat)) for part, u in self._each(self._start)]
+        if self.kappa == 0.0:  # the first step; later ones keep the stiffness the gaps were balanced with
+            grad_barrier = sum(part.dof_map.T @ unit.gradient(c, part.mesh, u) for part, u, c in found)
+            self.kappa, self._kappa_max = ipctk.initial_barrier_stiffness(
+                size, unit.barrier, self.dhat, average_mass, grad_energy.ravel(), grad_barrier
+            )
         self._barrier = ipctk.BarrierPotential(self.dhat, self.kappa)
-        self._min_distance = self.min_distance(collisions, self._start)
-        self._tangential = ipctk.TangentialCollisions()
-        mu = np.ascontiguousarray(self.friction, np.float64)
-        self._tangential.build(mesh, self._start, collisions, self._barrier, mu, mu)
-        if self.ground_friction is not None:
-            for k in range(len(self._tangential)):
-                pair = self._tangential[k]
-                if isinstance(pair, ipctk.PlaneVertexTangentialCollision):
-                    pair.mu_s = pair.mu_k = 0.5 * (pair.mu_s + self.ground_friction)
+        self._min_distance = min(self._least(part, c, u) for part, u, c in found)
+        self._tangential = [part.tangential(ipctk, u, c, self._barrier) for part, u, c in found]
         self._friction = ipctk.FrictionPotential(self.friction_velocity * h)
 
     def update_stiffness(self, x: np.ndarray) -> None:
         """Raise ``kappa`` (ipctk's rule) when the least gap at ``x`` (N, 3) shrank toward zero."""
-        u = self.surface(x)
-        distance = self.min_distance(self._collisions(u), u)
-        kappa = self._ipctk.update_barrier_stiffness(
+        ipctk = self._ipctk
+        distance = min(
+            self._least(part, part.collisions(ipctk, u, self.dhat), u)
+            for part, u in self._each(self.surface(x))
+        )
+        kappa = ipctk.update_barrier_stiffness(
             self._min_distance, distance, self._kappa_max, self.kappa, self._size
         )
         self._min_distance = distance
         if kappa != self.kappa:
             self.kappa = kappa
-            self._barrier = self._ipctk.BarrierPotential(self.dhat, kappa)
+            self._barrier = ipctk.BarrierPotential(self.dhat, kappa)
 
-    def _collisions(self, u: np.ndarray, candidates=None):
-        """The pairs within ``dhat`` at ``u`` (S, 3), among ``candidates`` (else found afresh; through
-        candidates, since ipctk 1.6 leaves the planes out of a build without them)."""
-        ipctk = self._ipctk
-        if candidates is None:
-            candidates = ipctk.Candidates()
-            candidates.build(self._mesh, u, self.dhat)
-        collisions = ipctk.NormalCollisions()
-        collisions.build(candidates, self._mesh, u, self.dhat)
-        return collisions
-
-    def min_distance(self, collisions, u: np.ndarray) -> float:
-        """The least distance [m] among ``collisions`` at ``u`` (S, 3) (inf when there are none)."""
+    @staticmethod
+    def _least(part: _Part, collisions, u: np.ndarray) -> float:
+        """The least distance [m] among ``collisions`` of ``part`` at ``u`` (inf when there are none)."""
         if len(collisions) == 0:
             return math.inf
-        return math.sqrt(max(collisions.compute_minimum_distance(self._mesh, u), 0.0))
+        return math.sqrt(max(collisions.compute_minimum_distance(part.mesh, u), 0.0))
 
     def candidates(self, x0: np.ndarray, x1: np.ndarray):
-        """The pairs that may come within ``dhat`` on the straight path from ``x0`` to ``x1`` (N, 3), and the
-        largest fraction of that path free of intersections (continuous collision detection)."""
+        """The pairs that may come within ``dhat`` on the straight path from ``x0`` to ``x1`` (N, 3), per
+        part, and the largest fraction of that path free of intersections (continuous collision detection)."""
         ipctk = self._ipctk
-        u0, u1 = self.surface(x0), self.surface(x1)
-        candidates = ipctk.Candidates()
-        candidates.build(self._mesh, u0, u1, self.dhat)
-        return candidates, candidates.compute_collision_free_stepsize(self._mesh, u0, u1)
+        found, fraction = [], 1.0
+        for (part, u0), (_, u1) in zip(
+            self._each(self.surface(x0)), self._each(self.surface(x1)), strict=True
+        ):
+            candidates = ipctk.Candidates()
+            candidates.build(part.mesh, u0, u1, self.dhat)
+            fraction = min(fraction, candidates.compute_collision_free_stepsize(part.mesh, u0, u1))
+            found.append(candidates)
+        return found, fraction
 
     def energy(self, x: np.ndarray, candidates=None) -> float:
         """``kappa B + D`` [J] at cage positions ``x`` (N, 3) (candidates: from :meth:`candidates` of a path
         through ``x``, else found afresh)."""
-        u = self.surface(x)
-        barrier = self._barrier(self._collisions(u, candidates), self._mesh, u)
-        return float(barrier + self._friction(self._tangential, self._mesh, u - self._start))
+        ipctk = self._ipctk
+        total = 0.0
+        starts = self._each(self._start)
+        for k, ((part, u), (_, u0)) in enumerate(zip(self._each(self.surface(x)), starts, strict=True)):
+            found = part.collisions(ipctk, u, self.dhat, None if candidates is None else candidates[k])
+            total += self._barrier(found, part.mesh, u) + self._friction(
+                self._tangential[k], part.mesh, u - u0
+            )
+        return float(total)
 
     def derivatives(self, x: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         """The gradient (N, 3) and the PSD-projected Hessian (3N, 3N) of :meth:`energy` at ``x`` (N, 3)."""
         ipctk = self._ipctk
-        u = self.surface(x)
-        du = u - self._start
-        collisions = self._collisions(u)
         psd = ipctk.PSDProjectionMethod.CLAMP
-        grad = self._barrier.gradient(collisions, self._mesh, u) + self._friction.gradient(
-            self._tangential, self._mesh, du
-        )
-        hess = self._barrier.hessian(collisions, self._mesh, u, psd) + self._friction.hessian(
-            self._tangential, self._mesh, du, psd
-        )
-        m = self._dof_map
-        return (m.T @ grad).reshape(-1, 3), (m.T @ hess @ m).tocsr()
+        n = self.weights.shape[1]
+        grad, hess = np.zeros(3 * n), sp.csr_matrix((3 * n, 3 * n))
+        starts = self._each(self._start)
+        for k, ((part, u), (_, u0)) in enumerate(zip(self._each(self.surface(x)), starts, strict=True)):
+            found, du, m = part.collisions(ipctk, u, self.dhat), u - u0, part.dof_map
+            g = self._barrier.gradient(found, part.mesh, u) + self._friction.gradient(
+                self._tangential[k], part.mesh, du
+            )
+            h = self._barrier.hessian(found, part.mesh, u, psd) + self._friction.hessian(
+                self._tangential[k], part.mesh, du, psd
+            )
+            grad, hess = grad + m.T @ g, hess + m.T @ h @ m
+        return grad.reshape(-1, 3), hess.tocsr()
 
     def least_distance(self, x: np.ndarray) -> float:
-        """The least distance [m] between surfaces that may touch (different bodies, or a body and a static
-        collider) at ``x`` (N, 3), found without the ``dhat`` cut-off's limit: inf when none is within
-        ``dhat``, 0 when two intersect."""
+        """The least distance [m] between surfaces that may touch (different bodies, a body and a static
+        collider, a body and the ground) at ``x`` (N, 3): inf when none is within ``dhat``, 0 when two
+        intersect or a body reaches the ground."""
+        ipctk = self._ipctk
         u = self.surface(x)
         below = self.ground_friction is not None and u[: self.n_dynamic, 2].min(initial=np.inf) <= 0
-        if below or self._ipctk.has_intersections(self._mesh, u):
+        if below or ipctk.has_intersections(self._parts[0].mesh, u):
             return 0.0
-        return self.min_distance(self._collisions(u), u)
+        return min(self._least(part, part.collisions(ipctk, v, self.dhat), v) for part, v in self._each(u))

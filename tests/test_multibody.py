@@ -170,3 +170,32 @@ def test_static_collider_friction_holds_a_body_on_a_gentle_slope_and_lets_it_sli
         moved[degrees] = np.linalg.norm(states[0].positions.numpy().mean(0) - block.mean(0))
     assert moved[10.0] < 2e-3
     assert moved[40.0] > 0.05
+
+
+@pytest.mark.parametrize("mu", [0.2, 0.4])
+def test_a_stiff_block_slides_down_a_slope_at_the_coulomb_acceleration(mu):
+    """A 4 cm block on a 30-degree plane made of two triangles (their shared edge runs under the block): its
+    centre of mass accelerates down the slope at g (sin 30 - mu cos 30), within 3 %."""
+    from scipy.spatial.transform import Rotation
+
+    settings = SimSettings(gravity=9.81, ground=None, substeps=4, damping=0.01)
+    turn = Rotation.from_euler("y", 30.0, degrees=True).as_matrix()
+    plane = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float) @ turn.T
+    block, block_t = cube(0.02, 2, (0, 0, 0.02 + 0.5 * DHAT))
+    block = block @ turn.T
+    model = Model(block, block_t, get_material("rubber", youngs=1e8), settings)
+    surface = own_surface(block_t, len(block))
+    surface = BodySurface(surface.weights, surface.faces, mu)
+    slope = StaticSurface(plane, np.array([[0, 1, 2], [0, 2, 3]]), mu)
+    contact = Contact([surface], [0], len(block), [slope], DHAT, 1e-2)
+    driver = SceneDriver(SceneSolver([model], contact, settings))
+    states = [model.state()]
+    downhill = turn @ np.array([1.0, 0.0, 0.0])
+    travelled = []
+    for _ in range(15):
+        driver.step(states)
+        travelled.append(model.masses @ states[0].positions.numpy() / model.masses.sum() @ downhill)
+    t = np.arange(1, 16) / 30.0
+    acceleration = 2.0 * np.polyfit(t[3:], travelled[3:], 2)[0]  # once it has settled on the slope
+    expected = 9.81 * (np.sin(np.radians(30)) - mu * np.cos(np.radians(30)))
+    assert acceleration == pytest.approx(expected, rel=0.03)

@@ -169,7 +169,7 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
             for body in bodies
         ],
         starts[:-1],
-        int(starts[-1]),
+        np.concatenate([b.rest for b in bodies]),
         statics,
         world.contact_gap,
         world.friction_velocity,

@@ -339,7 +339,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     pinned = select_vertices(rules, rest, "pin")
     sim_settings = _sim_settings(s)
     model = Model(rest, tets, material, sim_settings, device=device)
-    contact = _contact(s, contact_surface, tets, len(rest))
+    contact = _contact(s, contact_surface, tets, rest)
     driver = OneBodyDriver(SceneSolver([model], contact, sim_settings))
     control = Control(model, pinned=pinned)
     state = model.state(s.velocity, s.spin)
@@ -529,9 +529,9 @@ def _interpolate(vertices: np.ndarray, tets: np.ndarray, surface) -> np.ndarray:
     return interpolate(vertices, tets, surface.tet, surface.bary)
 
 
-def _contact(s: SimulateSettings, surface, tets: np.ndarray, n_vertices: int):
+def _contact(s: SimulateSettings, surface, tets: np.ndarray, rest: np.ndarray):
     """The :class:`shellsim.physics.ipc.Contact` of the body's visible ``surface`` (embedded in the cage of
-    ``tets``, ``n_vertices`` vertices) with the ground and the obstacles (as triangle meshes), every pair with
+    ``tets``, at rest ``rest`` (V, 3)) with the ground and the obstacles (as triangle meshes), every pair with
     the Coulomb coefficient ``friction``."""
     import scipy.sparse as sp
     import trimesh
@@ -540,7 +540,7 @@ def _contact(s: SimulateSettings, surface, tets: np.ndarray, n_vertices: int):
 
     corners = np.asarray(tets, np.int64)[surface.tet]  # (S, 4)
     rows = np.repeat(np.arange(len(corners)), 4)
-    weights = sp.csr_matrix((surface.bary.ravel(), (rows, corners.ravel())), shape=(len(corners), n_vertices))
+    weights = sp.csr_matrix((surface.bary.ravel(), (rows, corners.ravel())), shape=(len(corners), len(rest)))
     statics = []
     for p in s.sphere:
         ball = trimesh.creation.icosphere(subdivisions=3, radius=p[3])
@@ -550,7 +550,7 @@ def _contact(s: SimulateSettings, surface, tets: np.ndarray, n_vertices: int):
         statics.append(StaticSurface(np.asarray(box.vertices) + b[:3], np.asarray(box.faces), s.friction))
     body = BodySurface(weights, surface.faces, s.friction)
     ground = s.friction if s.ground else None
-    return Contact([body], [0], n_vertices, statics, CONTACT_GAP, FRICTION_VELOCITY, ground)
+    return Contact([body], [0], rest, statics, CONTACT_GAP, FRICTION_VELOCITY, ground)
 
 
 def _load_cage(s: SimulateSettings):

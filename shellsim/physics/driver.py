@@ -151,18 +151,38 @@ class FrameDriver:
             step = self.solver.step(self.model, current, other, control, h)
             current, other = other, current
             stats.add(step)
-            if not (math.isfinite(step.energy) and math.isfinite(step.max_speed)):
-                return ("nonfinite", math.nan, math.nan)
-            if not step.min_volume_ratio >= s.min_volume_ratio:
-                return ("collapse", step.min_volume_ratio, s.min_volume_ratio)
-            if step.max_speed > s.max_speed:
-                return ("speed", step.max_speed, s.max_speed)
+            problem = substep_problem(step, s)
+            if problem is not None:
+                return problem
         if current is not state:
             state.assign(current)
         stats.max_stretch = self.max_stretch(state)
         if stats.max_stretch > s.max_stretch and not s.allow_stretch:
             return ("stretch", stats.max_stretch, s.max_stretch)
         return None
+
+
+def substep_problem(step: SolveStats, s) -> tuple[str, float, float] | None:
+    """Why a substep's solve ``step`` leaves the valid regime of the settings ``s``
+    (:class:`shellsim.physics.model.SimSettings`), as (kind, value, limit) of :class:`SimulationError`, or
+    None."""
+    if not (math.isfinite(step.energy) and math.isfinite(step.max_speed)):
+        return ("nonfinite", math.nan, math.nan)
+    if not step.min_volume_ratio >= s.min_volume_ratio:
+        return ("collapse", step.min_volume_ratio, s.min_volume_ratio)
+    if step.max_speed > s.max_speed:
+        return ("speed", step.max_speed, s.max_speed)
+    return None
+
+
+def summary(history: list[FrameStats]) -> str:
+    """One line of a run's frames: ms and Newton iterations per substep, retried frames."""
+    substeps = max(sum(h.substeps for h in history), 1)
+    return (
+        f"{len(history)} frames: {1e3 * sum(h.seconds for h in history) / substeps:.1f} ms per substep, "
+        f"{sum(h.newton_iterations for h in history) / substeps:.2f} Newton iterations per substep, "
+        f"{sum(h.retries > 0 for h in history)} retried frames"
+    )
 
 
 def warn_stretched(t: float, stretch: float, limit: float) -> None:

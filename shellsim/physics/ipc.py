@@ -14,15 +14,15 @@ step's incremental potential gains (Li et al. 2020, "Incremental Potential Conta
   (infinite at contact, zero beyond ``dhat``); ``kappa`` from ``ipctk.initial_barrier_stiffness`` at the
   first step, then raised by ``ipctk.update_barrier_stiffness`` while the gaps shrink, and kept from step to
   step (the lagged friction takes its normal forces from the barrier at the step's start, balanced with the
-  stiffness the last step was solved with), over
-- the pairs of ipctk's ``IMPROVED_MAX_APPROX`` collision set, which weighs the pairs of one contact so that
-  it counts once: with the plain set a block sliding over the shared edge of two triangles also met that edge
-  (edge-edge and edge-vertex pairs on top of its vertex-face ones) and felt 1.3 to 1.5 times Coulomb's
-  friction (``tests/test_multibody.py``: a block on a 30-degree slope);
+  stiffness the last step was solved with);
 - ``D``: lagged Coulomb friction, ipctk's ``FrictionPotential`` on the step's displacement with
   ``eps_v = friction_velocity * h`` (metres: the slip below which friction is smoothed), the normal forces
   and tangent bases of the contacts at the step's start; a pair's coefficient is the mean of its two sides'
-  (with the ground: of the body's and the ground's).
+  (with the ground: of the body's and the ground's). A body sliding across an edge shared by two triangles of
+  another surface meets that edge too (edge-edge and edge-vertex pairs on top of the vertex-face ones), whose
+  normal forces add friction: 1.3 to 1.5 times Coulomb's while a block crosses it (ipctk's
+  ``IMPROVED_MAX_APPROX`` set, which counts such pairs once, needs area weighting, which this contact's
+  stiffness and friction are not yet set up for).
 
 Gradients and Hessians map back through ``W``: ``grad_x = W^T grad_U``, ``H_x = W^T H_U W`` (per axis). The
 Hessians are projected to positive semi-definite per contact (``CLAMP``). Continuous collision detection
@@ -89,7 +89,6 @@ class _Part:
             candidates = ipctk.Candidates()
             candidates.build(self.mesh, u, dhat)
         collisions = ipctk.NormalCollisions()
-        collisions.collision_set_type = ipctk.NormalCollisions.CollisionSetType.IMPROVED_MAX_APPROX
         collisions.build(candidates, self.mesh, u, dhat)
         return collisions
 
@@ -107,15 +106,16 @@ class _Part:
 
 class Contact:
     """Barrier contact and friction among ``bodies`` (their surfaces; body ``k``'s cage vertices are rows
-    ``starts[k]:starts[k] + V_k`` of the global ``x`` (N, 3)), ``statics`` and, unless ``ground_friction`` is
-    None, the ground z = 0 with that Coulomb coefficient; ``dhat`` [m] the barrier's reach,
-    ``friction_velocity`` [m/s]. ``kappa`` is the current barrier stiffness (set by :meth:`begin_step`)."""
+    ``starts[k]:starts[k] + V_k`` of the global ``x`` (N, 3), at rest ``rest`` (N, 3)), ``statics`` and,
+    unless ``ground_friction`` is None, the ground z = 0 with that Coulomb coefficient; ``dhat`` [m] the
+    barrier's reach, ``friction_velocity`` [m/s]. ``kappa`` is the current barrier stiffness (set by
+    :meth:`begin_step`)."""
 
     def __init__(
         self,
         bodies: Sequence[BodySurface],
         starts: Sequence[int],
-        n_vertices: int,
+        rest: np.ndarray,
         statics: Sequence[StaticSurface],
         dhat: float,
         friction_velocity: float,
@@ -123,6 +123,7 @@ class Contact:
     ):
         import ipctk
 
+        n_vertices = len(rest)
         blocks, faces, patch, mu, offset = [], [], [], [], 0
         for k, (body, start) in enumerate(zip(bodies, starts, strict=True)):
             w = sp.csr_matrix(body.weights)
@@ -151,14 +152,13 @@ class Contact:
         dof_map = sp.kron(self.weights, sp.identity(3), format="csr")  # (3S, 3N)
         self.kappa = 0.0
         self._kappa_max = 0.0
-        rest = np.ascontiguousarray(np.concatenate([np.zeros((n_dynamic, 3)), self.static]))
-        # the surfaces among themselves (rest positions only serve ipctk's adjacency; any will do)
-        mesh = ipctk.CollisionMesh(rest, ipctk.edges(self.faces), self.faces)
+        rest = self.surface(np.asarray(rest, np.float64))
+        mesh = ipctk.CollisionMesh(rest, ipctk.edges(self.faces), self.faces)  # the surfaces among themselves
         mesh.can_collide = ipctk.make_vertex_patches_filter(np.concatenate(patch).astype(np.int32))
         self._parts = [_Part(mesh, slice(0, offset), dof_map, np.ascontiguousarray(self.friction))]
         if ground_friction is not None:  # the bodies' surfaces and the plane, no pair among the surfaces
             own = np.concatenate(faces[:dynamic_faces]).astype(np.int32)
-            ground = ipctk.CollisionMesh(rest[:n_dynamic], ipctk.edges(own), own)
+            ground = ipctk.CollisionMesh(np.ascontiguousarray(rest[:n_dynamic]), ipctk.edges(own), own)
             ground.can_collide = ipctk.make_vertex_patches_filter(np.zeros(n_dynamic, np.int32))
             ground.planes = [ipctk.Hyperplane(np.array([0.0, 0.0, 1.0]), np.zeros(3))]
             mu_dynamic = np.ascontiguousarray(self.friction[:n_dynamic])

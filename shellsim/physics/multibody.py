@@ -30,7 +30,7 @@ import scipy.sparse as sp
 import warp as wp
 
 from shellsim.physics.control import Control
-from shellsim.physics.driver import FrameStats, SimulationError, warn_stretched
+from shellsim.physics.driver import FrameStats, SimulationError, substep_problem, warn_stretched
 from shellsim.physics.elastic import ENERGY, FORCE, HESSIAN, f64, max_principal_stretch, vec3
 from shellsim.physics.ipc import Contact
 from shellsim.physics.model import Model, SimSettings
@@ -291,12 +291,9 @@ class SceneDriver:
             step = self.solver.step(current, other, self.controls, h)
             current, other = other, current
             stats.add(step)
-            if not (math.isfinite(step.energy) and math.isfinite(step.max_speed)):
-                return ("nonfinite", math.nan, math.nan)
-            if not step.min_volume_ratio >= s.min_volume_ratio:
-                return ("collapse", step.min_volume_ratio, s.min_volume_ratio)
-            if step.max_speed > s.max_speed:
-                return ("speed", step.max_speed, s.max_speed)
+            problem = substep_problem(step, s)
+            if problem is not None:
+                return problem
         if current[0] is not states[0]:
             for state, result in zip(states, current, strict=True):
                 state.assign(result)

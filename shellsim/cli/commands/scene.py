@@ -35,12 +35,6 @@ def run(args: argparse.Namespace) -> None:
         result = scene(settings)
     log.info("motion of %s written to %s (%d frames)", ", ".join(result.bodies), result.out, result.frames)
     if result.history:
-        history = result.history
-        substeps = sum(h.substeps for h in history)
-        log.info(
-            "%d frames: %.1f ms per substep, %.2f Newton iterations per substep, %d retried frames",
-            len(history),
-            1e3 * sum(h.seconds for h in history) / substeps,
-            sum(h.newton_iterations for h in history) / substeps,
-            sum(h.retries > 0 for h in history),
-        )
+        from shellsim.physics.driver import summary
+
+        log.info("%s", summary(result.history))

@@ -37,15 +37,9 @@ def run(args: argparse.Namespace) -> None:
         result = simulate(settings)
     log.info("motion written to %s (%d frames)", result.out, result.frames)
     if result.history:
-        history = result.history
-        substeps = sum(h.substeps for h in history)
-        log.info(
-            "%d frames: %.1f ms per substep, %.2f Newton iterations per substep, %d retried frames",
-            len(history),
-            1e3 * sum(h.seconds for h in history) / substeps,
-            sum(h.newton_iterations for h in history) / substeps,
-            sum(h.retries > 0 for h in history),
-        )
+        from shellsim.physics.driver import summary
+
+        log.info("%s", summary(result.history))
     if result.video is not None:
         log.info(
             "rendered %d frames (%d already there) and the video %s",

@@ -4,6 +4,7 @@ paths relative to the file, and one line ``FILE: [table] key: problem`` for each
 from __future__ import annotations
 
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -677,3 +678,15 @@ def test_problem_formats_later_checks_the_same_way(tmp_path):
     assert str(error) == f"{path}: [[action]] #1 (pin) region: 'z<-5' selects no cage vertex"
     body = read_scene(path).bodies[0]
     assert str(problem(body.where, None, "overlaps body2")) == f"{path}: [[body]] #1 (lego): overlaps body2"
+
+
+EXAMPLE_SCENES = sorted((Path(__file__).parent.parent / "examples" / "scenes").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", EXAMPLE_SCENES, ids=[p.stem for p in EXAMPLE_SCENES])
+def test_every_example_scene_reads(path):
+    """The shipped example scenes stay valid as the schema changes (their runs: bench/scene_bench.py)."""
+    spec = read_scene(path)
+    assert spec.bodies and spec.world.frames >= 1
+    for body in spec.bodies:
+        assert body.mesh is None or Path(body.mesh).is_file()

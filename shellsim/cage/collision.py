@@ -96,10 +96,10 @@ class CollisionSurface:
     def weights(self, n_cage_vertices: int):
         """(S, V) ``scipy.sparse.csr_matrix`` ``W`` with ``vertices = W @ cage_vertices`` for the rest cage
         (exactly) and any deformed one, ``V = n_cage_vertices``."""
-        return _weights(self.corners, self.bary, n_cage_vertices)
+        return embedding_weights(self.corners, self.bary, n_cage_vertices)
 
 
-def _weights(corners: np.ndarray, bary: np.ndarray, n_cage_vertices: int):
+def embedding_weights(corners: np.ndarray, bary: np.ndarray, n_cage_vertices: int):
     """(S, V) csr matrix with ``bary[s, k]`` at ``(s, corners[s, k])``; corners, bary (S, 4)."""
     import scipy.sparse as sp
 
@@ -121,7 +121,7 @@ def _carried(cage_vertices, cage_tets, faces, tet, bary) -> CollisionSurface:
     if not np.isfinite(bary).all() or not np.allclose(bary.sum(axis=1), 1.0, rtol=0, atol=1e-9):
         raise ValueError("bary: rows must be finite and sum to 1")
     corners = cage_tets[tet]
-    vertices = _weights(corners, bary, len(cage_vertices)) @ cage_vertices
+    vertices = embedding_weights(corners, bary, len(cage_vertices)) @ cage_vertices
     return CollisionSurface(vertices, faces.astype(np.int64), tet.astype(np.int64), bary, corners)
 
 

@@ -34,6 +34,9 @@ from shellsim.settings import check_range, device_setting, option, overwrite_opt
 log = logging.getLogger(__name__)
 
 PRODUCER = "shellsim scene"
+#: Largest principal stretch of a tet a frame may reach (a scene file sets none yet); a frame past it is
+#: redone with more substeps, then stops the run.
+MAX_STRETCH = 5.0
 #: Prefix of the actions' state arrays in the motion (after the velocities).
 ACTION_STATE = "action_"
 
@@ -149,18 +152,27 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
     if writer is not None:
         _check_bodies(writer.motion, bodies, out)
 
-    models = []
-    for body in bodies:
-        b = body.spec
-        sim = SimSettings(
-            gravity=world.gravity,
-            ground=None,
-            damping=world.damping if b.damping is None else b.damping,
-            drag=world.drag,
-            dt=1.0 / world.fps,
-            substeps=world.substeps,
+    solver_settings = SimSettings(
+        gravity=world.gravity,
+        ground=None,
+        damping=world.damping,
+        drag=world.drag,
+        dt=1.0 / world.fps,
+        substeps=world.substeps,
+        max_stretch=MAX_STRETCH,
+    )
+    models = [
+        Model(
+            b.rest,
+            b.tets,
+            b.material,
+            solver_settings
+            if b.spec.damping is None
+            else dataclasses.replace(solver_settings, damping=b.spec.damping),
+            device=device,
         )
-        models.append(Model(body.rest, body.tets, body.material, sim, device=device))
+        for b in bodies
+    ]
     starts = np.concatenate([[0], np.cumsum([m.n_vertices for m in models])])
     statics = [StaticSurface(v, f, c.friction) for (v, f), c in zip(colliders, spec.colliders, strict=True)]
     contact = Contact(
@@ -182,9 +194,6 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
             BodyInfo(b.name, b.rest, m.masses, boundary_faces(b.tets))
             for b, m in zip(bodies, models, strict=True)
         ],
-    )
-    solver_settings = SimSettings(
-        gravity=world.gravity, ground=None, dt=1.0 / world.fps, substeps=world.substeps, max_stretch=5.0
     )
     driver = SceneDriver(SceneSolver(models, contact, solver_settings), _Schedule(actions, names))
     states = [m.state(b.spec.velocity, b.spec.spin) for m, b in zip(models, bodies, strict=True)]

@@ -531,23 +531,17 @@ def _interpolate(vertices: np.ndarray, tets: np.ndarray, surface) -> np.ndarray:
 
 def _contact(s: SimulateSettings, surface, tets: np.ndarray, rest: np.ndarray):
     """The :class:`shellsim.physics.ipc.Contact` of the body's visible ``surface`` (embedded in the cage of
-    ``tets``, at rest ``rest`` (V, 3)) with the ground and the obstacles (as triangle meshes), every pair with
-    the Coulomb coefficient ``friction``."""
-    import scipy.sparse as sp
-    import trimesh
-
+    ``tets``, at rest ``rest`` (V, 3)) with the ground and the obstacles (the triangle meshes of a scene's
+    box and sphere colliders), every pair with the Coulomb coefficient ``friction``."""
+    from shellsim.cage.collision import embedding_weights
     from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY, BodySurface, Contact, StaticSurface
+    from shellsim.scene.build import collider_mesh
+    from shellsim.scene.spec import ColliderSpec
 
-    corners = np.asarray(tets, np.int64)[surface.tet]  # (S, 4)
-    rows = np.repeat(np.arange(len(corners)), 4)
-    weights = sp.csr_matrix((surface.bary.ravel(), (rows, corners.ravel())), shape=(len(corners), len(rest)))
-    statics = []
-    for p in s.sphere:
-        ball = trimesh.creation.icosphere(subdivisions=3, radius=p[3])
-        statics.append(StaticSurface(np.asarray(ball.vertices) + p[:3], np.asarray(ball.faces), s.friction))
-    for b in s.box:
-        box = trimesh.creation.box(extents=2.0 * np.asarray(b[3:]))
-        statics.append(StaticSurface(np.asarray(box.vertices) + b[:3], np.asarray(box.faces), s.friction))
+    obstacles = [ColliderSpec("sphere", "sphere", tuple(p[:3]), radius=p[3]) for p in s.sphere]
+    obstacles += [ColliderSpec("box", "box", tuple(b[:3]), half_extents=tuple(b[3:])) for b in s.box]
+    statics = [StaticSurface(*collider_mesh(o), s.friction) for o in obstacles]
+    weights = embedding_weights(np.asarray(tets, np.int64)[surface.tet], surface.bary, len(rest))
     body = BodySurface(weights, surface.faces, s.friction)
     ground = s.friction if s.ground else None
     return Contact([body], [0], rest, statics, CONTACT_GAP, FRICTION_VELOCITY, ground)

@@ -129,15 +129,7 @@ class FrameDriver:
 
     def max_stretch(self, state: State) -> float:
         """The largest principal stretch over the tets of ``state`` (1 at rest)."""
-        self._scalars.zero_()
-        m = self.model
-        wp.launch(
-            max_principal_stretch,
-            m.n_tets,
-            [state.positions, m.tets_wp, m.dm_inv_wp, self._scalars],
-            device=m.device,
-        )
-        return float(self._scalars.numpy()[0])
+        return largest_stretch(self.model, state, self._scalars)
 
     def _run_frame(
         self, state: State, control: Control, stats: FrameStats
@@ -160,6 +152,19 @@ class FrameDriver:
         if stats.max_stretch > s.max_stretch and not s.allow_stretch:
             return ("stretch", stats.max_stretch, s.max_stretch)
         return None
+
+
+def largest_stretch(model: Model, state: State, scratch: wp.array) -> float:
+    """The largest principal stretch over the tets of ``model`` at ``state`` (1 at rest); ``scratch`` one
+    float64 on the model's device."""
+    scratch.zero_()
+    wp.launch(
+        max_principal_stretch,
+        model.n_tets,
+        [state.positions, model.tets_wp, model.dm_inv_wp, scratch],
+        device=model.device,
+    )
+    return float(scratch.numpy()[0])
 
 
 def substep_problem(step: SolveStats, s) -> tuple[str, float, float] | None:

@@ -180,21 +180,21 @@ class Contact:
     # ------------------------------------------------------------------------------------------------------
 
     def begin_step(
-        self, x_start: np.ndarray, h: float, grad_energy: np.ndarray, average_mass: float, size: float
+        self, x_start: np.ndarray, h: float, grad_energy, average_mass: float, size: float
     ) -> None:
         """Fix the barrier stiffness and the lagged friction of a step of ``h`` [s] at its start ``x_start``
-        (N, 3): ``grad_energy`` (N, 3) the gradient of the rest of the potential there, ``average_mass`` the
-        mean vertex mass over ``h^2`` (the inertia term's scale), ``size`` the scene's bounding-box
-        diagonal."""
+        (N, 3): ``grad_energy()`` (N, 3) the gradient of the rest of the potential there (called only at the
+        first step, which sets the stiffness), ``average_mass`` the mean vertex mass over ``h^2`` (the
+        inertia term's scale), ``size`` the scene's bounding-box diagonal."""
         ipctk = self._ipctk
-        self._start = self.surface(x_start)
+        self._starts = self._each(self.surface(x_start))  # (part, its vertices at the step's start)
         self._size = size
         unit = ipctk.BarrierPotential(self.dhat, 1.0)
-        found = [(part, u, part.collisions(ipctk, u, self.dhat)) for part, u in self._each(self._start)]
+        found = [(part, u, part.collisions(ipctk, u, self.dhat)) for part, u in self._starts]
         if self.kappa == 0.0:  # the first step; later ones keep the stiffness the gaps were balanced with
             grad_barrier = sum(part.dof_map.T @ unit.gradient(c, part.mesh, u) for part, u, c in found)
             self.kappa, self._kappa_max = ipctk.initial_barrier_stiffness(
-                size, unit.barrier, self.dhat, average_mass, grad_energy.ravel(), grad_barrier
+                size, unit.barrier, self.dhat, average_mass, grad_energy().ravel(), grad_barrier
             )
         self._barrier = ipctk.BarrierPotential(self.dhat, self.kappa)
         self._min_distance = min(self._least(part, c, u) for part, u, c in found)
@@ -242,8 +242,7 @@ class Contact:
         through ``x``, else found afresh)."""
         ipctk = self._ipctk
         total = 0.0
-        starts = self._each(self._start)
-        for k, ((part, u), (_, u0)) in enumerate(zip(self._each(self.surface(x)), starts, strict=True)):
+        for k, ((part, u), (_, u0)) in enumerate(zip(self._each(self.surface(x)), self._starts, strict=True)):
             found = part.collisions(ipctk, u, self.dhat, None if candidates is None else candidates[k])
             total += self._barrier(found, part.mesh, u) + self._friction(
                 self._tangential[k], part.mesh, u - u0
@@ -256,8 +255,7 @@ class Contact:
         psd = ipctk.PSDProjectionMethod.CLAMP
         n = self.weights.shape[1]
         grad, hess = np.zeros(3 * n), sp.csr_matrix((3 * n, 3 * n))
-        starts = self._each(self._start)
-        for k, ((part, u), (_, u0)) in enumerate(zip(self._each(self.surface(x)), starts, strict=True)):
+        for k, ((part, u), (_, u0)) in enumerate(zip(self._each(self.surface(x)), self._starts, strict=True)):
             found, du, m = part.collisions(ipctk, u, self.dhat), u - u0, part.dof_map
             g = self._barrier.gradient(found, part.mesh, u) + self._friction.gradient(
                 self._tangential[k], part.mesh, du

@@ -30,8 +30,14 @@ import scipy.sparse as sp
 import warp as wp
 
 from shellsim.physics.control import Control
-from shellsim.physics.driver import FrameStats, SimulationError, substep_problem, warn_stretched
-from shellsim.physics.elastic import ENERGY, FORCE, HESSIAN, f64, max_principal_stretch, vec3
+from shellsim.physics.driver import (
+    FrameStats,
+    SimulationError,
+    largest_stretch,
+    substep_problem,
+    warn_stretched,
+)
+from shellsim.physics.elastic import ENERGY, FORCE, HESSIAN, f64, vec3
 from shellsim.physics.ipc import Contact
 from shellsim.physics.model import Model, SimSettings
 from shellsim.physics.solver import ImplicitSolver, SolveStats
@@ -116,8 +122,11 @@ class SceneSolver:
         held[pinned] = x_tilde[pinned]
         start_fraction = 1.0
         if contact is not None:
-            _, _, force = self._bodies(x_n, steps, FORCE)
-            contact.begin_step(x_n, h, -force, float(self.masses.mean()) / (h * h), self.size)
+
+            def grad_energy():
+                return -self._bodies(x_n, steps, FORCE)[2]
+
+            contact.begin_step(x_n, h, grad_energy, float(self.masses.mean()) / (h * h), self.size)
             _, start_fraction = contact.candidates(x_n, x_tilde)
             if start_fraction < 1.0 and pinned.any():
                 _, pin_fraction = contact.candidates(x_n, held)
@@ -297,21 +306,13 @@ class SceneDriver:
         if current[0] is not states[0]:
             for state, result in zip(states, current, strict=True):
                 state.assign(result)
-        stats.max_stretch = max(self._stretch(k, st) for k, st in enumerate(states))
+        stats.max_stretch = max(
+            largest_stretch(m, st, scratch)
+            for m, st, scratch in zip(self.solver.models, states, self._scalars, strict=True)
+        )
         if stats.max_stretch > s.max_stretch and not s.allow_stretch:
             return ("stretch", stats.max_stretch, s.max_stretch)
         return None
-
-    def _stretch(self, k: int, state: State) -> float:
-        m, scalars = self.solver.models[k], self._scalars[k]
-        scalars.zero_()
-        wp.launch(
-            max_principal_stretch,
-            m.n_tets,
-            [state.positions, m.tets_wp, m.dm_inv_wp, scalars],
-            device=m.device,
-        )
-        return float(scalars.numpy()[0])
 
 
 class OneBodyDriver:

@@ -38,26 +38,30 @@ def overwrite_option():
 
 
 def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
-    """The setting ``frames``: ``"a:b"`` (b exclusive; either may be left out), ``"k"`` or None (all) -> the
-    frame indices, checked against ``n_frames``; a malformed or out-of-range spec is a
-    :class:`~shellsim.errors.SettingError` of ``frames``."""
+    """The setting ``frames``: ``"a:b"`` or ``"a:b:step"`` (b exclusive; a or b may be left out; step a
+    positive integer, ``"::2"`` every second frame), ``"k"`` or None (all) -> the frame indices, checked
+    against ``n_frames``; a malformed or out-of-range spec is a :class:`~shellsim.errors.SettingError` of
+    ``frames``."""
     if spec is None:
         return range(n_frames)
     text = str(spec).strip()
     parts = text.split(":")
     try:
         if len(parts) == 1:
-            a = int(parts[0])
-            b = a + 1
-        elif len(parts) == 2:
+            a, b, step = int(parts[0]), int(parts[0]) + 1, 1
+        elif len(parts) <= 3:
             a = int(parts[0]) if parts[0].strip() else 0
             b = int(parts[1]) if parts[1].strip() else n_frames
+            step = int(parts[2]) if len(parts) == 3 else 1
+            if step < 1:
+                raise ValueError
         else:
             raise ValueError
     except ValueError:
         raise SettingError(
             "frames",
-            "expected START:END (END exclusive, either optional) or one frame number, e.g. 0:60",
+            "expected START:END[:STEP] (END exclusive, START and END optional, STEP a positive integer) or "
+            "one frame number, e.g. 0:60 or ::2",
             repr(text),
         ) from None
     if not 0 <= a < b <= n_frames:
@@ -66,7 +70,7 @@ def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
             f"{source} has {n_frames} frames (0..{n_frames - 1}); need 0 <= START < END <= {n_frames}",
             repr(text),
         )
-    return range(a, b)
+    return range(a, b, step)
 
 
 def option(

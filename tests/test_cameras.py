@@ -10,7 +10,18 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from shellsim.render.cameras import CAMERAS, PRESETS, CameraSettings, MotionTrack, mass_weights, motion_track
+from shellsim.render.cameras import (
+    CAMERAS,
+    FOLLOW_SECONDS,
+    PRESETS,
+    CameraSettings,
+    MotionTrack,
+    default_scene_camera,
+    mass_weights,
+    motion_track,
+    scene_shot,
+)
+from shellsim.scene.spec import CameraKeyframe, CameraSpec, SceneError
 
 W, H = 32, 20
 
@@ -144,3 +155,167 @@ def test_a_fixed_camera_at_rest_renders_the_asset_frame_view(tmp_path):
     a, b = (np.asarray(Image.open(r.frames[0]), np.int16) for r in (fixed, direct))
     assert (a != 255).any(), "the body is in view"
     assert np.abs(a - b).max() <= 1
+
+
+def scene_tracks(n: int = 11, fps: float = 10.0) -> dict[str, MotionTrack]:
+    """Two bodies of a scene: ``a`` swaying along x (:func:`swaying_track`), ``b`` a 0.1 m cube sliding
+    along +y at 0.3 m/s; "" the track of both together."""
+    a = swaying_track(n)
+    times = np.arange(n) / fps
+    lo = np.array([0.3, 0.0, 0.0]) + np.outer(times, [0.0, 0.3, 0.0])
+    b = MotionTrack(lo, lo + 0.1, lo + 0.05, times)
+    a = MotionTrack(a.lo, a.hi, a.centre, times)
+    both = MotionTrack(np.minimum(a.lo, b.lo), np.maximum(a.hi, b.hi), 0.5 * (a.centre + b.centre), times)
+    return {"a": a, "b": b, "": both}
+
+
+def hand_look_at(eye, target) -> np.ndarray:
+    """(4, 4) OpenGL camera-to-world of a camera at ``eye`` looking at ``target``, image up toward +z."""
+    back = (np.asarray(eye) - target) / np.linalg.norm(np.asarray(eye) - target)
+    right = np.cross([0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.stack([right, np.cross(back, right), back], axis=1)
+    c2w[:3, 3] = eye
+    return c2w
+
+
+def test_a_fixed_scene_camera_is_the_look_at_of_its_position_and_target():
+    tracks = scene_tracks()
+    spec = CameraSpec(name="c", kind="fixed", position=(1.0, -2.0, 0.5), target=(0.1, 0.2, 0.3))
+    shot = scene_shot(spec, tracks, W, H)
+    assert shot.c2w.shape == (11, 4, 4) and shot.name == "c"
+    assert shot.focal == pytest.approx(0.5 * W / math.tan(math.radians(20.0)))
+    np.testing.assert_allclose(
+        shot.c2w, np.broadcast_to(hand_look_at(spec.position, spec.target), (11, 4, 4))
+    )
+    centre0 = 0.5 * (tracks[""].lo[0] + tracks[""].hi[0])  # no target: the bodies' box centre at frame 0
+    untargeted = scene_shot(CameraSpec(name="c", kind="fixed", position=(1.0, -2.0, 0.5)), tracks, W, H)
+    np.testing.assert_allclose(untargeted.c2w[7], hand_look_at(spec.position, centre0))
+    above = CameraSpec(name="c", kind="fixed", position=(0.0, 0.0, 2.0), target=(0.0, 0.0, 0.0))
+    c2w = scene_shot(above, tracks, W, H).c2w[0]  # straight down: image up is +y
+    np.testing.assert_allclose(c2w[:3, :3], np.diag([1.0, 1.0, 1.0]), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "spec, first, last",
+    [
+        (CameraSpec(name="o", azimuth=30.0, degrees=90.0, elevation=15.0, distance=2.0), -15.0, 75.0),
+        (
+            CameraSpec(name="o", azimuth=10.0, degrees=-200.0, elevation=-30.0, target=(0, 0, 0.1)),
+            110.0,
+            -90.0,
+        ),
+        (default_scene_camera(), -60.0, -30.0),
+    ],
+)
+def test_a_scene_orbit_turns_from_azimuth_minus_half_its_arc_to_plus_half(spec, first, last):
+    tracks = scene_tracks()
+    shot = scene_shot(spec, tracks, W, H)
+    centre0 = 0.5 * (tracks[""].lo[0] + tracks[""].hi[0])
+    target = centre0 if spec.target is None else np.asarray(spec.target)
+    eyes = shot.c2w[:, :3, 3] - target
+    distance = np.linalg.norm(eyes, axis=1)
+    np.testing.assert_allclose(distance, distance[0], rtol=1e-12)  # one distance: a circle
+    if spec.distance is not None:
+        np.testing.assert_allclose(distance, spec.distance, rtol=1e-12)
+    azimuth = np.degrees(np.unwrap(np.arctan2(eyes[:, 1], eyes[:, 0])))
+    assert (azimuth[0] - first) % 360 == pytest.approx(0, abs=1e-9)
+    assert azimuth[-1] - azimuth[0] == pytest.approx(last - first, abs=1e-9)
+    np.testing.assert_allclose(np.diff(azimuth), (last - first) / 10, atol=1e-9)
+    np.testing.assert_allclose(np.degrees(np.arcsin(eyes[:, 2] / distance)), spec.elevation, atol=1e-9)
+    for k in range(11):  # looks at the target
+        np.testing.assert_allclose(project(shot.camera_for_frame(k), [target]), [[W / 2, H / 2]], atol=1e-9)
+
+
+@pytest.mark.parametrize("size", [(W, H), (H, W)])
+@pytest.mark.parametrize("target", [None, (0.1, 0.1, 0.3)])
+def test_a_framed_scene_orbit_keeps_every_body_in_view_at_every_frame_and_no_farther(size, target):
+    tracks = scene_tracks()
+    w, h = size
+    shot = scene_shot(CameraSpec(name="o", degrees=120.0, elevation=35.0, target=target), tracks, w, h)
+    box = corners(tracks[""].lo.min(0), tracks[""].hi.max(0))  # every body over the whole motion
+    room = []
+    for k in range(11):
+        pixels = project(shot.camera_for_frame(k), box)
+        assert (pixels >= 0).all() and (pixels[:, 0] <= w).all() and (pixels[:, 1] <= h).all(), k
+        room.append((np.minimum(pixels, [w, h] - pixels) / [w / 2, h / 2]).min())
+    assert min(room) < 0.06  # the least distance: at its tightest frame a corner reaches an edge's margin
+
+
+def test_a_scene_follow_camera_keeps_its_offset_from_the_smoothed_centre_of_mass():
+    tracks = scene_tracks(n=150, fps=30.0)  # 5 s: 10 time constants
+    b = tracks["b"]  # at constant velocity v
+    v, dt = np.array([0.0, 0.3, 0.0]), 1 / 30
+    # exponential smoothing of a ramp: the lag behind it grows to v dt (1 - a) / a
+    a = 1 - math.exp(-dt / FOLLOW_SECONDS)
+    lag = np.outer(dt * (1 - a) * (1 - (1 - a) ** np.arange(150)) / a, v)
+    position = np.array([1.2, -0.8, 0.6])
+    for target, offset in ((None, position - b.centre[0]), ((0.0, 0.0, 0.2), position - [0.0, 0.0, 0.2])):
+        spec = CameraSpec(name="f", kind="follow", position=tuple(position), target=target, body="b")
+        shot = scene_shot(spec, tracks, W, H)
+        np.testing.assert_allclose(shot.c2w[:, :3, 3], b.centre - lag + offset, atol=1e-12)
+        np.testing.assert_allclose(shot.c2w[:, :3, :3], np.broadcast_to(shot.c2w[0, :3, :3], (150, 3, 3)))
+        np.testing.assert_allclose(shot.c2w[0], hand_look_at(b.centre[0] + offset, b.centre[0]), atol=1e-12)
+        for j in (0, 30, 149):  # looking at the smoothed centre
+            view = shot.camera_for_frame(j)
+            np.testing.assert_allclose(project(view, [b.centre[j] - lag[j]]), [[W / 2, H / 2]], atol=1e-8)
+        # once smoothed (the last second), the camera keeps the offset less a constant lag
+        steady = b.centre[-30:] + offset - shot.c2w[-30:, :3, 3]
+        np.testing.assert_allclose(steady, np.tile(v * dt * (1 - a) / a, (30, 1)), rtol=1e-3, atol=1e-12)
+
+
+PATH = (
+    CameraKeyframe(0.3, (1.0, -1.0, 0.5), (0.0, 0.0, 0.1)),
+    CameraKeyframe(0.8, (1.5, 0.0, 0.8), (0.1, 0.0, 0.2)),
+    CameraKeyframe(1.2, (0.5, 1.2, 0.3), (0.0, 0.1, 0.0)),
+    CameraKeyframe(1.5, (-0.8, 0.8, 1.5), (0.0, 0.0, 0.2)),
+)
+
+
+def test_a_scene_path_passes_through_every_keyframe_and_holds_outside_them():
+    tracks = scene_tracks(n=21)  # frames at 0, 0.1, ..., 2 s
+    shot = scene_shot(CameraSpec(name="p", kind="path", keyframes=PATH), tracks, W, H)
+    times = tracks[""].times
+    for key in PATH:
+        k = int(np.flatnonzero(times == key.time)[0])
+        np.testing.assert_array_equal(shot.c2w[k, :3, 3], key.position)
+        np.testing.assert_allclose(shot.c2w[k], hand_look_at(key.position, key.target), atol=1e-12)
+    for k in range(4):  # before the first keyframe (0.3 s) and after the last (1.5 s): held
+        np.testing.assert_array_equal(shot.c2w[k], shot.c2w[3])
+    for k in range(15, 21):
+        np.testing.assert_array_equal(shot.c2w[k], shot.c2w[15])
+    # halfway through each interval, the cubic Hermite (p_i + p_i+1) / 2 + h (m_i - m_i+1) / 8 of Catmull-Rom
+    # tangents m_i = (p_i+1 - p_i-1) / (t_i+1 - t_i-1), zero at the ends (clamped)
+    t, p = np.array([key.time for key in PATH]), np.array([key.position for key in PATH])
+    m = np.zeros_like(p)
+    m[1:-1] = (p[2:] - p[:-2]) / (t[2:] - t[:-2])[:, None]
+    h = np.diff(t)[:, None]
+    halves = MotionTrack(np.zeros((3, 3)), np.ones((3, 3)), np.zeros((3, 3)), 0.5 * (t[1:] + t[:-1]))
+    eyes = scene_shot(CameraSpec(name="p", kind="path", keyframes=PATH), {"": halves}, W, H).c2w[:, :3, 3]
+    np.testing.assert_allclose(eyes, 0.5 * (p[:-1] + p[1:]) + h * (m[:-1] - m[1:]) / 8, atol=1e-12)
+
+
+def test_a_two_keyframe_path_is_a_smoothstep():
+    keys = PATH[0], CameraKeyframe(1.3, (2.0, 1.0, 1.5), (0.0, 0.0, 0.1))
+    tracks = scene_tracks(n=21)
+    eyes = scene_shot(CameraSpec(name="p", kind="path", keyframes=keys), tracks, W, H).c2w[:, :3, 3]
+    s = np.clip((tracks[""].times - 0.3) / 1.0, 0, 1)[:, None]
+    np.testing.assert_allclose(eyes, keys[0].position + (3 * s**2 - 2 * s**3) * [1.0, 2.0, 1.0], atol=1e-12)
+
+
+def test_a_scene_camera_standing_where_it_looks_names_the_camera():
+    tracks = scene_tracks()
+    centre0 = 0.5 * (tracks[""].lo[0] + tracks[""].hi[0])
+    where = "scene.toml: [[camera]] #2 (c)"
+    fixed = CameraSpec(name="c", kind="fixed", position=tuple(centre0), where=where)
+    with pytest.raises(SceneError, match=r"^scene.toml: \[\[camera\]\] #2 \(c\) position: the camera stands"):
+        scene_shot(fixed, tracks, W, H)
+    swap = (  # position and target trade places: they meet halfway, at 0.5 s
+        CameraKeyframe(0.0, (1.0, 0.0, 0.5), (0.0, 0.0, 0.5)),
+        CameraKeyframe(1.0, (0.0, 0.0, 0.5), (1.0, 0.0, 0.5)),
+    )
+    with pytest.raises(
+        SceneError, match=r"\(c\) keyframes: the camera stands where it looks, at \[0.5, 0, 0.5\] m"
+    ):
+        scene_shot(CameraSpec(name="c", kind="path", keyframes=swap, where=where), tracks, W, H)

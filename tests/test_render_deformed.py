@@ -238,16 +238,38 @@ def test_orbit_camera_looks_at_the_centre():
 
 @pytest.mark.parametrize(
     "spec, expected",
-    [(None, range(10)), ("2:5", range(2, 5)), (":3", range(3)), ("7:", range(7, 10)), ("4", range(4, 5))],
+    [
+        (None, range(10)),
+        ("2:5", range(2, 5)),
+        (":3", range(3)),
+        ("7:", range(7, 10)),
+        ("4", range(4, 5)),
+        ("::2", [0, 2, 4, 6, 8]),
+        ("1:8:3", [1, 4, 7]),
+        ("1:9:4", [1, 5]),
+        ("3::5", [3, 8]),
+        (":4:1", [0, 1, 2, 3]),
+        ("2:5:10", [2]),
+    ],
 )
 def test_parse_frames(spec, expected):
-    assert parse_frames(spec, 10) == expected
+    assert list(parse_frames(spec, 10)) == list(expected)
 
 
-@pytest.mark.parametrize("spec", ["a:b", "1:2:3", "5:3", "0:11", "-1:2", "10"])
+@pytest.mark.parametrize(
+    "spec", ["a:b", "1:2:3:4", "5:3", "0:11", "-1:2", "10", "::0", "0:5:-1", "1:5:", "::x", "::1.5", "9:9:2"]
+)
 def test_parse_frames_rejects_bad_specs(spec):
     from shellsim.errors import SettingError
 
     with pytest.raises(SettingError, match=f"^frames {spec!r}: ") as err:  # the CLI shows --frames instead
         parse_frames(spec, 10)
     assert err.value.name == "frames"
+
+
+@pytest.mark.parametrize("spec", ["::0", "1:2:3:4", "1:5:"])
+def test_a_bad_step_says_what_a_frames_spec_is(spec):
+    from shellsim.errors import SettingError
+
+    with pytest.raises(SettingError, match=r"expected START:END\[:STEP\] .*STEP a positive integer"):
+        parse_frames(spec, 10)

@@ -13,6 +13,7 @@ from shellsim.scene.spec import (
     ActionSpec,
     BodySpec,
     CageSpec,
+    CameraKeyframe,
     CameraSpec,
     ColliderSpec,
     Keyframe,
@@ -142,6 +143,15 @@ kind = "follow"
 position = [1, 1, 1]
 body = "brick"
 fov = 30
+
+[[camera]]
+name = "flyby"
+kind = "path"
+fov = 35
+keyframes = [
+  {time = 0, position = [2, -2, 1], target = [0, 0, 0.2]},
+  {time = 2.5, position = [2, 2, 1.5], target = [0, 0, 0.3]},
+]
 """
 
 
@@ -302,6 +312,16 @@ def test_a_full_file_reads_into_the_spec(tmp_path):
             body="brick",
             fov=30.0,
             where=f"{f}: [[camera]] #3 (chase)",
+        ),
+        CameraSpec(
+            name="flyby",
+            kind="path",
+            fov=35.0,
+            keyframes=(
+                CameraKeyframe(0.0, (2.0, -2.0, 1.0), (0.0, 0.0, 0.2)),
+                CameraKeyframe(2.5, (2.0, 2.0, 1.5), (0.0, 0.0, 0.3)),
+            ),
+            where=f"{f}: [[camera]] #4 (flyby)",
         ),
     )
     assert spec.path == str(path.resolve())
@@ -466,6 +486,8 @@ PIN = BODY + '[[action]]\nkind = "pin"\nbody = "lego"\n'
 GRAB = BODY + '[[action]]\nkind = "grab"\nbody = "lego"\nend = 1\n'
 PUSH = BODY + '[[action]]\nkind = "push"\nbody = "lego"\nend = 1\n'
 WIND = BODY + '[[action]]\nkind = "wind"\n'
+PATH = BODY + '[[camera]]\nname = "p"\nkind = "path"\n'
+KEY0 = "{time = 0, position = [1, 0, 0], target = [0, 0, 0]}"
 RAMP = '[[collider]]\nname = "ramp"\nshape = "sphere"\nradius = 1\n'
 
 MALFORMED = [
@@ -619,6 +641,54 @@ MALFORMED = [
         "[[camera]] #1 (camera1) position: not a key of an orbit camera, only of a fixed/follow camera",
     ),
     (BODY + "[[camera]]\nname = 'c'\n[[camera]]\nname = 'c'\n", "[[camera]] #2 (c) name: 'c' is already"),
+    (BODY + "[[camera]]\nkind = 'pth'\n", "(camera1) kind: 'pth' is not one of orbit, fixed, follow, path"),
+    (PATH, "[[camera]] #1 (p) keyframes: missing (a path camera moves along its keyframes)"),
+    (
+        PATH + f"keyframes = [{KEY0}]\n",
+        "[[camera]] #1 (p) keyframes: expected an array of at least 2 tables {time = .., position = [..], "
+        "target = [..]}, got [a table]",
+    ),
+    (PATH + "keyframes = 3\n", "[[camera]] #1 (p) keyframes: expected an array of at least 2 tables"),
+    (
+        PATH + f"keyframes = [{KEY0}, {KEY0}]\n",
+        "[[camera]] #1 (p) keyframes #2 time: 0 s must be after keyframe #1 (0 s)",
+    ),
+    (
+        PATH + f"keyframes = [{{time = -1, position = [1, 0, 0], target = [0, 0, 0]}}, {KEY0}]\n",
+        "[[camera]] #1 (p) keyframes #1 time: must be >= 0, got -1",
+    ),
+    (
+        PATH + f"keyframes = [{KEY0}, {{time = 1, position = [1, 0, 0]}}]\n",
+        "[[camera]] #1 (p) keyframes #2 target: missing",
+    ),
+    (
+        PATH + f"keyframes = [{{position = [1, 0, 0], target = [0, 0, 0]}}, {KEY0}]\n",
+        "[[camera]] #1 (p) keyframes #1 time: missing",
+    ),
+    (
+        PATH + f"keyframes = [{KEY0}, {{time = 1, position = [0, 1, 0], target = [0, 1, 0]}}]\n",
+        "[[camera]] #1 (p) keyframes #2 target: must differ from position",
+    ),
+    (
+        PATH + f"keyframes = [{KEY0}, {{time = 1, position = [0, 1], target = [0, 0, 0]}}]\n",
+        "[[camera]] #1 (p) keyframes #2 position: expected 3 numbers [x, y, z], got [0, 1]",
+    ),
+    (
+        PATH + f"keyframes = [{KEY0}, {{time = 1, position = [0, 1, 0], targte = [0, 0, 0]}}]\n",
+        "[[camera]] #1 (p) keyframes #2 targte: unknown key; did you mean target?",
+    ),
+    (
+        PATH + f"keyframes = [{KEY0}, {{time = 1, position = [0, 1, 0], target = [0, 0, 0], fov = 30}}]\n",
+        "[[camera]] #1 (p) keyframes #2 fov: unknown key (expected time, position, target)",
+    ),
+    (
+        PATH + "position = [1, 1, 1]\n",
+        "[[camera]] #1 (p) position: not a key of a path camera, only of a fixed/follow camera",
+    ),
+    (
+        BODY + f"[[camera]]\nkeyframes = [{KEY0}, {KEY0}]\n",
+        "[[camera]] #1 (camera1) keyframes: not a key of an orbit camera, only of a path camera",
+    ),
 ]
 
 

@@ -327,6 +327,41 @@ def visible_samples(
 
 
 @torch.no_grad()
+def _shading(field, points, unit_dirs, deltas, fronts, which=None):
+    """Opacities alpha (S,) of samples (arguments as :func:`render_samples`'s) and ``radiance(shown (K,)
+    int64 increasing) -> (K, 3)``, the colours of those of them. ``field``: one field, or a sequence of
+    fields with ``which`` (S,) int64 the index of each sample's field (each evaluates its own samples)."""
+    if which is None:
+        geometry, alpha = _opacity(field, points, unit_dirs, deltas, fronts, 1.0)
+
+        def radiance(shown):
+            picked = type(geometry)(*(g.index_select(0, shown) for g in geometry))
+            return field.radiance(points.index_select(0, shown), unit_dirs.index_select(0, shown), picked)
+
+        return alpha, radiance
+    alpha = points.new_zeros(len(points))
+    groups = []  # (body, its field, its samples (M,) increasing, their geometry)
+    for body, one in enumerate(field):
+        members = torch.nonzero(which == body).squeeze(1)
+        if len(members):
+            geometry, alpha[members] = _opacity(
+                one, *(x.index_select(0, members) for x in (points, unit_dirs, deltas, fronts)), 1.0
+            )
+            groups.append((body, one, members, geometry))
+
+    def radiance(shown):
+        rgb = points.new_zeros(len(shown), 3)
+        for body, one, members, geometry in groups:
+            mine = torch.nonzero(which.index_select(0, shown) == body).squeeze(1)
+            rows = shown.index_select(0, mine)
+            local = torch.searchsorted(members, rows)  # their places among the body's samples
+            picked = type(geometry)(*(g.index_select(0, local) for g in geometry))
+            rgb[mine] = one.radiance(points.index_select(0, rows), unit_dirs.index_select(0, rows), picked)
+        return rgb
+
+    return alpha, radiance
+
+
 def shade_samples(
     field: Any,
     samples: RaySamples,
@@ -351,6 +386,8 @@ def shade_samples(
     deltas (K',), fronts (K',))``: where the field is evaluated for those samples (as :func:`render_samples`'s
     arguments), leaving out samples it cannot place (a deformed frame's samples outside the cage).
     ``field.geometry`` returns a NamedTuple of per-sample tensors with ``sdf``, ``inv_s`` and ``normal``.
+    With a sequence of fields for ``field`` (several bodies in one image, :mod:`neural.render.bodies`),
+    ``locate`` also returns, sixth, the index (K',) int64 of each sample's field in it.
     """
     if not tolerance >= 0:
         raise ValueError(f"tolerance: expected >= 0, got {tolerance}")
@@ -364,9 +401,9 @@ def shade_samples(
     alive = torch.ones_like(per_ray, dtype=torch.bool)
     for index in _rounds(samples, first_round, LAST_ROUND_SAMPLES, alive):
         located += torch.bincount(ray_indices.index_select(0, index), minlength=n_rays)
-        index, points, unit_dirs, deltas, fronts = locate(index)
+        index, points, unit_dirs, deltas, fronts, *which = locate(index)
         rays = ray_indices.index_select(0, index)
-        geometry, alpha = _opacity(field, points, unit_dirs, deltas, fronts, 1.0)
+        alpha, radiance = _shading(field, points, unit_dirs, deltas, fronts, *which)
         before = log_t.index_select(0, rays).exp().to(alpha.dtype)
         weights = transmittance(alpha, rays, n_rays) * before * alpha
         log_t.index_add_(0, rays, torch.log(torch.clamp(1.0 - alpha.double(), min=MIN_TRANSMITTANCE)))
@@ -374,11 +411,7 @@ def shade_samples(
             alive.copy_(log_t > math.log(tolerance / 2))
         shown = torch.nonzero(weights * per_ray.index_select(0, rays) > tolerance / 2).squeeze(1)
         rgb = points.new_zeros(len(points), 3)
-        rgb[shown] = field.radiance(
-            points.index_select(0, shown),
-            unit_dirs.index_select(0, shown),
-            type(geometry)(*(g.index_select(0, shown) for g in geometry)),
-        )
+        rgb[shown] = radiance(shown)
         part = _finish(weights, rgb, rays, n_rays, None, None)
         color = part["color"] if color is None else color + part["color"]
         opacity = part["opacity"] if opacity is None else opacity + part["opacity"]

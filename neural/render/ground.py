@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .obstacles import Obstacles, blocked, obstacle_hits
+from .obstacles import Meshes, Obstacles, blocked, obstacle_hits
 
 if TYPE_CHECKING:  # torch is imported where the images are made: the settings stay light for the jobs
     import torch
@@ -138,11 +138,18 @@ def ground_hits(frame: WorldFrame, origins: torch.Tensor, dirs: torch.Tensor):
     return hit, t, points, d_w
 
 
-def surface_t_max(look: WorldLook, frame: WorldFrame, obstacles: Obstacles | None, origins, dirs):
+def surface_t_max(
+    look: WorldLook,
+    frame: WorldFrame,
+    obstacles: Obstacles | None,
+    origins,
+    dirs,
+    meshes: Meshes | None = None,
+):
     """(R,) float64 ray parameter of the nearest opaque world surface in front of rays ``origins``, ``dirs``
-    (R, 3) of the renderer's frame: the ground (when drawn) and the obstacles (inf where none). The body's
-    samples beyond it are hidden: a body resting on the ground shows nothing of its shells below z = 0, and
-    an obstacle hides what is behind it."""
+    (R, 3) of the renderer's frame: the ground (when drawn), the obstacles and the ``meshes`` (inf where
+    none). The bodies' samples beyond it are hidden: a body resting on the ground shows nothing of its shells
+    below z = 0, and an obstacle hides what is behind it."""
     import torch
 
     t = (
@@ -150,9 +157,25 @@ def surface_t_max(look: WorldLook, frame: WorldFrame, obstacles: Obstacles | Non
         if look.ground
         else torch.full_like(origins[:, 0], math.inf).double()
     )
-    if obstacles:
-        t = torch.minimum(t, obstacle_hits(obstacles, *to_world(frame, origins, dirs))[0])
+    if obstacles or meshes:
+        t = torch.minimum(t, _surface_hits(look, obstacles, meshes, *to_world(frame, origins, dirs))[0])
     return t
+
+
+def _surface_hits(look: WorldLook, obstacles: Obstacles | None, meshes: Meshes | None, origins_w, dirs_w):
+    """The nearest obstacle or mesh in front of world rays ``origins_w``, ``dirs_w`` (R, 3) float64: ``t``
+    (R,) (inf where none), the unit normal ``normals`` (R, 3) facing the ray and the ``albedo`` (R, 3) there
+    (the obstacles': ``look.obstacle_color``)."""
+    import torch
+
+    t, normals = obstacle_hits(obstacles or Obstacles(), origins_w, dirs_w)
+    albedo = torch.tensor(look.obstacle_color, dtype=torch.float64, device=dirs_w.device).expand(len(t), 3)
+    if meshes:
+        t_mesh, mesh_normals, mesh_albedo = meshes.hits(origins_w, dirs_w)
+        nearer = (t_mesh < t)[:, None]
+        t = torch.minimum(t, t_mesh)
+        normals, albedo = torch.where(nearer, mesh_normals, normals), torch.where(nearer, mesh_albedo, albedo)
+    return t, normals, albedo
 
 
 def checker(look: WorldLook, points: torch.Tensor) -> torch.Tensor:
@@ -181,16 +204,21 @@ def world_backdrop(
     frame: WorldFrame,
     visibility: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
     obstacles: Obstacles | None = None,
+    meshes: Meshes | None = None,
 ):
     """``backdrop(origins (R, 3), dirs (R, 3)) -> (R, 3)`` of :func:`neural.render.view.render_pixels`: the
     sky, with ``look.ground`` the lit checkered ground and the lit ``obstacles`` (module docstring) behind
     rays of the renderer's frame (``frame`` places it in the world), the nearest surface of each ray.
     ``visibility(origins (G, 3), dirs (G, 3)) -> (G,)``: the light's visibility along shadow rays of the
     renderer's frame (the field's transmittance, e.g. :func:`neural.render.view.transmittance`); None: the
-    field blocks no light. With ``look.shadows`` False nothing blocks it."""
+    field blocks no light. With ``look.shadows`` False nothing blocks it. ``meshes``: opaque triangle meshes
+    (:class:`~neural.render.obstacles.Meshes`), drawn and casting shadows as the obstacles do, in their own
+    albedo."""
     import torch
 
     obstacles = Obstacles() if obstacles is None else obstacles
+    meshes = Meshes() if meshes is None else meshes
+    solid = bool(obstacles or meshes)
     light = look.light_unit()
     light_here = torch.as_tensor(np.asarray(frame.rotation).T @ light)  # toward the light, renderer's frame
 
@@ -203,12 +231,15 @@ def world_backdrop(
             cos = look.diffuse * (normals_w @ light_w).clamp_min(0.0)
             value = look.ambient + cos
             lit = torch.nonzero(cos > 0).squeeze(1)
-            if not look.shadows or not len(lit) or (visibility is None and not obstacles):
+            if not look.shadows or not len(lit) or (visibility is None and not solid):
                 return value
             visible = torch.ones(len(lit), dtype=torch.float64, device=dirs.device)
-            if obstacles:
+            if solid:
                 starts_w = points_w[lit] + SHADOW_OFFSET * normals_w[lit]
-                visible = visible * ~blocked(obstacles, starts_w, light_w.expand(len(lit), 3))
+                towards = light_w.expand(len(lit), 3)
+                visible = visible * ~(
+                    blocked(obstacles, starts_w, towards) | meshes.blocked(starts_w, towards)
+                )
             if visibility is not None:
                 on = rays[lit]
                 starts = origins.index_select(0, on) + t[lit, None].to(dirs.dtype) * dirs.index_select(0, on)
@@ -219,9 +250,9 @@ def world_backdrop(
         hit, t, points, dirs_w = ground_hits(frame, origins, dirs)
         color = sky(look, dirs_w)
         t_obstacle = None
-        if obstacles:
+        if solid:
             o_w = to_world(frame, origins, dirs)[0]
-            t_obstacle, normals = obstacle_hits(obstacles, o_w, dirs_w)
+            t_obstacle, normals, albedo = _surface_hits(look, obstacles, meshes, o_w, dirs_w)
             hit = hit & (t < t_obstacle)
         if look.ground:
             ground = torch.nonzero(hit).squeeze(1)
@@ -236,8 +267,7 @@ def world_backdrop(
             t_seen = t_obstacle[seen]
             points_w = o_w[seen] + t_seen[:, None] * dirs_w[seen]
             shades = shade(seen, t_seen, points_w, normals[seen])
-            albedo = torch.tensor(look.obstacle_color, dtype=torch.float64, device=dirs.device)
-            color[seen] = albedo * shades[:, None]
+            color[seen] = albedo[seen] * shades[:, None]
         return color.to(dirs.dtype)
 
     return backdrop

@@ -118,3 +118,110 @@ def blocked(obstacles: Obstacles, origins: torch.Tensor, dirs: torch.Tensor) -> 
         return torch.zeros(len(origins), dtype=torch.bool, device=origins.device)
     near, far, _ = _intervals(obstacles, origins, dirs)
     return ((near <= far) & (far > 0)).any(dim=1)
+
+
+#: Faces meeting at a vertex at less than this angle (degrees) share a normal there (smooth shading); sharper
+#: edges (a box's) stay sharp.
+CREASE_DEGREES = 30.0
+
+
+def corner_normals(vertices: np.ndarray, faces: np.ndarray, crease: float = CREASE_DEGREES) -> np.ndarray:
+    """(F, 3, 3) unit normal at each corner of each face (F, 3) of a mesh with ``vertices`` (N, 3): the mean
+    of the unit normals of the faces around that corner's vertex within ``crease`` degrees of the face's
+    own (its own always included)."""
+    normals = np.cross(
+        vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]
+    )
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    corner_vertex = faces.reshape(-1)
+    order = np.argsort(corner_vertex, kind="stable")  # corners grouped by vertex
+    vertex = corner_vertex[order]
+    face = np.repeat(np.arange(len(faces)), 3)[order]
+    counts = np.bincount(vertex, minlength=len(vertices))
+    first = np.cumsum(counts) - counts
+    valence = counts[vertex]  # (3F,) corners sharing each corner's vertex
+    mine = np.repeat(np.arange(len(vertex)), valence)  # every pair of corners of one vertex
+    other = first[vertex[mine]] + np.arange(len(mine)) - np.repeat(np.cumsum(valence) - valence, valence)
+    near = np.einsum("ij,ij->i", normals[face[mine]], normals[face[other]]) >= math.cos(math.radians(crease))
+    total = np.zeros((len(vertex), 3))
+    np.add.at(total, mine[near], normals[face[other[near]]])
+    out = np.empty_like(total)
+    out[order] = total / np.linalg.norm(total, axis=1, keepdims=True)
+    return out.reshape(-1, 3, 3)
+
+
+class Meshes:
+    """Opaque triangle meshes in world metres, each with its albedo: mesh colliders, turned boxes and the
+    surfaces of mesh bodies of a scene. Rays meet them through one Embree scene (float32, about the meshes'
+    centre); they are shaded on both sides (the normal faces the ray), smoothly within
+    :data:`CREASE_DEGREES` (:func:`corner_normals`, interpolated at the hit).
+
+    meshes : sequence of ``(vertices (N, 3), faces (F, 3), albedo (3,))``
+    """
+
+    def __init__(self, meshes=()):
+        parts = [
+            (np.asarray(v, np.float64), np.asarray(f, np.int64), np.asarray(c, np.float64))
+            for v, f, c in meshes
+        ]
+        self.count = len(parts)
+        if not parts:
+            return
+        offsets = np.cumsum([0] + [len(v) for v, _, _ in parts])
+        vertices = np.concatenate([v for v, _, _ in parts])
+        faces = np.concatenate([f + o for (_, f, _), o in zip(parts, offsets, strict=False)])
+        self.albedo = np.concatenate([np.broadcast_to(c, (len(f), 3)) for _, f, c in parts])
+        self.corners = corner_normals(vertices, faces)
+        normals = self.corners.sum(axis=1)  # only its sign matters: which side a ray meets
+        self.normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+        self.center = 0.5 * (vertices.min(0) + vertices.max(0))
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
+        self._scene = rtcore_scene.EmbreeScene(robust=True)
+        TriangleMesh(scene=self._scene, vertices=(vertices - self.center).astype(np.float32), indices=faces)
+
+    def __bool__(self) -> bool:
+        return self.count > 0
+
+    def _cast(self, origins, dirs):
+        """(faces (R,) int64, -1 on a miss; t (R,) float64 ray parameter; uv (R, 2) barycentrics of the hit
+        on its face's second and third corners) of the first hits of world rays ``origins``, ``dirs`` (R, 3)
+        at t > 0."""
+        norm = np.linalg.norm(dirs, axis=1)
+        starts = np.ascontiguousarray(origins - self.center, dtype=np.float32)
+        units = np.ascontiguousarray(dirs / np.maximum(norm, 1e-30)[:, None], dtype=np.float32)
+        out = self._scene.run(starts, units, output=1)
+        uv = np.stack([out["u"], out["v"]], axis=1).astype(np.float64)
+        return np.asarray(out["primID"], np.int64), np.asarray(out["tfar"], np.float64) / norm, uv
+
+    def hits(self, origins: torch.Tensor, dirs: torch.Tensor):
+        """The first mesh in front of world rays ``origins``, ``dirs`` (R, 3) float64: ``t`` (R,) (inf where
+        none), the unit normal facing the ray ``normals`` (R, 3) and the ``albedo`` (R, 3) there (zeros
+        without a hit)."""
+        import torch
+
+        n = len(origins)
+        t = np.full(n, math.inf)
+        normals, albedo = np.zeros((n, 3)), np.zeros((n, 3))
+        if self and n:
+            d = dirs.cpu().numpy()
+            faces, dist, uv = self._cast(origins.cpu().numpy(), d)
+            hit = faces >= 0
+            t[hit] = dist[hit]
+            f, (u, v) = faces[hit], uv[hit].T
+            smooth = (1 - u - v)[:, None] * self.corners[f, 0] + u[:, None] * self.corners[f, 1]
+            smooth = smooth + v[:, None] * self.corners[f, 2]
+            smooth /= np.maximum(np.linalg.norm(smooth, axis=1, keepdims=True), 1e-30)
+            normals[hit] = smooth * -np.sign(np.einsum("ij,ij->i", self.normals[f], d[hit]))[:, None]
+            albedo[hit] = self.albedo[f]
+        return tuple(torch.as_tensor(a, device=origins.device) for a in (t, normals, albedo))
+
+    def blocked(self, origins: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+        """(R,) bool: world rays ``origins``, ``dirs`` (R, 3) meet a mesh at some ``t > 0``."""
+        import torch
+
+        if not self or not len(origins):
+            return torch.zeros(len(origins), dtype=torch.bool, device=origins.device)
+        faces = self._cast(origins.cpu().numpy(), dirs.cpu().numpy())[0]
+        return torch.as_tensor(faces >= 0, device=origins.device)

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from ..data import Cameras, camera_rays
+from .bodies import FieldBody, body_share, locate, locate_samples, merged_samples
 from .composite import MIN_TRANSMITTANCE
 from .fullray import ray_aabb, ray_background, shade_samples, stepped_samples
 from .neus import neus_alpha
@@ -146,31 +147,6 @@ class RestMap(Protocol):
         the ray, ``inside`` (S,) bool (False: no rest point, the sample is dropped)."""
 
 
-def _locate(index, origins, dirs, samples, to_rest, times=None):
-    """Pipeline step 2 for the samples ``index`` (K,) of ``samples`` on rays ``origins``, ``dirs`` (R, 3):
-    ``(index (K',), points (K', 3), unit_dirs (K', 3), deltas (K',), fronts (K',), dropped)`` where the field
-    is evaluated, in its (rest) space through ``to_rest`` (None: as placed), section lengths in its units;
-    ``dropped`` samples had no rest point. The map's seconds are added to ``times["map"]``."""
-    rays = samples.ray_indices.index_select(0, index)
-    norm = dirs.norm(dim=1).index_select(0, rays)  # field-space length per unit of t
-    t = samples.t_mid.index_select(0, index)
-    points = origins.index_select(0, rays) + t[:, None] * dirs.index_select(0, rays)
-    unit_dirs = dirs.index_select(0, rays) / norm[:, None].clamp_min(1e-12)
-    dropped = 0
-    if to_rest is not None:
-        tick = time.perf_counter()
-        points, unit_dirs, stretch, inside = to_rest.map_rays(points, unit_dirs)
-        keep = torch.nonzero(inside).squeeze(1)
-        index, points, unit_dirs = index[keep], points[keep], unit_dirs[keep]
-        norm = (norm * stretch)[keep]
-        dropped = len(inside) - len(keep)
-        if times is not None:
-            times["map"] += time.perf_counter() - tick
-    deltas = samples.deltas.index_select(0, index) * norm
-    fronts = (samples.t_mid - samples.t_starts).index_select(0, index) * norm
-    return index, points, unit_dirs, deltas, fronts, dropped
-
-
 @torch.no_grad()
 def transmittance(
     field, origins: torch.Tensor, dirs: torch.Tensor, sampler, to_rest: RestMap | None = None
@@ -179,18 +155,30 @@ def transmittance(
     over every sample (Eq. 2) with NeuS opacities alpha (Eq. 3): pipeline steps 1-2 (sample, map to rest
     space with ``to_rest``), then the field's geometry only (no radiance). A shadow ray's visibility of the
     light through a body."""
+    return bodies_transmittance([FieldBody(field, sampler, to_rest)], origins, dirs)
+
+
+@torch.no_grad()
+def bodies_transmittance(bodies, origins: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+    """Transmittance (R,) of world rays ``origins``, ``dirs`` (R, 3) through every body of ``bodies``
+    (:class:`~neural.render.bodies.FieldBody`, each ray only through those whose box it crosses): the
+    product of each body's :func:`transmittance` along the ray in its frame."""
     log_t = torch.zeros(len(origins), dtype=torch.float64, device=origins.device)
-    chunk = getattr(sampler, "rays_per_chunk", RAY_CHUNK)
-    for i in range(0, len(origins), chunk):
-        o, d = origins[i : i + chunk], dirs[i : i + chunk]
-        samples = sampler(o, d)
-        index = torch.arange(len(samples.ray_indices), device=o.device)
-        index, points, unit_dirs, deltas, fronts, _ = _locate(index, o, d, samples, to_rest)
-        geometry = field.geometry(points)
-        cos = (unit_dirs * geometry.normal).sum(dim=1)
-        alpha = neus_alpha(geometry.sdf, geometry.inv_s, cos, deltas, 1.0, fronts)
-        rays = samples.ray_indices.index_select(0, index) + i
-        log_t.index_add_(0, rays, torch.log(torch.clamp(1.0 - alpha.double(), min=MIN_TRANSMITTANCE)))
+    for body in bodies:
+        rays, o, d = body_share(body, origins, dirs)
+        chunk = getattr(body.sampler, "rays_per_chunk", RAY_CHUNK)
+        for i in range(0, len(o), chunk):
+            samples = body.sampler(o[i : i + chunk], d[i : i + chunk])
+            index = torch.arange(len(samples.ray_indices), device=o.device)
+            index, points, unit_dirs, deltas, fronts, _ = locate(
+                index, o[i : i + chunk], d[i : i + chunk], samples, body.to_rest
+            )
+            geometry = body.field.geometry(points)
+            cos = (unit_dirs * geometry.normal).sum(dim=1)
+            alpha = neus_alpha(geometry.sdf, geometry.inv_s, cos, deltas, 1.0, fronts)
+            on = samples.ray_indices.index_select(0, index) + i
+            on = on if rays is None else rays.index_select(0, on)
+            log_t.index_add_(0, on, torch.log(torch.clamp(1.0 - alpha.double(), min=MIN_TRANSMITTANCE)))
     return log_t.exp().to(origins.dtype)
 
 
@@ -208,39 +196,59 @@ def render_pixels(
 ) -> tuple[torch.Tensor, dict]:
     """Colours (R, 3) (unclamped) of rays ``origins``, ``dirs`` (R, 3) on the field's device: sample, map to
     rest space with ``to_rest`` (None: no map), shade over ``background`` (3,), ``chunk`` rays at a time
-    (None: the sampler's ``rays_per_chunk``, else :data:`RAY_CHUNK`). ``backdrop(origins (r, 3), dirs (r, 3))
-    -> (r, 3)``: what each ray sees behind the field instead of ``background`` (a lit ground and a sky,
-    :mod:`neural.render.ground`); ``color = sum_i w_i c_i + T backdrop`` (Eq. 2). ``t_max`` (R,): the ray
-    parameter of a surface in front of the backdrop that hides the field beyond it (an obstacle,
-    :func:`neural.render.ground.surface_t_max`): samples with ``t > t_max`` get zero opacity. Stats:
-    ``ms``, per stage ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside
-    ``to_rest``) and ``counts`` (R,) int64 samples per ray that were mapped and evaluated (dropped ones
+    (None: the sampler's ``rays_per_chunk``, else :data:`RAY_CHUNK`): :func:`render_bodies` of the one body,
+    where ``backdrop`` and ``t_max`` are explained, and its stats."""
+    body = FieldBody(field, sampler, to_rest)
+    return render_bodies([body], origins, dirs, background, chunk, backdrop, t_max)
+
+
+@torch.no_grad()
+def render_bodies(
+    bodies,
+    origins: torch.Tensor,
+    dirs: torch.Tensor,
+    background: torch.Tensor,
+    chunk: int | None = None,
+    backdrop=None,
+    t_max: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, dict]:
+    """Colours (R, 3) (unclamped) of world rays ``origins``, ``dirs`` (R, 3) through every body of
+    ``bodies`` (:class:`~neural.render.bodies.FieldBody`): each body's samples on the rays crossing its box,
+    mapped to its rest space, merged by depth and shaded by their own fields, composited once over
+    ``background`` (3,) (one body: its field's environment map when it has one), ``chunk`` rays at a time
+    (None: the smallest of the samplers' ``rays_per_chunk``, else :data:`RAY_CHUNK`). ``backdrop(origins (r,
+    3), dirs (r, 3)) -> (r, 3)``: what each ray sees behind the fields instead of ``background`` (a lit
+    ground and a sky, :mod:`neural.render.ground`); ``color = sum_i w_i c_i + T backdrop`` (Eq. 2). ``t_max``
+    (R,): the ray parameter of a surface in front of the backdrop that hides the fields beyond it (an
+    obstacle, :func:`neural.render.ground.surface_t_max`): samples with ``t > t_max`` are dropped. Stats:
+    ``ms``, per stage ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside a
+    map to rest space) and ``counts`` (R,) int64 samples per ray that were mapped and evaluated (dropped ones
     included, those after a ray's termination or beyond ``t_max`` not)."""
     times = dict.fromkeys(STAGES, 0.0)
     start = time.perf_counter()
-    chunk = chunk or getattr(sampler, "rays_per_chunk", RAY_CHUNK)
+    chunk = chunk or min((getattr(b.sampler, "rays_per_chunk", RAY_CHUNK) for b in bodies), default=RAY_CHUNK)
+    fields = bodies[0].field if len(bodies) == 1 else [b.field for b in bodies]
     colors, counts, dropped = [], [], 0
     for i in range(0, len(origins), chunk):
         o, d = origins[i : i + chunk], dirs[i : i + chunk]
         tick = time.perf_counter()
-        samples = sampler(o, d)
-        if t_max is not None:
-            near = t_max[i : i + chunk].to(samples.t_mid.device, torch.float64)
-            samples = samples.select(samples.t_mid.double() <= near.index_select(0, samples.ray_indices))
+        near = None if t_max is None else t_max[i : i + chunk]
+        merged = merged_samples(bodies, o, d, near)
         times["sample"] += time.perf_counter() - tick
 
-        def locate(index, o=o, d=d, samples=samples):
+        def locate(index, merged=merged):
             nonlocal dropped
-            index, points, unit_dirs, deltas, fronts, n_out = _locate(index, o, d, samples, to_rest, times)
+            *located, which, n_out = locate_samples(bodies, merged, index, times)
             dropped += n_out
-            return index, points, unit_dirs, deltas, fronts
+            return (*located, which) if len(bodies) > 1 else tuple(located)
 
         tick = time.perf_counter()
         behind = None if backdrop is None else backdrop(o, d)
         times["world"] += time.perf_counter() - tick
         tick = time.perf_counter()
-        behind = ray_background(field, d, background) if behind is None else behind
-        color, located = shade_samples(field, samples, locate, behind)
+        if behind is None:
+            behind = ray_background(bodies[0].field, d, background) if len(bodies) == 1 else background
+        color, located = shade_samples(fields, merged.samples, locate, behind)
         colors.append(color)
         counts.append(located)
         times["shade"] += time.perf_counter() - tick

@@ -211,6 +211,20 @@ def asset_cages(asset, digest: str) -> list[Path]:
     return [asset.cage_path, *sorted((cache_dir() / "cages").glob(f"{digest[:16]}-*.npz"))]
 
 
+def find_cage(asset, digest: str) -> tuple[Cage | None, Cage | None]:
+    """The asset's cage (its own or a cached one) whose :func:`shellsim.motion.format.cage_digest` is
+    ``digest``, or None; and the first readable cage of the asset (None when it has none)."""
+    outer, inner = asset.outer_mesh(), asset.inner_mesh()
+    shells = shell_digest(outer, inner)
+    first = None
+    for path in asset_cages(asset, shells):
+        cage = _read(path, (outer, inner), shells)
+        if cage is not None and cage.digest == digest:
+            return cage, first or cage
+        first = first or cage
+    return None, first
+
+
 def cage_for_motion(asset, motion, source: str | None = None) -> Cage:
     """The asset's cage (its own or a cached one) that ``motion`` (a :class:`shellsim.motion.format.Motion` or
     :class:`~shellsim.motion.format.MotionInfo`) moves, found by the cage digest its header records
@@ -223,8 +237,8 @@ def cage_for_motion(asset, motion, source: str | None = None) -> Cage:
         names = ", ".join(str(b.get("name")) for b in bodies)
         raise InputError(
             f"{source or motion.path or 'the motion'}: a scene motion of {len(bodies)} bodies ({names}), not "
-            "of one asset's cage; drawn with an asset's field it is not yet: draw the surfaces it carries "
-            "without an asset"
+            "of one asset's cage; render it as a scene (each body with its own asset), or draw the surfaces "
+            "it carries without an asset"
         )
     made_for = motion.asset.get("digest")
     if made_for and "name" in motion.asset and made_for != asset.digest():
@@ -233,14 +247,9 @@ def cage_for_motion(asset, motion, source: str | None = None) -> Cage:
             source or motion.path or "the motion",
             motion.asset["name"],
         )
-    outer, inner = asset.outer_mesh(), asset.inner_mesh()
-    digest = shell_digest(outer, inner)
-    first = None  # the first readable cage, the one a mismatch is reported against
-    for path in asset_cages(asset, digest):
-        cage = _read(path, (outer, inner), digest)
-        if cage is not None and cage.digest == motion.cage_digest:
-            return cage
-        first = first or cage
+    cage, first = find_cage(asset, motion.cage_digest)
+    if cage is not None:
+        return cage
     if first is None:
         try:
             first = load_or_build_cage(asset)

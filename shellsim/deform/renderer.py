@@ -130,6 +130,19 @@ class DeformedRenderer:
         self._inverse = inverse_map() if future is None else future.result()
         return narrow_band_sampler(self._deformed, self.config), self._inverse
 
+    def field_body(self, positions=None):
+        """The :class:`neural.render.bodies.FieldBody` of this asset with its cage at ``positions`` (V, 3)
+        in the asset's frame (None: at rest): its sampler, map to rest space, placement in the world and the
+        world box of its (deformed) cage, or of its rest outer shell."""
+        from neural.render.bodies import FieldBody
+        from shellsim.world import Placement
+
+        sampler, to_rest = self._frame(positions)
+        points = self.outer.vertices if positions is None else positions
+        w = self.world
+        placed = Placement(w.scale, w.rotation, w.translation).to_world(np.asarray(points, np.float64))
+        return FieldBody(self.field, sampler, to_rest, w, np.stack([placed.min(0), placed.max(0)]))
+
     def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
         """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
         (V, 3) (None: at rest, exactly :func:`neural.render.view.render_camera` with the asset's sampler),
@@ -165,3 +178,66 @@ class DeformedRenderer:
             stats["world_ms"] += 1000.0 * hidden
         stats["ms"] = 1000.0 * (time.perf_counter() - start)
         return image, stats
+
+
+class SceneRenderer:
+    """Renders frames of a scene in the world (metres, z up): its neural bodies, each a
+    :class:`DeformedRenderer` placed by its placement, whose samples are merged by depth and composited once
+    (:func:`neural.render.view.render_bodies`); the surfaces of its mesh bodies and its static colliders as
+    opaque meshes (:class:`neural.render.obstacles.Meshes`) and ``obstacles``; the world's ground, light, sky
+    and shadows of ``look`` (:class:`neural.render.ground.WorldLook`; shadow rays through every body's
+    field, :func:`neural.render.view.bodies_transmittance`).
+
+    bodies : one :class:`DeformedRenderer` per neural body (made with its ``placement``, without a look)
+    statics : ``(vertices (N, 3) world, faces (F, 3), albedo (3,))`` of the static meshes
+    obstacles : :class:`neural.render.obstacles.Obstacles` (boxes and spheres met in closed form)
+    background : RGB behind everything without a ``look``
+    """
+
+    def __init__(
+        self, bodies, look=None, obstacles=None, statics=(), device: str = "cpu", background=(1, 1, 1)
+    ):
+        from neural.render.obstacles import Obstacles
+
+        self.bodies = list(bodies)
+        self.look = look
+        self.obstacles = Obstacles() if obstacles is None else obstacles
+        self.statics = list(statics)
+        self.device = torch.device(device)
+        self.background = torch.as_tensor(background, dtype=torch.float32, device=self.device)
+
+    def render(self, cameras, index: int, positions=(), meshes=()) -> tuple[np.ndarray, dict]:
+        """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` (world frame) with each neural
+        body's cage at ``positions[b]`` (V_b, 3) in its asset's frame (None: at rest) and the mesh bodies'
+        surfaces ``meshes`` (``(vertices (S, 3) world, faces, albedo)``), and the stats of
+        :func:`neural.render.view.render_bodies` plus ``build_ms`` (deforming the shells, refitting, the
+        opaque meshes' scene) and ``ms`` with it."""
+        from neural.data import camera_rays
+        from neural.render.ground import WorldFrame, surface_t_max, world_backdrop
+        from neural.render.obstacles import Meshes
+        from neural.render.view import bodies_transmittance, render_bodies
+
+        start = time.perf_counter()
+        positions = list(positions) or [None] * len(self.bodies)
+        bodies = [r.field_body(p) for r, p in zip(self.bodies, positions, strict=True)]
+        opaque = Meshes([*self.statics, *meshes])
+        build = time.perf_counter() - start
+        origins, dirs = camera_rays(cameras, index, device=self.device)
+        backdrop = t_max = None
+        if self.look is not None:
+            world = WorldFrame()
+
+            def visibility(o, d):
+                return bodies_transmittance(bodies, o, d)
+
+            backdrop = world_backdrop(
+                self.look, world, visibility if bodies else None, self.obstacles, opaque
+            )
+            if self.look.ground or self.obstacles or opaque:
+                t_max = surface_t_max(self.look, world, self.obstacles, origins, dirs, opaque)
+        colors, stats = render_bodies(bodies, origins, dirs, self.background, backdrop=backdrop, t_max=t_max)
+        h, w = int(cameras.height[index]), int(cameras.width[index])
+        stats["counts"] = stats["counts"].reshape(h, w)
+        stats["build_ms"] = 1000.0 * build
+        stats["ms"] = 1000.0 * (time.perf_counter() - start)
+        return colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy(), stats

@@ -1,8 +1,10 @@
 """Render an asset to PNG frames (and an MP4): every camera of a camera file at rest, or the frames of a
-motion deformed by its cage (paper Sec. 5), or a motion's own surface without an asset.
+motion deformed by its cage (paper Sec. 5), or of a scene's motion (every body in one image), or a motion's
+own surface without an asset.
 
-The renderers are :func:`shellsim.render.frames.render_views`, :func:`shellsim.render.frames.render_motion`
-and :func:`shellsim.viz.surface.render_surface_motion`; this module checks the settings and outputs first.
+The renderers are :func:`shellsim.render.frames.render_views`, :func:`shellsim.render.frames.render_motion`,
+:func:`shellsim.render.scene_frames.render_scene` and :func:`shellsim.viz.surface.render_surface_motion`;
+this module checks the settings and outputs first.
 """
 
 from __future__ import annotations
@@ -31,6 +33,15 @@ class RenderSettings:
         "carries (e.g. from 'simulate --mesh') with pyvista"
     )
     motion: str | None = option(help="motion file (.npz) from 'shellsim simulate' or 'shellsim wind'")
+    scene: str | None = option(
+        help="output directory of 'shellsim scene' (or its motion.npz): every body in one image, on the "
+        "scene's ground among its colliders, seen by one of its [[camera]] tables or by --camera"
+    )
+    scene_camera: str | None = option(
+        help="with --scene: the scene file's [[camera]] of this name",
+        shown_default="its first, or a three-quarter orbit framed to the bodies",
+        metavar="NAME",
+    )
     cameras: str | None = option(
         help="camera file or dataset directory, any format 'train --data' reads (NeRF-synthetic "
         "transforms_*.json, instant-ngp / nerfstudio transforms.json with fl_x fl_y cx cy k1 k2 p1 p2 w h); "
@@ -42,7 +53,10 @@ class RenderSettings:
     camera_position: tuple[float, float, float] | None = camera_option("camera_position")
     look_at: tuple[float, float, float] | None = camera_option("look_at")
     out: str = option(help="directory of the PNG frames", required=True)
-    frames: str | None = option(help="with --motion: frames START:END (END exclusive)", shown_default="all")
+    frames: str | None = option(
+        help="with --motion: frames START:END[:STEP] (END exclusive; every STEP-th frame)",
+        shown_default="all",
+    )
     width: int | None = option(
         help="image width", shown_default=f"the camera file's; --camera: {VIDEO_SIZE[0]}"
     )
@@ -75,19 +89,28 @@ class RenderSettings:
 
     def __post_init__(self):
         check_required(self)
+        if self.scene is not None:
+            for name in ("motion", "asset", "cameras"):
+                if getattr(self, name) is not None:
+                    raise SettingError(name, "not with {scene} (its bodies name their own assets)")
+        elif self.scene_camera is not None:
+            raise SettingError("scene_camera", "needs {scene}")
+        if self.scene_camera is not None and self.camera is not None:
+            raise SettingError("scene_camera", "give one of {scene_camera} and {camera}")
+        moving = self.motion or self.scene
         for name in ("width", "height"):
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise SettingError(name, f"expected a positive size, got {value}")
-        if self.motion is None:
+        if moving is None:
             for name in MOTION_ONLY:
                 if getattr(self, name) not in (None, False):
                     raise SettingError(name, "needs {motion} (without it every camera is rendered at rest)")
         world = WorldSettings.of(self)
         for name in ([] if self.ground else ["ground"]) + world.changed():
-            if self.motion is None:
+            if moving is None:
                 raise SettingError(name, "needs {motion} (views at rest show no world)")
-        if self.motion is None and self.cameras is None:
+        if moving is None and self.cameras is None:
             raise SettingError("cameras", "needed to render at rest (without a {motion})")
         if self.cameras is not None and any(getattr(self, name) is not None for name in OPTIONS):
             raise SettingError("cameras", "give one of {cameras} and {camera}")
@@ -97,6 +120,8 @@ class RenderSettings:
         if self.antialias is not None and not 1 <= self.antialias <= 64:
             raise SettingError("antialias", f"expected 1 to 64 rays per pixel, got {self.antialias}")
         check_choice("device", self.device, DEVICES)
+        if self.scene is not None:
+            return
         if self.asset is None and not (self.motion is not None and self.cameras is None):
             raise SettingError("asset", "needed, unless a {motion} without {cameras} draws its own surface")
         if self.asset is None and self.ray is not None:
@@ -132,16 +157,35 @@ def render(settings: RenderSettings) -> RenderResult:
         require_ray()
     if settings.video:
         lock_output(check_writable_file(settings.video, "video"), "video")
-    if settings.motion is not None:
+    if settings.motion is not None or settings.scene is not None:
         from shellsim.motion.read import read_motion_info
+        from shellsim.scene.motion import motion_path
         from shellsim.settings import parse_frames
 
-        parse_frames(settings.frames, read_motion_info(settings.motion).n_frames, str(settings.motion))
+        path = motion_path(settings.scene) if settings.scene else settings.motion
+        parse_frames(settings.frames, read_motion_info(path).n_frames, str(path))
     size = settings.size()
     if size and None not in size:
         what = f"a frame of {size[0]}x{size[1]} pixels"
         check_memory("width", render_bytes(*size), what, "to render", device_setting(settings.device))
     common = dict(size=size, overwrite=settings.overwrite)
+    if settings.scene is not None:
+        from shellsim.render.scene_frames import render_scene
+
+        return render_scene(
+            settings.scene,
+            settings.out,
+            settings.scene_camera,
+            camera=CameraSettings.of(settings) if settings.camera else None,
+            frames=settings.frames,
+            video=settings.video,
+            fps=settings.fps,
+            device=settings.device,
+            ray=settings.ray,
+            antialias=settings.antialias or MOTION_ANTIALIAS,
+            look=WorldSettings.of(settings).look(settings.ground),
+            **common,
+        )
     if settings.asset is None:
         from shellsim.viz.inspect import quiet_vtk
         from shellsim.viz.surface import render_surface_motion

@@ -27,7 +27,7 @@ import numpy as np
 
 from neural.errors import InputError
 from shellsim.errors import SettingError
-from shellsim.io.outputs import holds_outputs
+from shellsim.io.outputs import check_writable_file, holds_outputs
 from shellsim.motion.format import MAX_FRAMES
 from shellsim.settings import check_range, device_setting, option, overwrite_option, resume_option
 
@@ -53,6 +53,15 @@ class SceneSettings:
         help="simulate only the shot's first N frames (frame 0 the initial state), for a quick look",
         shown_default="the scene's",
     )
+    video: str | None = option(
+        help="also render the shot to this MP4 (frames in OUT/frames, 512x512, anti-aliased), seen by the "
+        "scene's --camera; 'shellsim render --scene OUT' renders other cameras and sizes"
+    )
+    camera: str | None = option(
+        help="with --video: the scene file's [[camera]] of this name",
+        shown_default="its first, or a three-quarter orbit framed to the bodies",
+        metavar="NAME",
+    )
     resume: bool = resume_option()
     overwrite: bool = overwrite_option()
     device: str = option("auto", help="auto, cpu or cuda")
@@ -60,6 +69,8 @@ class SceneSettings:
     def __post_init__(self):
         if self.frames is not None:
             check_range("frames", self.frames, 1, MAX_FRAMES, "an integer")
+        if self.camera is not None and self.video is None:
+            raise SettingError("camera", "chooses the camera of {video}")
 
     @property
     def out_dir(self) -> Path:
@@ -70,19 +81,26 @@ class SceneSettings:
 @dataclass
 class SceneResult:
     """out : the motion file; frames : its frame count; history : the
-    :class:`shellsim.physics.driver.FrameStats` of the frames simulated now; bodies : their names."""
+    :class:`shellsim.physics.driver.FrameStats` of the frames simulated now; bodies : their names; video :
+    the :class:`shellsim.render.result.RenderResult` of its frames and video (None without one)."""
 
     out: Path
     frames: int
     history: list
     bodies: list[str]
+    video: object = None
 
 
 def scene_record(spec) -> dict:
-    """The scene as the motion records and compares it: every table, the file's path left out."""
+    """The scene as the motion records it: every table, the file's path left out."""
     record = dataclasses.asdict(spec)
     record.pop("path")
     return record
+
+
+def _simulated(record: dict) -> dict:
+    """What of a :func:`scene_record` the motion depends on: all but the cameras."""
+    return {k: v for k, v in record.items() if k != "cameras"}
 
 
 class _Schedule:
@@ -128,7 +146,12 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
     world = spec.world
     frames = s.frames or world.frames
     device = device_setting(s.device, warp=True)
+    if s.camera is not None and s.camera not in {c.name for c in spec.cameras}:
+        known = ", ".join(c.name for c in spec.cameras) or "none"
+        raise SettingError("camera", f"{spec.path}: no [[camera]] named {s.camera!r} (it has: {known})")
     out_dir = lock_output(check_writable_dir(s.out_dir, "out"), "out")
+    if s.video is not None:
+        lock_output(check_writable_file(s.video, "video"), "video")
     out = out_dir / "motion.npz"
     record = scene_record(spec)
     writer = None
@@ -137,13 +160,14 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
         writer = MotionWriter.resume(out)
         if writer.motion.producer != PRODUCER:
             raise SettingError("out", f"holds a motion not made by '{PRODUCER}'; {replace}", out)
-        changes = describe_changes(writer.motion.settings, record, {})
+        changes = describe_changes(_simulated(writer.motion.settings), _simulated(record), {})
         if changes:
             raise SettingError("out", f"made from another scene ({'; '.join(changes)}); {replace}", out)
         if writer.n_frames >= frames:
             log.info("%s already holds %d frames", out, writer.n_frames)
             writer.close()
-            return SceneResult(out, writer.n_frames, [], [b.name for b in spec.bodies])
+            names = [b.name for b in spec.bodies]
+            return SceneResult(out, writer.n_frames, [], names, _video(s, spec, out_dir, frames, progress))
 
     lift = 0.5 * world.contact_gap if world.ground else -np.inf
     bodies = [build_body(b, lift) for b in spec.bodies]
@@ -249,7 +273,27 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
     finally:
         writer.flush()
     writer.close()
-    return SceneResult(out, writer.n_frames, history, names)
+    return SceneResult(out, writer.n_frames, history, names, _video(s, spec, out_dir, frames, progress))
+
+
+def _video(settings: SceneSettings, spec, out_dir: Path, frames: int, progress: bool):
+    """The frames of the shot's first ``frames`` frames in ``out_dir/frames`` and ``settings.video``, seen by
+    the scene file's camera ``settings.camera`` as the file says it now; None without a video."""
+    if settings.video is None:
+        return None
+    from shellsim.render.scene_frames import render_scene
+
+    return render_scene(
+        out_dir,
+        out_dir / "frames",
+        settings.camera,
+        frames=f"0:{frames}",
+        video=settings.video,
+        device=settings.device,
+        overwrite=settings.overwrite,
+        progress=progress,
+        cameras=spec.cameras,
+    )
 
 
 def _body_records(bodies, starts) -> list[dict]:

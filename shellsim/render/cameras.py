@@ -6,7 +6,9 @@ framed to the motion), an orbit over a given arc per clip, or a camera that foll
 and centre of mass); :meth:`CameraSettings.shot` turns both into a :class:`Shot`, whose
 :meth:`Shot.camera_for_frame` is a pinhole camera in the world's frame. The asset renderer maps it into the
 asset's frame (:func:`shellsim.render.frames.asset_camera`); the pyvista surface renderer draws the world.
-:func:`orbit_camera` and :func:`orbit_framing` are one camera about a point and the distance of a sphere.
+:func:`scene_shot` is the :class:`Shot` of a scene file's ``[[camera]]`` (:func:`default_scene_camera` where
+the file has none). :func:`orbit_camera` and :func:`orbit_framing` are one camera about a point and the
+distance of a sphere.
 """
 
 from __future__ import annotations
@@ -14,12 +16,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from shellsim.errors import SettingError
 from shellsim.settings import check_choice, check_range, floats, option
 from shellsim.world import UP
+
+if TYPE_CHECKING:
+    from shellsim.scene.spec import CameraSpec
 
 #: (W, H) of a motion's frames when neither a size nor a camera file gives one.
 VIDEO_SIZE = (512, 512)
@@ -107,8 +113,6 @@ class CameraSettings:
         """The :class:`Shot` of this camera over the motion summed up by ``track``, ``width`` x ``height``
         pixels, ``up`` (3,) the world's up axis. Orbit and presets keep ``box`` (2, 3) (default: the box of
         every frame) in view at every frame; follow keeps each frame's box in view."""
-        from neural.data import look_at
-
         up = _unit(up)
         n = len(track.times)
         box = np.stack([track.lo.min(0), track.hi.max(0)]) if box is None else np.asarray(box, np.float64)
@@ -117,9 +121,7 @@ class CameraSettings:
         focal = 0.5 * width / math.tan(0.5 * math.radians(self.fov))
         if self.kind == "fixed":
             target = centre[0] if self.look_at is None else np.asarray(self.look_at, np.float64)
-            eye = np.asarray(self.camera_position, np.float64)
-            vertical = np.linalg.norm(np.cross(_unit(eye - target), up)) < 1e-6  # looking along up
-            c2w = look_at(eye, target, _basis(up)[1] if vertical else up)
+            c2w = _look_at(np.asarray(self.camera_position, np.float64), target, up)
             return Shot(np.broadcast_to(c2w, (n, 4, 4)).copy(), focal, width, height, self.kind)
         elevation = self.elevation
         if self.kind == "orbit":
@@ -140,6 +142,74 @@ class CameraSettings:
         c2w[:, :3, :3] = rotation
         c2w[:, :3, 3] = centre + distance[:, None] * rotation[:, :, 2]
         return Shot(c2w, focal, width, height, self.kind)
+
+
+def scene_shot(spec: CameraSpec, tracks: dict[str, MotionTrack], width: int, height: int) -> Shot:
+    """The :class:`Shot` of the scene camera ``spec`` (one ``[[camera]]`` of a scene file, z up) over a
+    scene's motion, ``width`` x ``height`` pixels, horizontal field of view ``spec.fov``: ``tracks`` maps each
+    body's name to its :class:`MotionTrack` and "" to the track of all the bodies together (the same times).
+
+    - orbit: about ``target`` (None: the centre of the bodies' box at frame 0), its azimuth going linearly
+      from ``azimuth - degrees / 2`` at the first frame to ``azimuth + degrees / 2`` at the last, at one
+      distance (None: the least that keeps the box of every body over the whole motion in view at every
+      frame, :func:`_fit_distance`);
+    - fixed: at ``position`` looking at ``target`` (None: as the orbit's);
+    - follow: at the :func:`smoothed` (:data:`FOLLOW_SECONDS`) centre of mass of ``body`` plus the offset
+      ``position - target`` (None: the body's centre of mass at frame 0), looking at that smoothed centre;
+    - path: position and target of :func:`_spline` through the keyframes at each frame's time.
+
+    A camera that stands where it looks at some frame is a :class:`~shellsim.scene.spec.SceneError` naming
+    the spec's ``where``."""
+    from shellsim.scene.file import problem
+
+    up, every = _unit(UP), tracks[""]
+    n = len(every.times)
+    focal = 0.5 * width / math.tan(0.5 * math.radians(spec.fov))
+    centre = 0.5 * (every.lo[0] + every.hi[0])
+    target = centre if spec.target is None else np.asarray(spec.target, np.float64)
+    if spec.kind == "orbit":
+        steps = np.arange(n) / (n - 1) if n > 1 else np.full(1, 0.5)
+        azimuth = np.radians(spec.azimuth + spec.degrees * (steps - 0.5))
+        rotation = _rotations(up, azimuth, math.radians(spec.elevation))
+        distance = spec.distance
+        if distance is None:
+            box = _corners(np.stack([every.lo.min(0), every.hi.max(0)]))
+            tan_x, tan_y = 0.5 * width / focal, 0.5 * height / focal
+            distance = _fit_distance(np.tile(box, (n, 1, 1)), np.tile(target, (n, 1)), rotation, tan_x, tan_y)
+            distance = distance.max()
+        c2w = np.tile(np.eye(4), (n, 1, 1))
+        c2w[:, :3, :3] = rotation
+        c2w[:, :3, 3] = target + distance * rotation[:, :, 2]
+        return Shot(c2w, focal, width, height, spec.name)
+    if spec.kind == "fixed":
+        eyes, targets = np.tile(spec.position, (n, 1)), np.tile(target, (n, 1))
+    elif spec.kind == "follow":
+        body = tracks[spec.body]
+        start = body.centre[0] if spec.target is None else target
+        targets = smoothed(body.centre, body.times, FOLLOW_SECONDS)
+        eyes = targets + (np.asarray(spec.position, np.float64) - start)
+    else:
+        times = [k.time for k in spec.keyframes]
+        eyes = _spline(times, [k.position for k in spec.keyframes], every.times)
+        targets = _spline(times, [k.target for k in spec.keyframes], every.times)
+    met = np.flatnonzero(~(np.linalg.norm(eyes - targets, axis=1) > 0))
+    if met.size:
+        k = met[0]
+        raise problem(
+            spec.where,
+            "keyframes" if spec.kind == "path" else "position",
+            f"the camera stands where it looks, at {_point(targets[k])} m, at t = {every.times[k]:g} s",
+        )
+    c2w = np.stack([_look_at(eye, at, up) for eye, at in zip(eyes, targets, strict=True)])
+    return Shot(c2w, focal, width, height, spec.name)
+
+
+def default_scene_camera() -> CameraSpec:
+    """The camera of a scene file without any: a three-quarter view (azimuth -45 degrees, elevation 20)
+    orbiting 30 degrees over the shot, framed to the bodies."""
+    from shellsim.scene.spec import CameraSpec
+
+    return CameraSpec(name="default", kind="orbit", elevation=20.0, azimuth=-45.0, degrees=30.0)
 
 
 def camera_option(name: str):
@@ -217,6 +287,42 @@ def smoothed(points, times, seconds: float) -> np.ndarray:
     for k, gain in enumerate(gains, start=1):
         out[k] = out[k - 1] + gain * (points[k] - out[k - 1])
     return out
+
+
+def _spline(times, points, at) -> np.ndarray:
+    """(F, 3) the Catmull-Rom spline through ``points`` (K, 3) at increasing ``times`` (K,), K >= 2, at the
+    times ``at`` (F,): cubic Hermite on each interval, the tangent at an inner keyframe the slope
+    ``(p[i+1] - p[i-1]) / (t[i+1] - t[i-1])``, zero at the first and last (clamped: the motion starts and
+    stops smoothly); held at the first point before ``times[0]`` and at the last after ``times[-1]``; exact
+    at every keyframe time."""
+    t, p = np.asarray(times, np.float64), np.asarray(points, np.float64)
+    tangents = np.zeros_like(p)
+    tangents[1:-1] = (p[2:] - p[:-2]) / (t[2:] - t[:-2])[:, None]
+    at = np.asarray(at, np.float64)
+    i = np.clip(np.searchsorted(t, at, side="right") - 1, 0, len(t) - 2)
+    h = t[i + 1] - t[i]
+    s = np.clip((at - t[i]) / h, 0.0, 1.0)[:, None]
+    s2, s3 = s * s, s * s * s
+    return (
+        (2 * s3 - 3 * s2 + 1) * p[i]
+        + (s3 - 2 * s2 + s) * h[:, None] * tangents[i]
+        + (3 * s2 - 2 * s3) * p[i + 1]
+        + (s3 - s2) * h[:, None] * tangents[i + 1]
+    )
+
+
+def _look_at(eye, target, up) -> np.ndarray:
+    """(4, 4) :func:`neural.data.look_at` from ``eye`` (3,) to ``target`` (3,), image up ``up`` (3,) unit,
+    or the second axis of :func:`_basis` when looking along ``up`` (straight down or up)."""
+    from neural.data import look_at
+
+    vertical = np.linalg.norm(np.cross(_unit(eye - target), up)) < 1e-6
+    return look_at(eye, target, _basis(up)[1] if vertical else up)
+
+
+def _point(v) -> str:
+    """``[x, y, z]`` of a point (3,), as a scene file writes it."""
+    return f"[{', '.join(f'{x:g}' for x in v)}]"
 
 
 def _unit(v) -> np.ndarray:

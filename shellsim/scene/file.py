@@ -24,6 +24,7 @@ from shellsim.scene.spec import (
     ActionSpec,
     BodySpec,
     CageSpec,
+    CameraKeyframe,
     CameraSpec,
     ColliderSpec,
     Keyframe,
@@ -87,6 +88,7 @@ _CAMERA_KINDS = {
     "orbit": ("target", "distance", "elevation", "azimuth", "degrees"),
     "fixed": ("position", "target"),
     "follow": ("position", "body"),
+    "path": ("keyframes",),
 }
 MAX_FPS = 1000.0
 MAX_FRAMES = 10000
@@ -476,7 +478,7 @@ def _camera(t: _Table, bodies: set[str], names: dict[str, str]) -> CameraSpec:
     d = CameraSpec(name=t.name)
     kind = t.choice("kind", d.kind, _CAMERA_KINDS)
     t.keys(_CAMERA_KEYS, _CAMERA_KINDS, kind)
-    position = t.vector("position", None if kind == "orbit" else _REQUIRED)
+    position = t.vector("position", _REQUIRED if kind in ("fixed", "follow") else None)
     target = t.vector("target", d.target)
     if target is not None and target == position:
         raise t.error("target", "must differ from position")
@@ -494,8 +496,35 @@ def _camera(t: _Table, bodies: set[str], names: dict[str, str]) -> CameraSpec:
         degrees=t.number("degrees", d.degrees, (-3600.0, 3600.0, "[]")),
         fov=t.number("fov", d.fov, (0.0, 180.0, "()")),
         body=body,
+        keyframes=_camera_keyframes(t) if kind == "path" else (),
         where=t.where,
     )
+
+
+def _camera_keyframes(t: _Table) -> tuple[CameraKeyframe, ...]:
+    """A path camera's ``keyframes``: at least 2, times >= 0 and increasing, each target apart from its
+    position."""
+    value = t.data.get("keyframes")
+    if value is None:
+        raise t.error("keyframes", "missing (a path camera moves along its keyframes)")
+    if not (isinstance(value, list) and len(value) >= 2 and all(isinstance(v, dict) for v in value)):
+        raise t.error(
+            "keyframes",
+            "expected an array of at least 2 tables {time = .., position = [..], target = [..]}, "
+            f"got {_shown(value)}",
+        )
+    frames: list[CameraKeyframe] = []
+    for k, entry in enumerate(value, 1):
+        f = _Table(entry, t.where, f"keyframes #{k} ")
+        f.keys(("time", "position", "target"))
+        time = f.number("time", _REQUIRED, _NON_NEGATIVE)
+        if frames and time <= frames[-1].time:
+            raise f.error("time", f"{time:g} s must be after keyframe #{k - 1} ({frames[-1].time:g} s)")
+        position, target = f.vector("position", _REQUIRED), f.vector("target", _REQUIRED)
+        if target == position:
+            raise f.error("target", "must differ from position")
+        frames.append(CameraKeyframe(time, position, target))
+    return tuple(frames)
 
 
 def _suggest(word: str, known, show=None) -> str:

@@ -149,13 +149,31 @@ class ActionSpec:
 
 
 @dataclass(frozen=True)
-class CameraSpec:
-    """One ``[[camera]]``: how a shot is framed (rendered by the frames of the next stage).
+class CameraKeyframe:
+    """Where a ``path`` camera is at ``time`` [s]: at ``position`` [m] looking at ``target`` [m]."""
 
-    ``kind``: ``orbit`` (around ``target`` at ``distance`` [m] and ``elevation`` [degrees], turning by
-    ``degrees`` over the shot from ``azimuth``), ``fixed`` (at ``position`` looking at ``target``) or
-    ``follow`` (like fixed, its target following the centre of the body ``body``). ``fov`` [degrees]
-    horizontal (as :mod:`shellsim.render.cameras`); ``target`` None: the centre of the bodies at t = 0.
+    time: float
+    position: Vec3
+    target: Vec3
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """One ``[[camera]]``: how a shot is framed (its frames: :func:`shellsim.render.cameras.scene_shot`).
+
+    ``kind``:
+
+    - ``orbit``: around ``target`` at ``distance`` [m] and ``elevation`` [degrees], its azimuth [degrees
+      about z from +x towards +y] going from ``azimuth - degrees / 2`` to ``azimuth + degrees / 2`` over the
+      shot;
+    - ``fixed``: at ``position`` looking at ``target``;
+    - ``follow``: keeps the offset ``position - target`` (``target`` None: the centre of mass of ``body`` at
+      t = 0) from the smoothed centre of mass of the body ``body``, looking at it;
+    - ``path``: along ``keyframes`` (at least 2, times increasing), its position and target interpolated
+      by a Catmull-Rom spline through them, held before the first and after the last.
+
+    ``fov`` [degrees] horizontal (as :mod:`shellsim.render.cameras`); ``target`` None (orbit, fixed): the
+    centre of the bodies' box at t = 0; ``distance`` None: the least that keeps every body in view.
     """
 
     name: str
@@ -168,6 +186,7 @@ class CameraSpec:
     degrees: float = 30.0
     fov: float = 40.0
     body: str | None = None
+    keyframes: tuple[CameraKeyframe, ...] = ()
     where: str = ""
 
 

@@ -18,8 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Reads SCENE.toml (schema in the README: world, bodies, colliders, timed pins, "
         "grabs, pushes and wind, cameras; SI units, z up, ground at z = 0), checks it, then simulates every "
         "body in one implicit solve with incremental potential contact between their visible surfaces, the "
-        "colliders and the ground. Writes OUT/motion.npz. Interrupt at any time: run again, and a motion of "
-        "the same scene is continued; one of another scene is refused unless --overwrite.",
+        "colliders and the ground. Writes OUT/motion.npz, and with --video its frames (OUT/frames) and an "
+        "MP4. Interrupt at any time: run again, and a motion of the same scene is continued (its cameras may "
+        "change); one of another scene is refused unless --overwrite.",
     )
     p.add_argument("scene", metavar="SCENE.toml", help="the scene file")
     add_options(p, SceneSettings, skip=("scene",))
@@ -38,3 +39,9 @@ def run(args: argparse.Namespace) -> None:
         from shellsim.physics.driver import summary
 
         log.info("%s", summary(result.history))
+    if result.video is not None:
+        v = result.video
+        log.info(
+            "%d frames rendered to %s (%d already there): %.0f ms/frame", v.rendered, v.out, v.skipped, v.ms
+        )
+        print(f"video: {v.video}")

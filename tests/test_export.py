@@ -1,6 +1,7 @@
 """`shellsim export`: USD, VTU series and PLY files read back by pxr, pyvista and trimesh, against an affine
 motion whose deformed shells and volume ratios are known in closed form; the USD colours of M+ against a
-field of one known colour, and the PLY colours against the USD ones."""
+field of one known colour, and the PLY colours against the USD ones; a scene's export (a neural body, two
+mesh bodies, a box collider) against the motion's own surfaces and cages and the collider's mesh."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
+from meshes import kuhn_grid, save_collision_surface, save_embedded_cage, write_asset_dir
+from test_render_deformed import CENTER, make_asset
 
 from shellsim.cage.embed import embed_points
 from shellsim.cli.main import main
@@ -172,7 +174,7 @@ def test_ply_frames_carry_the_usd_colours_of_m_plus(rod, tmp_path):
 
     def sequence(name, colors):
         mesh = AnimatedMesh("m", rest_outer.faces, lambda k: moved(rest_outer.vertices, k), colors)
-        return [trimesh.load(f, process=False) for f in write_ply_sequence(tmp_path / name, mesh, [1, 3])]
+        return [trimesh.load(f, process=False) for f in write_ply_sequence(tmp_path / name, [mesh], [1, 3])]
 
     for coloured, bare in zip(sequence("coloured", usd_colors), sequence("bare", None), strict=True):
         assert bare.visual.kind is None and coloured.visual.kind == "vertex"
@@ -185,9 +187,10 @@ def test_ply_frames_carry_the_usd_colours_of_m_plus(rod, tmp_path):
         ({"purpose": "render"}, "purpose: expected one of default, guide, got 'render'"),
         (
             {"colors": np.full((3, 4), 0.5)},
-            r"colors: expected \(V, 3\) numbers in \[0, 1\], got shape \(3, 4\)",
+            r"colors: expected \(V, 3\) or \(3,\) numbers in \[0, 1\], got shape \(3, 4\)",
         ),
         ({"colors": np.full((3, 3), 1.5)}, r"colors: expected \(V, 3\)"),
+        ({"colors": np.full((2, 3, 3), 0.5)}, r"colors: expected \(V, 3\) or \(3,\)"),
     ],
 )
 def test_a_mesh_refuses_an_unknown_purpose_or_bad_colours(options, message):
@@ -298,3 +301,222 @@ def test_usd_of_a_mesh_motion_takes_the_motion_up_axis(tmp_path):
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
     points = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/Root/surface")).GetPointsAttr().Get(3))
     assert np.abs(points - moved(sphere.vertices, 3)).max() < 1e-5
+
+
+@pytest.fixture(scope="module")
+def shot(tmp_path_factory):
+    """(scene output directory, the neural body's asset directory): 3 frames of a scene made by
+    ``shellsim scene``: the test asset of test_render_deformed (its collision surface a sphere between its
+    shells, so that none is extracted) as the body 'orb', a box 'crate' and a ball 'ball' (.obj meshes), and a
+    box collider 'table'."""
+    pytest.importorskip("ipctk")
+    from neural.asset import load_asset
+    from shellsim.cage.store import load_or_build_cage
+    from shellsim.jobs.scene import SceneSettings, scene
+
+    tmp = tmp_path_factory.mktemp("shot")
+    root = make_asset(tmp / "orb")
+    asset = load_asset(root)
+    save_collision_surface(
+        asset, load_or_build_cage(asset), trimesh.creation.icosphere(2, radius=0.25).apply_translation(CENTER)
+    )
+    trimesh.creation.box(extents=(0.1, 0.08, 0.06)).export(tmp / "crate.obj")
+    trimesh.creation.icosphere(1, radius=0.05).export(tmp / "ball.obj")
+    (tmp / "shot.toml").write_text(
+        f"""
+[world]
+frames = 30
+
+[[body]]
+name = "orb"
+asset = "{root}"
+size = 0.2
+position = [0, 0, 0.1]
+
+[[body]]
+name = "crate"
+mesh = "{tmp / "crate.obj"}"
+position = [0.3, 0, 0.1]
+rotation = [0, 0, 30]
+
+[[body]]
+name = "ball"
+mesh = "{tmp / "ball.obj"}"
+position = [-0.3, 0, 0.1]
+
+[[collider]]
+name = "table"
+shape = "box"
+position = [0, 0.4, 0.05]
+rotation = [0, 0, 20]
+half_extents = [0.1, 0.1, 0.05]
+"""
+    )
+    scene(SceneSettings(scene=str(tmp / "shot.toml"), out=str(tmp / "out"), frames=3), progress=False)
+    return tmp / "out", root
+
+
+def shell_points(motion, record: dict, cage, k: int) -> np.ndarray:
+    """(V, 3) M+ of the neural body ``record`` at frame ``k``: barycentric in its cage's world positions
+    (a placement is affine, so no round trip through the asset's frame is needed)."""
+    lo = record["vertices"][0]
+    corners = motion.positions[k].astype(np.float64)[cage.tets[cage.outer_tet] + lo]
+    return np.einsum("pk,pki->pi", cage.outer_bary, corners)
+
+
+def surface_of(motion, record: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(indices (S,) of the body ``record``'s vertices in the motion's surface, its faces (F, 3) renumbered
+    into them)."""
+    t_lo, t_hi = record["tets"]
+    mine = (motion.surface.tet >= t_lo) & (motion.surface.tet < t_hi)
+    index = np.flatnonzero(mine)
+    return index, motion.surface.faces[np.all(mine[motion.surface.faces], axis=1)] - index[0]
+
+
+def test_usd_of_a_scene_holds_every_body_its_cage_and_the_static_collider(shot, tmp_path):
+    from pxr import Usd, UsdGeom
+
+    from neural.asset import load_asset
+    from neural.render.ground import WorldLook
+    from shellsim.cage.store import load_or_build_cage
+    from shellsim.motion.read import load_motion
+    from shellsim.scene.build import collider_mesh
+    from shellsim.scene.motion import MESH_BODY_COLORS, read_scene_motion
+    from shellsim.world import Placement
+
+    out, root = shot
+    motion = load_motion(out / "motion.npz")
+    records = {r["name"]: r for r in motion.asset["bodies"]}
+    assert list(records) == ["orb", "crate", "ball"]
+    usd = tmp_path / "shot.usda"
+    assert main(["export", "--motion", str(out), "--out", str(usd)]) == 0  # the scene's directory
+    stage = Usd.Stage.Open(str(usd))
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, 2)
+    names = [p.GetName() for p in stage.GetPrimAtPath("/Root").GetChildren()]
+    assert names == ["orb", "crate", "ball", "table", "orb_cage", "crate_cage", "ball_cage"]
+
+    def mesh(name):
+        prim = UsdGeom.Mesh(stage.GetPrimAtPath(f"/Root/{name}"))
+        faces = np.asarray(prim.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
+        return prim, faces, lambda k: np.asarray(prim.GetPointsAttr().Get(k), np.float64)
+
+    asset = load_asset(root)
+    cage = load_or_build_cage(asset)
+    orb, faces, points = mesh("orb")
+    assert np.array_equal(faces, asset.outer_mesh().faces)
+    assert orb.GetPointsAttr().GetTimeSamples() == [0, 1, 2]
+    placement = Placement.from_dict(records["orb"]["placement"], "orb")
+    assert np.abs(points(0) - placement.to_world(asset.outer_mesh().vertices)).max() < 1e-6  # at rest
+    for k in range(3):
+        assert np.abs(points(k) - shell_points(motion, records["orb"], cage, k)).max() < 1e-6
+    assert orb.GetDisplayColorPrimvar().GetInterpolation() == UsdGeom.Tokens.vertex
+    assert np.asarray(orb.GetDisplayColorPrimvar().Get()).shape == (len(asset.outer_mesh().vertices), 3)
+    assert np.abs(points(2) - points(0)).max() > 1e-3  # it moved: it falls
+
+    for k, name in enumerate(("crate", "ball"), start=1):
+        prim, faces, points = mesh(name)
+        index, expected = surface_of(motion, records[name])
+        assert np.array_equal(faces, expected)
+        for frame in range(3):
+            assert np.abs(points(frame) - motion.surface_points(frame)[index]).max() < 1e-6
+        color = prim.GetDisplayColorPrimvar()
+        assert color.GetInterpolation() == UsdGeom.Tokens.constant
+        np.testing.assert_allclose(np.asarray(color.Get()), [MESH_BODY_COLORS[k]], atol=1e-6)
+
+    for name, record in records.items():
+        prim, faces, points = mesh(f"{name}_cage")
+        assert prim.GetPurposeAttr().Get() == UsdGeom.Tokens.guide
+        lo, hi = record["vertices"]
+        boundary = trimesh.Trimesh(points(1), faces, process=False)
+        assert boundary.is_watertight and boundary.volume > 0
+        assert np.abs(points(1)[:, None] - motion.positions[1][None, lo:hi]).sum(-1).min(1).max() < 1e-6
+
+    (spec,) = read_scene_motion(out, load_assets=False).colliders
+    vertices, expected = collider_mesh(spec)
+    table, faces, points = mesh("table")
+    assert table.GetPointsAttr().GetTimeSamples() == []  # written once, not per frame
+    assert np.array_equal(faces, expected) and np.abs(points(1) - vertices).max() < 1e-6
+    assert table.GetPurposeAttr().Get() == UsdGeom.Tokens.default_
+    np.testing.assert_allclose(table.GetDisplayColorPrimvar().Get(), [WorldLook().obstacle_color], atol=1e-6)
+
+
+def test_ply_of_a_scene_is_every_body_per_frame_and_each_collider_once(shot, tmp_path):
+    from neural.asset import load_asset
+    from shellsim.cage.store import load_or_build_cage
+    from shellsim.motion.read import load_motion
+    from shellsim.scene.build import collider_mesh
+    from shellsim.scene.motion import read_scene_motion
+
+    out, root = shot
+    motion = load_motion(out / "motion.npz")
+    records = {r["name"]: r for r in motion.asset["bodies"]}
+    ply = tmp_path / "ply"
+    assert main(["export", "--format", "ply", "--motion", str(out / "motion.npz"), "--out", str(ply)]) == 0
+    names = {f"{b}_{k:05d}.ply" for b in records for k in range(3)} | {"table.ply"}
+    assert {f.name for f in ply.iterdir()} == names
+    cage = load_or_build_cage(load_asset(root))
+    for k in range(3):
+        orb = trimesh.load(ply / f"orb_{k:05d}.ply", process=False)
+        assert np.abs(orb.vertices - shell_points(motion, records["orb"], cage, k)).max() < 1e-6
+        assert orb.visual.kind == "vertex" and (orb.visual.vertex_colors[:, 3] == 255).all()
+        ball = trimesh.load(ply / f"ball_{k:05d}.ply", process=False)
+        index, faces = surface_of(motion, records["ball"])
+        assert np.array_equal(ball.faces, faces)
+        assert np.abs(ball.vertices - motion.surface_points(k)[index]).max() < 1e-6
+    (spec,) = read_scene_motion(out, load_assets=False).colliders
+    vertices, faces = collider_mesh(spec)
+    table = trimesh.load(ply / "table.ply", process=False)
+    assert np.array_equal(table.faces, faces) and np.abs(table.vertices - vertices).max() < 1e-6
+
+
+def test_vtu_of_a_scene_is_its_concatenated_cage(shot, tmp_path):
+    import pyvista as pv
+
+    from shellsim.motion.read import load_motion
+
+    out, _ = shot
+    motion = load_motion(out / "motion.npz")
+    pvd = tmp_path / "shot.pvd"
+    assert main(["export", "--format", "vtu", "--motion", str(out), "--out", str(pvd), "--frames", "2"]) == 0
+    (entry,) = ET.parse(pvd).getroot().find("Collection").findall("DataSet")
+    grid = pv.read(pvd.parent / entry.get("file"))
+    assert grid.n_cells == len(motion.tets)
+    assert np.abs(grid.points - motion.positions[2]).max() < 1e-6
+
+
+def test_an_asset_for_a_scene_motion_is_one_line_naming_it(shot, tmp_path, capsys):
+    out, root = shot
+    usd = tmp_path / "x.usd"
+    capsys.readouterr()
+    assert main(["export", "--motion", str(out), "--asset", str(root), "--out", str(usd)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert f"--asset {root}: {out / 'motion.npz'} is a scene motion" in err and "leave --asset out" in err
+    assert not usd.exists()
+
+
+def test_names_that_would_clash_in_a_scene_export_are_one_line_naming_the_motion(
+    shot, tmp_path, capsys, monkeypatch
+):
+    """A collider named like a body's cage guide ('orb_cage') would make two prims of one path."""
+    import dataclasses
+
+    import shellsim.scene.motion as scene_motion
+
+    read = scene_motion.read_scene_motion
+
+    def renamed(path, load_assets=True):
+        scene = read(path, load_assets)
+        scene.colliders = [dataclasses.replace(c, name="orb_cage") for c in scene.colliders]
+        return scene
+
+    monkeypatch.setattr(scene_motion, "read_scene_motion", renamed)
+    out, _ = shot
+    usd = tmp_path / "x.usd"
+    capsys.readouterr()
+    assert main(["export", "--motion", str(out), "--out", str(usd)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out / 'motion.npz'}: " in err and "'orb_cage'" in err
+    assert not usd.exists()

@@ -2,8 +2,9 @@
 PLY sequences.
 
 Each writer takes the frames to write as a list of frame numbers and a function giving the points of a
-frame, so a long motion is never held in memory whole. Files are written under a temporary name and renamed
-when complete: an interrupted export leaves no half-written file under the final name.
+frame, so a long motion is never held in memory whole; a static mesh (a scene's collider) is written once.
+Files are written under a temporary name and renamed when complete: an interrupted export leaves no
+half-written file under the final name.
 """
 
 from __future__ import annotations
@@ -29,21 +30,25 @@ PURPOSES = ("default", "guide")
 @dataclass
 class AnimatedMesh:
     """A triangle mesh whose points move: ``faces`` (F, 3) int, ``points(frame)`` -> (V, 3) float;
-    ``colors`` (V, 3) float in [0, 1] per vertex or None; ``purpose`` one of :data:`PURPOSES`."""
+    ``colors`` float in [0, 1], (V, 3) per vertex or (3,) one for the whole mesh, or None; ``purpose`` one of
+    :data:`PURPOSES`; ``static``: its points do not depend on the frame (a collider), written once."""
 
     name: str
     faces: np.ndarray
     points: Callable[[int], np.ndarray]
     colors: np.ndarray | None = None
     purpose: str = "default"
+    static: bool = False
 
     def __post_init__(self):
         if self.purpose not in PURPOSES:
             raise ValueError(f"purpose: expected one of {', '.join(PURPOSES)}, got {self.purpose!r}")
         if self.colors is not None:
             colors = np.asarray(self.colors, np.float32)
-            if colors.ndim != 2 or colors.shape[1] != 3 or not np.all((colors >= 0) & (colors <= 1)):
-                raise ValueError(f"colors: expected (V, 3) numbers in [0, 1], got shape {colors.shape}")
+            if colors.shape[-1:] != (3,) or colors.ndim > 2 or not np.all((colors >= 0) & (colors <= 1)):
+                raise ValueError(
+                    f"colors: expected (V, 3) or (3,) numbers in [0, 1], got shape {colors.shape}"
+                )
             self.colors = colors
 
 
@@ -68,8 +73,9 @@ def up_rotation(up: Sequence[float]) -> tuple[np.ndarray, str]:
     return onto_z(u), "Z"
 
 
-def _usd_name(name: str) -> str:
-    """A valid USD prim name: letters, digits and underscores, not starting with a digit."""
+def safe_name(name: str) -> str:
+    """A mesh's name as a USD prim and in file names: letters, digits and underscores, not starting with a
+    digit."""
     clean = "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in name) or "mesh"
     return clean if not clean[0].isdigit() else "_" + clean
 
@@ -83,15 +89,22 @@ def write_usd(
     metres_per_unit: float = 1.0,
     progress: Callable[[], None] | None = None,
 ) -> Path:
-    """A USD stage (``.usd``/``.usda``/``.usdc``) with each mesh under ``/Root`` and its points sampled at
-    time codes ``0 .. len(frames) - 1`` (the motion's frames ``frames``), ``fps`` time codes per second,
-    the up axis and metres per unit set so that Blender and Omniverse play it at its size; a mesh's
-    ``colors`` become its per-vertex ``primvars:displayColor`` and its ``purpose`` its USD purpose."""
+    """A USD stage (``.usd``/``.usda``/``.usdc``) with each mesh under ``/Root`` (:func:`safe_name`) and its
+    points sampled at time codes ``0 .. len(frames) - 1`` (the motion's frames ``frames``), a static mesh's
+    points set once (no time samples), ``fps`` time codes per second, the up axis and metres per unit set so
+    that Blender and Omniverse play it at its size; a mesh's ``colors`` become its ``primvars:displayColor``
+    (per vertex, or constant) and its ``purpose`` its USD purpose."""
     require_usd()
     from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
     rotation, axis = up_rotation(up)
     path = Path(path)
+
+    def put(mesh: AnimatedMesh, attrs, frame: int, code) -> None:
+        points = np.asarray(mesh.points(frame), np.float64) @ rotation.T
+        attrs[0].Set(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)), code)
+        lo, hi = points.min(0), points.max(0)
+        attrs[1].Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]), code)
 
     def write(tmp: Path) -> None:
         stage = Usd.Stage.CreateNew(str(tmp))
@@ -103,24 +116,28 @@ def write_usd(
         stage.SetEndTimeCode(max(len(frames) - 1, 0))
         root = UsdGeom.Xform.Define(stage, "/Root")
         stage.SetDefaultPrim(root.GetPrim())
-        prims = []
+        moving = []
         for mesh in meshes:
-            prim = UsdGeom.Mesh.Define(stage, Sdf.Path("/Root").AppendChild(_usd_name(mesh.name)))
+            prim = UsdGeom.Mesh.Define(stage, Sdf.Path("/Root").AppendChild(safe_name(mesh.name)))
             faces = np.asarray(mesh.faces, np.int64)
             prim.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(faces)))
             prim.CreateFaceVertexIndicesAttr(Vt.IntArray(faces.reshape(-1).tolist()))
             prim.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
             prim.CreatePurposeAttr(mesh.purpose)
             if mesh.colors is not None:
-                color = prim.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
-                color.Set(Vt.Vec3fArray.FromNumpy(mesh.colors))
-            prims.append((prim, prim.CreatePointsAttr(), prim.CreateExtentAttr()))
+                one = mesh.colors.ndim == 1
+                color = prim.CreateDisplayColorPrimvar(
+                    UsdGeom.Tokens.constant if one else UsdGeom.Tokens.vertex
+                )
+                color.Set(Vt.Vec3fArray.FromNumpy(mesh.colors.reshape(-1, 3)))
+            attrs = (prim.CreatePointsAttr(), prim.CreateExtentAttr())
+            if mesh.static:
+                put(mesh, attrs, 0, Usd.TimeCode.Default())
+            else:
+                moving.append((mesh, attrs))
         for code, frame in enumerate(frames):
-            for mesh, (_, points_attr, extent_attr) in zip(meshes, prims, strict=True):
-                points = np.asarray(mesh.points(frame), np.float64) @ rotation.T
-                points_attr.Set(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)), code)
-                lo, hi = points.min(0), points.max(0)
-                extent_attr.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]), code)
+            for mesh, attrs in moving:
+                put(mesh, attrs, frame, code)
             if progress:
                 progress()
         stage.GetRootLayer().Save()
@@ -177,25 +194,31 @@ def write_vtu_series(
 
 def write_ply_sequence(
     directory,
-    mesh: AnimatedMesh,
+    meshes: Sequence[AnimatedMesh],
     frames: Sequence[int],
     progress: Callable[[], None] | None = None,
 ) -> list[Path]:
-    """One binary PLY per frame, ``directory/<name>_NNNNN.ply``, of ``mesh`` at that frame; its ``colors``
-    become every frame's per-vertex colours (uint8 RGBA, opaque)."""
+    """Binary PLY files in ``directory``: per frame one of each moving mesh at that frame,
+    ``<name>_NNNNN.ply``, and one of each static mesh, ``<name>.ply`` (:func:`safe_name`); a mesh's
+    ``colors`` become its per-vertex colours in every file (uint8 RGBA, opaque). Returns the files written."""
     import trimesh
 
     directory = Path(directory)
-    rgba = None
-    if mesh.colors is not None:
-        rgba = np.full((len(mesh.colors), 4), 255, np.uint8)
-        rgba[:, :3] = np.round(mesh.colors * 255)
-    written = []
-    for frame in frames:
+
+    def save(mesh: AnimatedMesh, frame: int, stem: str) -> Path:
         points = np.asarray(mesh.points(frame), np.float64)
+        rgba = None
+        if mesh.colors is not None:
+            rgba = np.full((len(points), 4), 255, np.uint8)
+            rgba[:, :3] = np.round(np.broadcast_to(mesh.colors, (len(points), 3)) * 255)
         surface = trimesh.Trimesh(points, mesh.faces, vertex_colors=rgba, process=False)
-        target = directory / f"{mesh.name}_{frame:05d}.ply"
-        written.append(write_atomically(target, lambda tmp, s=surface: s.export(str(tmp), file_type="ply")))
+        return write_atomically(
+            directory / f"{stem}.ply", lambda tmp: surface.export(str(tmp), file_type="ply")
+        )
+
+    written = [save(m, 0, safe_name(m.name)) for m in meshes if m.static]
+    for frame in frames:
+        written += [save(m, frame, f"{safe_name(m.name)}_{frame:05d}") for m in meshes if not m.static]
         if progress:
             progress()
     return written

@@ -18,7 +18,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="USD: the deformed outer shell M+ (or a simulated mesh's surface) and the cage's "
         "surface with time-sampled points, the up axis, metres per unit and the frame rate set. VTU: the tet "
         "cage per frame with displacement and det F (volume ratio), indexed by a .pvd. PLY: the deformed M+, "
-        "one file per frame.",
+        "one file per frame. A scene's motion (--motion its output directory): every body (a neural one's "
+        "M+, a mesh's surface) and its cage, and every collider written once, in metres, z up.",
     )
     add_options(p, ExportSettings)
     p.set_defaults(func=run)

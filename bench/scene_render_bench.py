@@ -16,7 +16,8 @@ close a resting body's visible bottom is drawn to the ground, and the wall time 
    horizon, the rows of sky between its lowest pixel and the ground. Goal: at most 1.
 4. ``--videos DIR``: the wall time of ``shellsim scene EXAMPLE --out DIR/EXAMPLE --video DIR/EXAMPLE.mp4``
    for every example scene (the whole shot simulated and filmed at 512x512 with 4 rays per pixel; run again,
-   only what is missing is done), and three stills of each to ``docs/scenes/EXAMPLE.png``.
+   only what is missing is done), and three stills of each to ``docs/scenes/EXAMPLE.png``
+   (:data:`STILL_FRAMES`).
 
 A quiet machine, one job at a time.
 """
@@ -34,6 +35,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples" / "scenes"
 STILLS = ROOT / "docs" / "scenes"
+#: The three frames of each example shown in the README: its start, the moment that shows what it is about,
+#: and where it ends up (the shaken bunny at its first three swings).
+STILL_FRAMES = {
+    "lego_on_bunny": (0, 12, 44),
+    "bunny_shaken": (5, 11, 17),
+    "ramp_into_tray": (0, 22, 44),
+    "head_on": (0, 5, 17),
+}
 
 
 def simulate(scene: Path, out: Path, frames: int | None) -> Path:
@@ -204,7 +213,7 @@ def no_gap(out: Path, size: int) -> None:
 
 def videos(root: Path) -> None:
     """Wall time of ``shellsim scene EXAMPLE --out ROOT/EXAMPLE --video ROOT/EXAMPLE.mp4`` for every example
-    scene, and three stills of each (first, middle and last frame) to ``docs/scenes/EXAMPLE.png``."""
+    scene, and three stills of each (:data:`STILL_FRAMES`) to ``docs/scenes/EXAMPLE.png``."""
     from PIL import Image
 
     from shellsim.jobs.scene import SceneSettings
@@ -220,11 +229,11 @@ def videos(root: Path) -> None:
         render = result.video
         print(
             f"  {path.stem}: {result.frames} frames simulated and filmed in {wall:.0f} s "
-            f"({render.ms / 1000:.1f} s per 512x512 frame, {render.rendered} rendered)",
+            f"({f'{render.ms / 1000:.1f} s per 512x512 frame, ' if render.rendered else ''}{render.rendered} "
+            f"rendered, {render.skipped} already there)",
             flush=True,
         )
-        frames = render.frames
-        picks = [frames[0], frames[len(frames) // 2], frames[-1]]
+        picks = [out / "frames" / f"{k:05d}.png" for k in STILL_FRAMES[path.stem]]
         strip = np.concatenate([np.asarray(Image.open(f))[..., :3] for f in picks], axis=1)
         half = (strip.shape[1] // 2, strip.shape[0] // 2)
         Image.fromarray(strip).resize(half, Image.LANCZOS).save(STILLS / f"{path.stem}.png")

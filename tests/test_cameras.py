@@ -265,6 +265,23 @@ def test_a_scene_follow_camera_keeps_its_offset_from_the_smoothed_centre_of_mass
         np.testing.assert_allclose(steady, np.tile(v * dt * (1 - a) / a, (30, 1)), rtol=1e-3, atol=1e-12)
 
 
+@pytest.mark.parametrize("kind", PRESETS)
+def test_a_preset_scene_camera_is_the_presets_shot_over_every_body(kind):
+    tracks = scene_tracks()
+    spec = CameraSpec(name="p", kind=kind, fov=50.0, elevation=35.0)
+    shot = scene_shot(spec, tracks, W, H)
+    settings = CameraSettings(camera=kind, fov=50.0, elevation=35.0).shot(tracks[""], W, H)
+    np.testing.assert_array_equal(shot.c2w, settings.c2w)
+    assert (shot.focal, shot.width, shot.height, shot.name) == (settings.focal, W, H, "p")
+    box = corners(tracks[""].lo.min(0), tracks[""].hi.max(0))  # every body over the whole motion
+    for k in range(11):
+        pixels = project(shot.camera_for_frame(k), box)
+        assert (pixels >= 0).all() and (pixels[:, 0] <= W).all() and (pixels[:, 1] <= H).all(), k
+    back = shot.c2w[0, :3, 2]
+    elevation = 35.0 if PRESETS[kind][1] is None else PRESETS[kind][1]
+    assert math.degrees(math.asin(back[2])) == pytest.approx(elevation, abs=1e-9)
+
+
 PATH = (
     CameraKeyframe(0.3, (1.0, -1.0, 0.5), (0.0, 0.0, 0.1)),
     CameraKeyframe(0.8, (1.5, 0.0, 0.8), (0.1, 0.0, 0.2)),

@@ -17,6 +17,7 @@ from shellsim.scene.spec import (
     CameraSpec,
     ColliderSpec,
     Keyframe,
+    LookSpec,
     SceneError,
     SceneSpec,
     WorldSpec,
@@ -152,6 +153,25 @@ keyframes = [
   {time = 0, position = [2, -2, 1], target = [0, 0, 0.2]},
   {time = 2.5, position = [2, 2, 1.5], target = [0, 0, 0.3]},
 ]
+
+[[camera]]
+name = "high"
+kind = "three-quarter"
+elevation = 40
+fov = 45
+
+[[camera]]
+kind = "top"
+
+[look]
+ground_colors = [[0.9, 0.9, 0.9], [0.2, 0.2, 0.25]]
+square = 0.25
+light = [1, 0, 2]
+ambient = 0.2
+diffuse = 0.8
+shadows = false
+sky = [0.5, 0.6, 0.7]
+collider_color = [0.3, 0.3, 1]
 """
 
 
@@ -323,7 +343,22 @@ def test_a_full_file_reads_into_the_spec(tmp_path):
             ),
             where=f"{f}: [[camera]] #4 (flyby)",
         ),
+        CameraSpec(
+            name="high", kind="three-quarter", elevation=40.0, fov=45.0, where=f"{f}: [[camera]] #5 (high)"
+        ),
+        CameraSpec(name="camera6", kind="top", where=f"{f}: [[camera]] #6 (camera6)"),
     )
+    assert spec.look == LookSpec(
+        ground_colors=((0.9, 0.9, 0.9), (0.2, 0.2, 0.25)),
+        square=0.25,
+        light=(1.0, 0.0, 2.0),
+        ambient=0.2,
+        diffuse=0.8,
+        shadows=False,
+        sky=((0.5, 0.6, 0.7),),
+        collider_color=(0.3, 0.3, 1.0),
+    )
+    assert type(spec.look.collider_color[2]) is float and type(spec.look.light[0]) is float
     assert spec.path == str(path.resolve())
     assert spec.body("toy").asset == toy
 
@@ -429,7 +464,24 @@ def test_defaults(tmp_path):
                 where=f"{f}: [[camera]] #1 (camera1)",
             ),
         ),
+        look=LookSpec(
+            ground_colors=((0.82, 0.82, 0.8), (0.62, 0.63, 0.62)),
+            square=0.1,
+            light=(0.35, 0.5, 1.0),
+            ambient=0.35,
+            diffuse=0.65,
+            shadows=True,
+            sky=((0.62, 0.74, 0.9), (0.93, 0.94, 0.96)),
+            collider_color=(0.78, 0.52, 0.36),
+        ),
     )
+
+
+def test_a_sky_is_one_colour_or_two(tmp_path):
+    path = _write(tmp_path / "s.toml", BODY + "[look]\nsky = [[1, 1, 1], [0, 0, 0.5]]\n")
+    assert read_scene(path).look.sky == ((1.0, 1.0, 1.0), (0.0, 0.0, 0.5))
+    path.write_text(BODY + "[look]\nsky = [1, 1, 1]\n")
+    assert read_scene(path).look.sky == ((1.0, 1.0, 1.0),)
 
 
 def test_frames_from_a_duration_and_ints_for_floats(tmp_path):
@@ -489,6 +541,7 @@ WIND = BODY + '[[action]]\nkind = "wind"\n'
 PATH = BODY + '[[camera]]\nname = "p"\nkind = "path"\n'
 KEY0 = "{time = 0, position = [1, 0, 0], target = [0, 0, 0]}"
 RAMP = '[[collider]]\nname = "ramp"\nshape = "sphere"\nradius = 1\n'
+LOOK = BODY + "[look]\n"
 
 MALFORMED = [
     ("[world]\nfps = \n" + BODY, "not valid TOML: Invalid value (at line 2, column 7)"),
@@ -689,6 +742,62 @@ MALFORMED = [
         BODY + f"[[camera]]\nkeyframes = [{KEY0}, {KEY0}]\n",
         "[[camera]] #1 (camera1) keyframes: not a key of an orbit camera, only of a path camera",
     ),
+    (
+        BODY + "[[camera]]\nkind = 'front'\nposition = [1, 1, 1]\n",
+        "[[camera]] #1 (camera1) position: not a key of a front camera, only of a fixed/follow camera",
+    ),
+    (
+        BODY + "[[camera]]\nkind = 'top'\ntarget = [0, 0, 0]\n",
+        "[[camera]] #1 (camera1) target: not a key of a top camera, only of an orbit/fixed camera",
+    ),
+    (
+        BODY + "[[camera]]\nkind = 'side'\nelevation = 10\n",
+        "(camera1) elevation: not a key of a side camera, only of an orbit/three-quarter camera",
+    ),
+    (
+        BODY + "[[camera]]\nkind = 'three-quarter'\nelevation = -91\n",
+        "[[camera]] #1 (camera1) elevation: must be in [-90, 90], got -91",
+    ),
+    (
+        BODY + "[[camera]]\nkind = 'three-quartr'\n",
+        "(camera1) kind: 'three-quartr' is not one of orbit, fixed, follow, path, front, side, top, "
+        "three-quarter; did you mean 'three-quarter'?",
+    ),
+    ("[[look]]\nsquare = 1\n" + BODY, ": [look]: expected a table [look], got [a table]"),
+    (
+        LOOK + "obstacle_color = [1, 0, 0]\n",
+        "[look] obstacle_color: unknown key; did you mean collider_color?",
+    ),
+    (
+        LOOK + "ground_colors = [[0.5, 0.5, 0.5]]\n",
+        "[look] ground_colors: expected [[r, g, b], [r, g, b]], got [[0.5, 0.5, 0.5]]",
+    ),
+    (
+        LOOK + "ground_colors = [[0.5, 0.5], [0.5, 0.5, 0.5]]\n",
+        "[look] ground_colors: expected [[r, g, b], [r, g, b]], got [[0.5, 0.5], [0.5, 0.5, 0.5]]",
+    ),
+    (
+        LOOK + "ground_colors = [[0.5, 0.5, 0.5], [1.5, 0, 0]]\n",
+        "[look] ground_colors: must all be in [0, 1], got [[0.5, 0.5, 0.5], [1.5, 0, 0]]",
+    ),
+    (LOOK + "sky = [0.5, 0.5]\n", "[look] sky: expected [r, g, b] or [[r, g, b], [r, g, b]], got [0.5, 0.5]"),
+    (LOOK + "sky = [[1, 1, 1], [1, 1, 1], [1, 1, 1]]\n", "[look] sky: expected [r, g, b] or [[r, g, b]"),
+    (
+        LOOK + "sky = [1, true, 1]\n",
+        "[look] sky: expected [r, g, b] or [[r, g, b], [r, g, b]], got [1, true, 1]",
+    ),
+    (LOOK + "sky = [0, 0, nan]\n", "[look] sky: must all be in [0, 1], got [0, 0, nan]"),
+    (
+        LOOK + "collider_color = [0, 0, -0.1]\n",
+        "[look] collider_color: must all be in [0, 1], got [0, 0, -0.1]",
+    ),
+    (LOOK + "collider_color = [[0, 0, 0]]\n", "[look] collider_color: expected [r, g, b], got [[0, 0, 0]]"),
+    (LOOK + "light = [0, 0, 0]\n", "[look] light: must not be zero, got [0, 0, 0]"),
+    (LOOK + "light = [0, 1]\n", "[look] light: expected 3 numbers [x, y, z], got [0, 1]"),
+    (LOOK + "ambient = -0.1\n", "[look] ambient: must be >= 0, got -0.1"),
+    (LOOK + "diffuse = 'high'\n", "[look] diffuse: expected a number, got 'high'"),
+    (LOOK + "square = 0\n", "[look] square: must be > 0, got 0"),
+    (LOOK + "shadows = 1\n", "[look] shadows: expected true or false, got 1"),
 ]
 
 

@@ -255,15 +255,19 @@ def test_scene_video_films_every_frame(shot):
 
 
 def test_render_scene_takes_other_cameras_sizes_and_strides(shot, tmp_path, capsys):
+    import imageio_ffmpeg
     from PIL import Image
 
     from shellsim.cli.main import main
 
     out = tmp_path / "side"
     args = ["render", "--scene", str(shot), "--out", str(out), "--width", "48", "--antialias", "1"]
-    assert main([*args, "--frames", "0:4:2", "--scene-camera", "side"]) == 0
+    video = tmp_path / "side.mp4"
+    assert main([*args, "--frames", "0:4:2", "--scene-camera", "side", "--video", str(video)]) == 0
     assert sorted(f.name for f in out.glob("*.png")) == ["00000.png", "00002.png"]
     assert Image.open(out / "00002.png").size == (48, 48)
+    frames, seconds = imageio_ffmpeg.count_frames_and_secs(str(video))
+    assert frames == 2 and seconds == pytest.approx(2 / 15, abs=0.01)  # every second frame of 30: 15 fps
     capsys.readouterr()
     assert main([*args, "--scene-camera", "front"]) == 2
     err = capsys.readouterr().err.strip()
@@ -314,3 +318,49 @@ def test_a_mesh_body_is_lit_and_shadows_the_ground_as_lambert_says(shot, tmp_pat
     assert np.abs(image[lit] - checker[lit] * open_light).max() < 0.01
     assert np.abs(image[shadowed] - checker[shadowed] * look.ambient).max() < 0.01
     assert look.ambient / open_light <= 0.40
+
+
+def test_the_scene_files_look_paints_its_frames_and_the_command_line_overrides_it(tmp_path, capsys):
+    """A ``[look]`` with a plain sky fills the background of ``scene --video`` with it; changing only the look
+    and running again films anew without simulating again; ``render --scene --sky`` replaces it."""
+    import trimesh
+    from PIL import Image
+
+    from shellsim.cli.main import main
+    from shellsim.motion.read import read_motion_info
+
+    ball = tmp_path / "ball.ply"
+    trimesh.creation.icosphere(subdivisions=2, radius=RADIUS).export(ball)
+    text = f"""
+[world]
+frames = 2
+ground = false
+gravity = 0
+
+[[body]]
+name = "ball"
+mesh = "{ball}"
+position = [0, 0, 0.3]
+
+[look]
+sky = {{sky}}
+"""
+    scene, out = tmp_path / "plain.toml", tmp_path / "plain"
+
+    def film(sky):
+        scene.write_text(text.replace("{sky}", str(list(sky))))
+        assert main(["scene", str(scene), "--out", str(out), "--video", str(tmp_path / "plain.mp4")]) == 0
+        corner = np.asarray(Image.open(out / "frames" / "00001.png"), np.float64)[0, 0, :3] / 255
+        return corner, read_motion_info(out / "motion.npz").n_frames
+
+    corner, frames = film((0.1, 0.5, 0.2))
+    assert frames == 2 and np.abs(corner - (0.1, 0.5, 0.2)).max() < 0.003
+    written = (out / "motion.npz").stat().st_mtime_ns
+    corner, _ = film((0.6, 0.3, 0.7))
+    assert np.abs(corner - (0.6, 0.3, 0.7)).max() < 0.003
+    assert (out / "motion.npz").stat().st_mtime_ns == written  # the motion was not made again
+    other = tmp_path / "other"
+    args = ["render", "--scene", str(out), "--out", str(other), "--width", "16", "--sky", "0.9,0.9,0.2"]
+    assert main(args) == 0
+    corner = np.asarray(Image.open(other / "00000.png"), np.float64)[0, 0, :3] / 255
+    assert np.abs(corner - (0.9, 0.9, 0.2)).max() < 0.003

@@ -1,12 +1,28 @@
-"""shellsim.world: placements of bodies in the world (metres, z up, ground at z = 0) against closed forms."""
+"""shellsim.world: placements of bodies in the world (metres, z up, ground at z = 0) against closed forms;
+shellsim.render.world: the look of a scene file's ``[look]`` and the world options laid over it."""
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
 from neural.errors import InputError
+from neural.render.ground import WorldLook
+from shellsim.render.world import WorldSettings, look_of
+from shellsim.scene.spec import LookSpec
 from shellsim.world import Placement, describe_placement, place_on_ground, up_rotation
+
+LOOK = LookSpec(
+    ground_colors=((0.9, 0.9, 0.9), (0.1, 0.2, 0.3)),
+    square=0.5,
+    light=(0.0, -1.0, 1.0),
+    ambient=0.1,
+    diffuse=0.9,
+    shadows=False,
+    sky=((0.2, 0.3, 0.4),),
+    collider_color=(0.5, 0.5, 0.0),
+)
 
 
 def random_rotation(rng) -> np.ndarray:
@@ -82,3 +98,44 @@ def test_describe_placement_states_extent_lowest_point_and_ground():
     line = describe_placement("cube", p, p.to_world(v))
     assert "extent 0.100 x 0.200 x 0.300 m" in line
     assert "lowest point at z = 0.050" in line and "ground at z = 0" in line
+
+
+def test_a_look_tables_defaults_are_world_looks():
+    assert look_of(LookSpec(), True) == WorldLook()
+    assert look_of(LookSpec(), False) == WorldLook(ground=False)
+
+
+def test_look_of_sets_every_key_and_a_one_colour_sky_is_plain():
+    assert look_of(LOOK, False) == WorldLook(
+        ground=False,
+        square=0.5,
+        ground_colors=((0.9, 0.9, 0.9), (0.1, 0.2, 0.3)),
+        light=(0.0, -1.0, 1.0),
+        ambient=0.1,
+        diffuse=0.9,
+        shadows=False,
+        zenith=(0.2, 0.3, 0.4),
+        horizon=(0.2, 0.3, 0.4),
+        obstacle_color=(0.5, 0.5, 0.0),
+    )
+    two = look_of(dataclasses.replace(LOOK, sky=((1.0, 1.0, 1.0), (0.0, 0.0, 0.0))), True)
+    assert (two.zenith, two.horizon, two.ground) == ((1.0, 1.0, 1.0), (0.0, 0.0, 0.0), True)
+
+
+def test_world_options_over_a_look_replace_only_the_options_changed():
+    look = look_of(LOOK, False)
+    default = WorldLook()
+    assert WorldSettings().over(look) == look
+    # set to their defaults: unchanged, so the look's own stay
+    same = WorldSettings(
+        ground_colors=default.ground_colors[0] + default.ground_colors[1], light=default.light
+    )
+    assert same.over(look) == look
+    assert WorldSettings(light=(1.0, 0.0, 1.0)).over(look) == dataclasses.replace(look, light=(1.0, 0.0, 1.0))
+    both = WorldSettings(ground_colors=(0.0, 0.0, 0.0, 1.0, 1.0, 1.0), sky=(1.0, 0.0, 0.0, 0.0, 1.0, 0.0))
+    assert both.over(look) == dataclasses.replace(
+        look,
+        ground_colors=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)),
+        zenith=(1.0, 0.0, 0.0),
+        horizon=(0.0, 1.0, 0.0),
+    )

@@ -169,23 +169,22 @@ def render(settings: RenderSettings) -> RenderResult:
         what = f"a frame of {size[0]}x{size[1]} pixels"
         check_memory("width", render_bytes(*size), what, "to render", device_setting(settings.device))
     common = dict(size=size, overwrite=settings.overwrite)
+    frames = dict(  # of a motion's frames drawn by a field
+        frames=settings.frames,
+        video=settings.video,
+        fps=settings.fps,
+        device=settings.device,
+        ray=settings.ray,
+        antialias=settings.antialias or MOTION_ANTIALIAS,
+        look=WorldSettings.of(settings).look(settings.ground),
+        **common,
+    )
     if settings.scene is not None:
         from shellsim.render.scene_frames import render_scene
 
-        return render_scene(
-            settings.scene,
-            settings.out,
-            settings.scene_camera,
-            camera=CameraSettings.of(settings) if settings.camera else None,
-            frames=settings.frames,
-            video=settings.video,
-            fps=settings.fps,
-            device=settings.device,
-            ray=settings.ray,
-            antialias=settings.antialias or MOTION_ANTIALIAS,
-            look=WorldSettings.of(settings).look(settings.ground),
-            **common,
-        )
+        camera = CameraSettings.of(settings) if settings.camera else None
+        frames.update(look=WorldSettings.of(settings), ground=settings.ground)  # over the scene's own look
+        return render_scene(settings.scene, settings.out, settings.scene_camera, camera=camera, **frames)
     if settings.asset is None:
         from shellsim.viz.inspect import quiet_vtk
         from shellsim.viz.surface import render_surface_motion
@@ -215,18 +214,7 @@ def render(settings: RenderSettings) -> RenderResult:
         )
     from shellsim.render.frames import render_motion
 
+    camera = None if settings.cameras else CameraSettings.of(settings)
     return render_motion(
-        settings.asset,
-        settings.motion,
-        settings.out,
-        cameras=settings.cameras,
-        camera=None if settings.cameras else CameraSettings.of(settings),
-        frames=settings.frames,
-        video=settings.video,
-        fps=settings.fps,
-        device=settings.device,
-        ray=settings.ray,
-        antialias=settings.antialias or MOTION_ANTIALIAS,
-        look=WorldSettings.of(settings).look(settings.ground),
-        **common,
+        settings.asset, settings.motion, settings.out, cameras=settings.cameras, camera=camera, **frames
     )

@@ -99,8 +99,8 @@ def scene_record(spec) -> dict:
 
 
 def _simulated(record: dict) -> dict:
-    """What of a :func:`scene_record` the motion depends on: all but the cameras."""
-    return {k: v for k, v in record.items() if k != "cameras"}
+    """What of a :func:`scene_record` the motion depends on: all but the cameras and the look."""
+    return {k: v for k, v in record.items() if k not in ("cameras", "look")}
 
 
 class _Schedule:
@@ -278,7 +278,8 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
 
 def _video(settings: SceneSettings, spec, out_dir: Path, frames: int, progress: bool):
     """The frames of the shot's first ``frames`` frames in ``out_dir/frames`` and ``settings.video``, seen by
-    the scene file's camera ``settings.camera`` as the file says it now; None without a video."""
+    the scene file's camera ``settings.camera`` in its look, as the file says them now; None without a
+    video."""
     if settings.video is None:
         return None
     from shellsim.render.scene_frames import render_scene
@@ -292,7 +293,7 @@ def _video(settings: SceneSettings, spec, out_dir: Path, frames: int, progress: 
         device=settings.device,
         overwrite=settings.overwrite,
         progress=progress,
-        cameras=spec.cameras,
+        spec=spec,
     )
 
 

@@ -156,13 +156,18 @@ def scene_shot(spec: CameraSpec, tracks: dict[str, MotionTrack], width: int, hei
     - fixed: at ``position`` looking at ``target`` (None: as the orbit's);
     - follow: at the :func:`smoothed` (:data:`FOLLOW_SECONDS`) centre of mass of ``body`` plus the offset
       ``position - target`` (None: the body's centre of mass at frame 0), looking at that smoothed centre;
-    - path: position and target of :func:`_spline` through the keyframes at each frame's time.
+    - path: position and target of :func:`_spline` through the keyframes at each frame's time;
+    - a preset of :data:`PRESETS`: the shot of ``CameraSettings(camera=kind, fov=spec.fov,
+      elevation=spec.elevation)`` over ``tracks[""]``, keeping every body over the whole motion in view.
 
     A camera that stands where it looks at some frame is a :class:`~shellsim.scene.spec.SceneError` naming
     the spec's ``where``."""
     from shellsim.scene.file import problem
 
     up, every = _unit(UP), tracks[""]
+    if spec.kind in PRESETS:
+        preset = CameraSettings(camera=spec.kind, fov=spec.fov, elevation=spec.elevation)
+        return dataclasses.replace(preset.shot(every, width, height), name=spec.name)
     n = len(every.times)
     focal = 0.5 * width / math.tan(0.5 * math.radians(spec.fov))
     centre = 0.5 * (every.lo[0] + every.hi[0])

@@ -130,6 +130,16 @@ def motion_fps(motion) -> float:
     return 30.0
 
 
+def with_video(result: RenderResult, video, fps: float | None, motion, indices: range) -> RenderResult:
+    """``result`` with its frames written as the MP4 ``video`` (None: none) at ``fps`` (None: the motion's
+    frames per second divided by the stride of ``indices``, so that the clip plays in real time)."""
+    if video is None:
+        return result
+    fps = motion_fps(motion) / indices.step if fps is None else fps
+    log.info("writing %s (%d frames at %g fps)", video, len(indices), fps)
+    return dataclasses.replace(result, video=write_video(list(result.frames), video, fps))
+
+
 def _field(asset, device: str):
     """The torch device picked for ``device`` ("auto", "cpu", "cuda") and the asset's field on it."""
     from neural.asset import load_field
@@ -320,7 +330,8 @@ def render_motion(
         ``cameras``; neither: ``CameraSettings()``, an orbit of 30 degrees over the clip)
     frames : ``"a:b"`` spec of :func:`parse_frames` (None: all)
     size : (W, H); default the camera file's, or :data:`VIDEO_SIZE` for ``camera``
-    video : MP4 path assembled from the frames ``frames`` at ``fps`` (default: the motion's)
+    video : MP4 path assembled from the frames ``frames`` at ``fps`` (default: the motion's divided by the
+        frames' stride)
     overwrite : render every frame again; without it a PNG on disk is kept only when its record
         (:func:`frame_record`: motion frame, camera, size, asset, renderer settings) matches, so an
         interrupted render resumes and frames of another motion, camera or size are rendered again
@@ -375,9 +386,6 @@ def render_motion(
     else:
         paths = str(asset.root.resolve()), str(Path(motion_path).resolve())
         recipe = functools.partial(motion_recipe, *paths, device, antialias, look)
-    result = render_frames(jobs, out_dir, overwrite, progress, recipe, ray)
-    if video is not None:
-        fps = motion_fps(motion) if fps is None else fps
-        result = dataclasses.replace(result, video=write_video(list(result.frames), video, fps))
-        log.info("wrote %s (%d frames at %g fps)", video, len(indices), fps)
-    return result
+    return with_video(
+        render_frames(jobs, out_dir, overwrite, progress, recipe, ray), video, fps, motion, indices
+    )

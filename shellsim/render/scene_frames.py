@@ -20,9 +20,8 @@ import numpy as np
 
 from shellsim.errors import SettingError
 from shellsim.io.png import asset_identity, digest, frame_record
-from shellsim.io.video import write_video
 from shellsim.render.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, MotionTrack
-from shellsim.render.frames import antialiased, motion_fps, pixel_offsets, render_frames
+from shellsim.render.frames import antialiased, pixel_offsets, render_frames, with_video
 from shellsim.render.result import RenderResult
 
 log = logging.getLogger(__name__)
@@ -178,7 +177,8 @@ def render_scene(
     ray: str | None = None,
     antialias: int = MOTION_ANTIALIAS,
     look=None,
-    cameras=None,
+    ground: bool = True,
+    spec=None,
 ) -> RenderResult:
     """Render frames of a scene motion to ``out_dir/<k:05d>.png`` (``k`` the motion frame), optionally an MP4.
 
@@ -189,24 +189,30 @@ def render_scene(
     frames : ``"a:b[:step]"`` of :func:`shellsim.settings.parse_frames` (None: all)
     size : (W, H) (default :data:`VIDEO_SIZE`); video, fps : MP4 of the frames (default fps: the motion's
         divided by the step)
-    look : :class:`neural.render.ground.WorldLook` (None: the default; the ground only where the scene has
-        one)
-    cameras : the scene's :class:`~shellsim.scene.spec.CameraSpec` as its file says them now (None: as the
-        motion recorded them)
+    look : :class:`neural.render.ground.WorldLook`, or a :class:`~shellsim.render.world.WorldSettings` whose
+        options set to other than their defaults replace those of the scene's ``[look]``
+        (:meth:`WorldSettings.over`); None: the scene's look
+    ground : draw the ground where the scene has one (False: nowhere)
+    spec : the :class:`~shellsim.scene.spec.SceneSpec` of the scene file as it says now, whose cameras and
+        look replace those the motion recorded (they do not change the motion)
     Other arguments as :func:`shellsim.render.frames.render_motion`'s. Returns its :class:`RenderResult`.
     """
     from neural.render.ground import WorldLook
     from shellsim.motion.read import iter_frames
     from shellsim.render.cameras import scene_shot
     from shellsim.render.frames import motion_frame_ids
+    from shellsim.render.world import look_of
     from shellsim.scene.motion import read_scene_motion
     from shellsim.settings import parse_frames
 
     pixel_offsets(antialias)
-    look = WorldLook() if look is None else look
     scene = read_scene_motion(scene_path, load_assets=False)
-    if cameras is not None:
-        scene = dataclasses.replace(scene, cameras=list(cameras))
+    if spec is not None:
+        scene = dataclasses.replace(scene, cameras=list(spec.cameras), look=spec.look)
+    if not isinstance(look, WorldLook):
+        own = look_of(scene.look, ground)
+        look = own if look is None else look.over(own)
+    look = dataclasses.replace(look, ground=look.ground and ground)
     info = scene.info
     indices = parse_frames(frames, info.n_frames, source=str(scene.path))
     width, height = size or VIDEO_SIZE
@@ -217,7 +223,7 @@ def render_scene(
         if camera is not None
         else scene_shot(spec, tracks, width, height)
     )
-    scene = read_scene_motion(scene_path)  # the camera and frames checked, the assets and cages load
+    scene = dataclasses.replace(read_scene_motion(scene_path), cameras=scene.cameras, look=scene.look)
     identity, settings = scene_identity(scene), scene_renderer_identity(scene, antialias, look)
     frame_ids = motion_frame_ids(info, (p for batch in iter_frames(scene.path, indices) for p in batch))
     out_dir = Path(out_dir)
@@ -230,9 +236,6 @@ def render_scene(
         recipe = functools.partial(_scene_frames, scene, device, antialias, look)
     else:
         recipe = functools.partial(scene_recipe, str(scene.path.resolve()), device, antialias, look)
-    result = render_frames(jobs, out_dir, overwrite, progress, recipe, ray)
-    if video is not None:
-        fps = motion_fps(info) / indices.step if fps is None else fps
-        result = dataclasses.replace(result, video=write_video(list(result.frames), video, fps))
-        log.info("wrote %s (%d frames at %g fps)", video, len(indices), fps)
-    return result
+    return with_video(
+        render_frames(jobs, out_dir, overwrite, progress, recipe, ray), video, fps, info, indices
+    )

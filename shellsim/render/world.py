@@ -1,15 +1,20 @@
 """The world behind a motion's frames as job options (``render``, ``simulate --video``): the ground's
 colours, the light and the sky of a :class:`neural.render.ground.WorldLook`, declared alike by every job
-through :func:`world_option`."""
+through :func:`world_option`; :func:`look_of` is the look a scene file's ``[look]`` table sets, on which
+:meth:`WorldSettings.over` lays the options a user changed."""
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from neural.render.ground import WorldLook
 from shellsim.errors import SettingError
 from shellsim.settings import float_list, floats, option
+
+if TYPE_CHECKING:
+    from shellsim.scene.spec import LookSpec
 
 #: The options of :class:`WorldSettings`, declared by every job that renders a motion.
 OPTIONS = ("ground_colors", "light", "sky")
@@ -26,6 +31,8 @@ _DEFAULTS = {
     "light": _LOOK.light,
     "sky": _LOOK.zenith + _LOOK.horizon,
 }
+#: The :class:`WorldLook` fields each option sets.
+_FIELDS = {"ground_colors": ("ground_colors",), "light": ("light",), "sky": ("zenith", "horizon")}
 
 
 @dataclass(frozen=True)
@@ -79,6 +86,30 @@ class WorldSettings:
             zenith=self.sky[:3],
             horizon=self.sky[-3:],
         )
+
+    def over(self, look: WorldLook) -> WorldLook:
+        """``look`` with the options set to other than their defaults (:meth:`changed`) in place of its
+        own."""
+        mine = self.look(look.ground)
+        return dataclasses.replace(
+            look, **{f: getattr(mine, f) for name in self.changed() for f in _FIELDS[name]}
+        )
+
+
+def look_of(spec: LookSpec, ground: bool) -> WorldLook:
+    """The :class:`WorldLook` of a scene file's ``[look]`` table ``spec``, with the ground drawn or not."""
+    return WorldLook(
+        ground=ground,
+        square=spec.square,
+        ground_colors=spec.ground_colors,
+        light=spec.light,
+        ambient=spec.ambient,
+        diffuse=spec.diffuse,
+        shadows=spec.shadows,
+        zenith=spec.sky[0],
+        horizon=spec.sky[-1],
+        obstacle_color=spec.collider_color,
+    )
 
 
 def world_option(name: str):

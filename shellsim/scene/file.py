@@ -20,7 +20,9 @@ from neural.asset import resolve_asset, shipped_assets_dir
 from neural.errors import InputError
 from shellsim.physics.materials import PRESETS, RANGES
 from shellsim.physics.selection import parse_selection
+from shellsim.render.cameras import PRESETS as CAMERA_PRESETS
 from shellsim.scene.spec import (
+    RGB,
     ActionSpec,
     BodySpec,
     CageSpec,
@@ -28,6 +30,7 @@ from shellsim.scene.spec import (
     CameraSpec,
     ColliderSpec,
     Keyframe,
+    LookSpec,
     SceneError,
     SceneSpec,
     Vec3,
@@ -44,7 +47,7 @@ _FRACTION: _Bounds = (0.0, 1.0, "[]")
 _REQUIRED = object()  # the default of a key that must be given
 
 #: The tables of a scene file: name -> whether it is an array of tables.
-TABLES = {"world": False, "body": True, "collider": True, "action": True, "camera": True}
+TABLES = {"world": False, "body": True, "collider": True, "action": True, "camera": True, "look": False}
 _WORLD_KEYS = (
     "fps",
     "duration",
@@ -89,7 +92,9 @@ _CAMERA_KINDS = {
     "fixed": ("position", "target"),
     "follow": ("position", "body"),
     "path": ("keyframes",),
+    **{name: ("elevation",) if elevation is None else () for name, (_, elevation) in CAMERA_PRESETS.items()},
 }
+_LOOK_KEYS = ("ground_colors", "square", "light", "ambient", "diffuse", "shadows", "sky", "collider_color")
 MAX_FPS = 1000.0
 MAX_FRAMES = 10000
 MAX_SUBSTEPS = 1000
@@ -124,7 +129,8 @@ def read_scene(path: str | os.PathLike) -> SceneSpec:
     known = {b.name for b in bodies}
     actions = tuple(_action(t, world, known, names) for t in _entries(data, "action", shown))
     cameras = tuple(_camera(t, known, names) for t in _entries(data, "camera", shown, {}))
-    return SceneSpec(str(resolved), world, bodies, colliders, actions, cameras)
+    look = _look(_Table(data.get("look", {}), f"{shown}: [look]"))
+    return SceneSpec(str(resolved), world, bodies, colliders, actions, cameras, look)
 
 
 def _load(path: Path, shown: str) -> dict:
@@ -255,6 +261,23 @@ class _Table:
             raise self.error(key, f"expected 3 finite numbers [x, y, z], got {_shown(value)}")
         return tuple(float(v) for v in value)
 
+    def colors(self, key: str, default, counts: tuple[int, ...]) -> tuple[RGB, ...]:
+        """``key``: RGB colours in [0, 1], as many as one of ``counts``; one is written ``[r, g, b]``, several
+        ``[[r, g, b], ...]``."""
+        present, value = self._get(key, default)
+        if not present:
+            return value
+        many = isinstance(value, list) and len(value) > 1 and not _numbers(value, 3)
+        colors = value if many else [value]
+        if not (len(colors) in counts and all(_numbers(c, 3) for c in colors)):
+            shapes = " or ".join(
+                "[r, g, b]" if n == 1 else f"[{', '.join(['[r, g, b]'] * n)}]" for n in counts
+            )
+            raise self.error(key, f"expected {shapes}, got {_shown(value)}")
+        if not all(0 <= v <= 1 for c in colors for v in c):
+            raise self.error(key, f"must all be in [0, 1], got {_shown(value)}")
+        return tuple(tuple(float(v) for v in c) for c in colors)
+
     def _within(self, key: str, value, bounds: _Bounds):
         low, high, ends = bounds
         if (value > low if ends[0] == "(" else value >= low) and (
@@ -295,6 +318,24 @@ def _world(t: _Table) -> WorldSpec:
         drag=t.number("drag", d.drag, _NON_NEGATIVE),
         contact_gap=t.number("contact_gap", d.contact_gap, (0.0, MAX_CONTACT_GAP, "(]")),
         friction_velocity=t.number("friction_velocity", d.friction_velocity, _POSITIVE),
+    )
+
+
+def _look(t: _Table) -> LookSpec:
+    d = LookSpec()
+    t.keys(_LOOK_KEYS)
+    light = t.vector("light", d.light)
+    if not any(light):
+        raise t.error("light", f"must not be zero, got {_shown(t.data['light'])}")
+    return LookSpec(
+        ground_colors=t.colors("ground_colors", d.ground_colors, (2,)),
+        square=t.number("square", d.square, _POSITIVE),
+        light=light,
+        ambient=t.number("ambient", d.ambient, _NON_NEGATIVE),
+        diffuse=t.number("diffuse", d.diffuse, _NON_NEGATIVE),
+        shadows=t.flag("shadows", d.shadows),
+        sky=t.colors("sky", d.sky, (1, 2)),
+        collider_color=t.colors("collider_color", (d.collider_color,), (1,))[0],
     )
 
 
@@ -538,6 +579,15 @@ def _suggest(word: str, known, show=None) -> str:
 
 def _table(name: str) -> str:
     return f"[[{name}]]" if TABLES[name] else f"[{name}]"
+
+
+def _numbers(value, n: int) -> bool:
+    """Whether ``value`` is an array of ``n`` numbers (not booleans)."""
+    return (
+        isinstance(value, list)
+        and len(value) == n
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    )
 
 
 def _a(word: str) -> str:

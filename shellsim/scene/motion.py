@@ -50,7 +50,8 @@ class MotionBody:
 class SceneMotion:
     """``path`` of the motion file, ``info`` its :class:`~shellsim.motion.format.MotionInfo`, ``bodies``
     (:class:`MotionBody`), ``colliders`` (:class:`~shellsim.scene.spec.ColliderSpec`), ``ground`` (the world
-    has one) and ``cameras`` (:class:`~shellsim.scene.spec.CameraSpec`) of the scene."""
+    has one), ``cameras`` (:class:`~shellsim.scene.spec.CameraSpec`) and ``look``
+    (:class:`~shellsim.scene.spec.LookSpec`) of the scene."""
 
     path: Path
     info: object
@@ -58,6 +59,7 @@ class SceneMotion:
     colliders: list
     ground: bool
     cameras: list
+    look: object
 
     def body_positions(self, positions: np.ndarray) -> list[np.ndarray]:
         """Each body's share (V_b, 3) of a frame's world ``positions`` (V, 3)."""
@@ -82,7 +84,7 @@ def read_scene_motion(path, load_assets: bool = True) -> SceneMotion:
     from neural.asset import load_asset
     from shellsim.cage.store import find_cage
     from shellsim.motion.read import read_motion_info
-    from shellsim.scene.spec import CameraKeyframe, CameraSpec, ColliderSpec
+    from shellsim.scene.spec import CameraKeyframe, CameraSpec, ColliderSpec, LookSpec
     from shellsim.world import Placement
 
     path = motion_path(path)
@@ -132,9 +134,15 @@ def read_scene_motion(path, load_assets: bool = True) -> SceneMotion:
         c["keyframes"] = tuple(CameraKeyframe(**_tuples(f)) for f in c.get("keyframes", ()))
         cameras.append(CameraSpec(**c))
     ground = bool(settings.get("world", {}).get("ground", True))
-    return SceneMotion(path, info, bodies, colliders, ground, cameras)
+    look = settings.get("look")
+    look = LookSpec() if look is None else LookSpec(**_tuples(look))
+    return SceneMotion(path, info, bodies, colliders, ground, cameras, look)
 
 
 def _tuples(record: dict) -> dict:
-    """A dataclass record read back from JSON, its lists as tuples (the specs' vectors)."""
-    return {k: tuple(v) if isinstance(v, list) and k != "keyframes" else v for k, v in record.items()}
+    """A dataclass record read back from JSON, its lists (nested too) as tuples (the specs' vectors)."""
+
+    def frozen(value):
+        return tuple(frozen(v) for v in value) if isinstance(value, list) else value
+
+    return {k: frozen(v) if k != "keyframes" else v for k, v in record.items()}

@@ -11,9 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from neural.errors import InputError
+from neural.render.ground import WorldLook
 from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY
 
 Vec3 = tuple[float, float, float]
+RGB = tuple[float, float, float]  # each in [0, 1]
+_LOOK = WorldLook()
 
 
 class SceneError(InputError):
@@ -170,7 +173,9 @@ class CameraSpec:
     - ``follow``: keeps the offset ``position - target`` (``target`` None: the centre of mass of ``body`` at
       t = 0) from the smoothed centre of mass of the body ``body``, looking at it;
     - ``path``: along ``keyframes`` (at least 2, times increasing), its position and target interpolated
-      by a Catmull-Rom spline through them, held before the first and after the last.
+      by a Catmull-Rom spline through them, held before the first and after the last;
+    - ``front``, ``side``, ``top``, ``three-quarter``: the presets of :data:`shellsim.render.cameras.PRESETS`,
+      still, keeping every body over the whole shot in view (three-quarter at ``elevation``).
 
     ``fov`` [degrees] horizontal (as :mod:`shellsim.render.cameras`); ``target`` None (orbit, fixed): the
     centre of the bodies' box at t = 0; ``distance`` None: the least that keeps every body in view.
@@ -191,9 +196,24 @@ class CameraSpec:
 
 
 @dataclass(frozen=True)
+class LookSpec:
+    """``[look]``: how the shot's frames look (:func:`shellsim.render.world.look_of`); the defaults are those
+    of :class:`neural.render.ground.WorldLook`."""
+
+    ground_colors: tuple[RGB, RGB] = _LOOK.ground_colors  # the ground checker's two colours
+    square: float = _LOOK.square  # [m] side of the checker's squares
+    light: Vec3 = _LOOK.light  # direction toward the light (any length, not zero)
+    ambient: float = _LOOK.ambient  # the sky's share of a lit point's brightness
+    diffuse: float = _LOOK.diffuse  # the light's share
+    shadows: bool = _LOOK.shadows
+    sky: tuple[RGB, ...] = (_LOOK.zenith, _LOOK.horizon)  # one colour (plain) or the zenith's and horizon's
+    collider_color: RGB = _LOOK.obstacle_color  # the static colliders' albedo
+
+
+@dataclass(frozen=True)
 class SceneSpec:
     """A whole scene file: ``path`` (resolved), the world, the bodies (at least one), the static colliders,
-    the timed actions and the cameras."""
+    the timed actions, the cameras and the look of its frames."""
 
     path: str
     world: WorldSpec
@@ -201,6 +221,7 @@ class SceneSpec:
     colliders: tuple[ColliderSpec, ...] = ()
     actions: tuple[ActionSpec, ...] = ()
     cameras: tuple[CameraSpec, ...] = ()
+    look: LookSpec = field(default_factory=LookSpec)
 
     def body(self, name: str) -> BodySpec:
         return next(b for b in self.bodies if b.name == name)

@@ -13,7 +13,6 @@ camera of :class:`neural.data.Cameras`; :func:`render_surface_motion` renders a 
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -117,10 +116,9 @@ def render_surface_motion(
     :data:`~shellsim.render.cameras.VIDEO_SIZE`), ``video``, ``fps`` and ``overwrite`` as there. Returns its
     :class:`~shellsim.render.result.RenderResult` (counts, ``ms``, ``video``)."""
     from shellsim.io.png import digest, frame_record
-    from shellsim.io.video import write_video
     from shellsim.motion.read import load_motion
     from shellsim.render.cameras import VIDEO_SIZE, CameraSettings, mass_weights, motion_track
-    from shellsim.render.frames import motion_fps, motion_frame_ids, render_frames
+    from shellsim.render.frames import motion_frame_ids, render_frames, with_video
     from shellsim.settings import parse_frames
 
     motion = load_motion(motion_path)
@@ -147,11 +145,7 @@ def render_surface_motion(
         )
     finally:
         renderer.close()
-    if video is not None:
-        fps = motion_fps(motion) if fps is None else fps
-        result = dataclasses.replace(result, video=write_video(list(result.frames), video, fps))
-        log.info("wrote %s (%d frames at %g fps)", video, len(indices), fps)
-    return result
+    return with_video(result, video, fps, motion, indices)
 
 
 def surface_plotter(motion, frame: int = 0, size=(1024, 768), off_screen: bool | None = None, slider=False):

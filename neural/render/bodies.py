@@ -115,7 +115,6 @@ def merged_samples(bodies, origins: torch.Tensor, dirs: torch.Tensor, t_max=None
             parts.append(None)
             continue
         samples = body.sampler(o, d)
-        keep = None
         if t_max is not None:
             global_rays = samples.ray_indices if rays is None else rays.index_select(0, samples.ray_indices)
             near = t_max.to(device, torch.float64).index_select(0, global_rays)
@@ -128,6 +127,7 @@ def merged_samples(bodies, origins: torch.Tensor, dirs: torch.Tensor, t_max=None
     if len(pieces) == 1:  # one body: its samples in its order, nothing to merge
         rays, samples, which, local = pieces[0]
         order = torch.arange(len(rays), device=device)
+        samples = RaySamples(rays, samples.t_starts, samples.t_ends, n_rays, samples.t_mid)
     elif pieces:
         rays = torch.cat([p[0] for p in pieces])
         t_mid = torch.cat([p[1].t_mid for p in pieces])
@@ -141,8 +141,6 @@ def merged_samples(bodies, origins: torch.Tensor, dirs: torch.Tensor, t_max=None
         empty = torch.zeros(0, dtype=torch.int64, device=device)
         none = torch.zeros(0, dtype=torch.float32, device=device)
         return MergedSamples(RaySamples(empty, none, none, n_rays), empty, empty, parts)
-    if len(pieces) == 1:
-        samples = RaySamples(rays, samples.t_starts, samples.t_ends, n_rays, samples.t_mid)
     place = torch.empty_like(order)
     place[order] = torch.arange(len(order), device=device)
     offset = 0

@@ -69,8 +69,12 @@ def scene_world(scene, look):
             spheres.append((*c.position, c.radius))
         else:
             statics.append((*collider_mesh(c), look.obstacle_color))
-    look = dataclasses.replace(look, ground=look.ground and scene.ground)
-    return look, Obstacles(boxes, spheres), statics
+    return scene_look(scene, look), Obstacles(boxes, spheres), statics
+
+
+def scene_look(scene, look):
+    """``look`` with its ground drawn only where ``scene`` has one."""
+    return dataclasses.replace(look, ground=look.ground and scene.ground)
 
 
 def scene_renderer(scene, device: str, look):
@@ -142,7 +146,7 @@ def scene_renderer_identity(scene, antialias: int, look) -> str:
     settings = {
         "narrowband": [dataclasses.asdict(b.asset.narrowband_config()) for b in scene.bodies if b.asset],
         "antialias": antialias,
-        "world": {"renderer": WORLD_RENDERER, "look": dataclasses.asdict(scene_world(scene, look)[0])},
+        "world": {"renderer": WORLD_RENDERER, "look": dataclasses.asdict(scene_look(scene, look))},
     }
     return digest("scene", json.dumps(settings, sort_keys=True))
 

@@ -83,7 +83,8 @@ def cost(out: Path, size: int) -> dict:
     from shellsim.scene.motion import read_scene_motion
 
     scene = read_scene_motion(out)
-    shot = scene_shot(scene_camera(scene, None), scene_tracks(scene), size, size)
+    placements = {b.name: b.placement for b in scene.bodies}
+    shot = scene_shot(scene_camera(scene, None), scene_tracks(scene), size, size, placements)
     names = [b.name for b in scene.bodies]
     runs = {"scene, ground and shadows": (names, WorldLook())}
     runs.update({f"{name} alone, no world": ([name], None) for name in names})

@@ -137,6 +137,20 @@ class Asset:
                     h.update(block)
         return h.hexdigest()
 
+    @property
+    def cut(self):
+        """The region of a cut asset (:class:`neural.shell.cutout.Cut`: its shells hold the object cut out
+        of a capture, its ``backdrop_outer`` / ``backdrop_inner`` files the rest); None for any other."""
+        from .shell.cutout import Cut
+
+        if "cut" not in self.meta:
+            return None
+        return Cut.from_dict(self.meta["cut"], f"{self.root / 'asset.json'}: cut")
+
+    def backdrop_meshes(self):
+        """(M+, M-) of a cut asset's backdrop, ``trimesh.Trimesh`` in world coordinates."""
+        return load_mesh(self.file("backdrop_outer")), load_mesh(self.file("backdrop_inner"))
+
     def outer_mesh(self):
         """M+ as a ``trimesh.Trimesh`` in world coordinates."""
         return load_mesh(self.file("shell_outer"))

@@ -20,9 +20,12 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from .errors import InputError
 
 BACKENDS = ("warp", "torch")  # implementations of the hash encoding
+#: Where a field lives: "contracted" for photos without alpha (the room around the object), else "bounded";
+#: or either one whatever the photos.
+SPACES = ("auto", "bounded", "contracted")
 VIEW_ENCODINGS = ("reflected", "direction")
 # Fields written before these settings existed had neither: absent from a file, they mean the paper's.
-LEGACY_DEFAULTS = {"view_encoding": "direction", "kernel_grid": 0}
+LEGACY_DEFAULTS = {"view_encoding": "direction", "kernel_grid": 0, "contract": False}
 MAX_SEED = 2**31 - 1  # seeds of the training stages lie in [0, MAX_SEED]
 MAX_KERNEL_GRID = 512  # nodes per axis of the kernel-size grid at most (512^3 values, 0.5 GB)
 
@@ -130,6 +133,7 @@ class FieldConfig:
     backend: str = "warp"
     cpu_threads: int = 2
     env_map: bool = False  # learn the colour of rays that leave the box, by direction (real captures)
+    contract: bool = False  # live in contracted space, the world in the box (neural.field.contraction)
     view_encoding: str = "reflected"  # SH of d mirrored about n; "direction": SH(d), the paper's
     kernel_grid: int = 64  # nodes per axis of the kernel-size grid (see ShellField); 0: none, the paper's
 
@@ -145,7 +149,7 @@ class FieldConfig:
         if type(self.kernel_grid) is not int or self.kernel_grid != 0:  # 0: no grid
             _check(self, 2, MAX_KERNEL_GRID, "kernel_grid", integer=True, what="0 or an integer")
         _check_choice(self, "view_encoding", VIEW_ENCODINGS)
-        _check_bool(self, "env_map")
+        _check_bool(self, "env_map", "contract")
 
     def to_dict(self) -> dict:
         """Plain JSON-ready dict (the hash grid as a nested dict)."""
@@ -352,9 +356,11 @@ class PipelineConfig:
     downscale: int = 1
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     bound: float | None = None  # half-size of the object's box in world units; None: from the dataset
+    space: str = "auto"  # one of SPACES
 
     def __post_init__(self):
         _check(self, 1, math.inf, "downscale", integer=True)
+        _check_choice(self, "space", SPACES)
         rgb = self.background
         if not (isinstance(rgb, tuple | list) and len(rgb) == 3 and all(0 <= c <= 1 for c in rgb)):
             raise ConfigError(PipelineConfig, "background", "three numbers in [0, 1]", rgb)

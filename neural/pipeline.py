@@ -20,6 +20,7 @@ from .data import SceneData, load_dataset
 from .device import processor
 from .errors import InputError
 from .field import ShellField
+from .field.contraction import CONTRACTED_RADIUS
 from .files import write_atomically, write_text_atomically
 from .shell.from_field import FieldShells, extract_field_shells
 from .train import train_stage1, train_stage2
@@ -27,17 +28,23 @@ from .train import train_stage1, train_stage2
 log = logging.getLogger(__name__)
 
 
-def build_field(data: SceneData, config: FieldConfig, device: str, seed: int = 0) -> ShellField:
-    """A freshly initialised field covering the dataset's normalised unit cube, with an environment map
-    (``FieldConfig.env_map``) when the images have no alpha: photos whose background lies beyond the box.
+def build_field(
+    data: SceneData, config: FieldConfig, device: str, seed: int = 0, space: str = "auto"
+) -> ShellField:
+    """A freshly initialised field over the dataset's normalised box. Photos without alpha (a real capture:
+    every pixel sees something) get an environment map (``FieldConfig.env_map``) and, with ``space`` "auto"
+    or "contracted", a field in contracted space (``FieldConfig.contract``): the object's box is the unit
+    ball of the contraction and the field's box holds the whole contracted world, twice as wide.
     Its random initial weights are drawn from ``seed`` (torch's global generator is left as it was), so that
     the same command trains the same asset."""
     norm = data.normalisation
-    if data.alphas is None:
-        config = dataclasses.replace(config, env_map=True)
+    photos = data.alphas is None
+    contract = space == "contracted" or (space == "auto" and photos)
+    config = dataclasses.replace(config, env_map=config.env_map or photos, contract=contract)
+    scale = float(norm.scale) / (CONTRACTED_RADIUS if contract else 1.0)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        field_ = ShellField(config, center=tuple(float(c) for c in norm.center), scale=float(norm.scale))
+        field_ = ShellField(config, center=tuple(float(c) for c in norm.center), scale=scale)
     return field_.to(device)
 
 
@@ -77,7 +84,7 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
         int(data.cameras.width[0]),
         int(data.cameras.height[0]),
     )
-    field_ = build_field(data, config.field, device, config.stage1.seed)
+    field_ = build_field(data, config.field, device, config.stage1.seed, config.space)
     stage1 = train_stage1(field_, data, out_dir, config.stage1, device)
     shells = _load_shells(out_dir / "checkpoints", config)
     extraction_seconds = 0.0

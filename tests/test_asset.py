@@ -28,6 +28,7 @@ CONFIG = FieldConfig(
     backend="torch",
     cpu_threads=1,
     env_map=True,
+    contract=True,
     view_encoding="direction",
     kernel_grid=5,
 )  # fmt: skip

@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import json
 import math
+import types
 
 import numpy as np
 import pytest
+import torch
 from PIL import Image
+from scenes import look_at
 
+from neural.data import camera_rays, load_camera_file
 from shellsim.render.cameras import (
     CAMERAS,
     FOLLOW_SECONDS,
@@ -21,7 +25,9 @@ from shellsim.render.cameras import (
     motion_track,
     scene_shot,
 )
+from shellsim.render.frames import asset_camera
 from shellsim.scene.spec import CameraKeyframe, CameraSpec, SceneError
+from shellsim.world import Placement, up_rotation
 
 W, H = 32, 20
 
@@ -130,7 +136,6 @@ def test_a_fixed_camera_at_rest_renders_the_asset_frame_view(tmp_path):
     from shellsim.cage.store import load_cage
     from shellsim.motion.format import Motion, cage_digest, save_motion
     from shellsim.render.frames import render_motion
-    from shellsim.world import Placement, up_rotation
 
     asset_dir = make_asset(tmp_path / "asset")
     cage = load_cage(load_asset(asset_dir).cage_path)
@@ -336,3 +341,105 @@ def test_a_scene_camera_standing_where_it_looks_names_the_camera():
         SceneError, match=r"\(c\) keyframes: the camera stands where it looks, at \[0.5, 0, 0.5\] m"
     ):
         scene_shot(CameraSpec(name="c", kind="path", keyframes=swap, where=where), tracks, W, H)
+
+
+def write_capture(path, c2w, **intrinsics) -> str:
+    """A camera file at ``path`` (``transforms.json``: instant-ngp, else NeRF-synthetic) of the cameras
+    ``c2w`` (M, 4, 4) in their order, without images; ``intrinsics`` its top-level keys (w, h, a focal)."""
+    frames = [{"file_path": f"./r_{k}", "transform_matrix": m.tolist()} for k, m in enumerate(c2w)]
+    path.write_text(json.dumps({**intrinsics, "frames": frames}))
+    return str(path)
+
+
+def capture_spec(path, smooth: float, fov=None) -> CameraSpec:
+    where = "scene.toml: [[camera]] #1 (walk)"
+    return CameraSpec(name="walk", kind="capture", path=path, body="a", smooth=smooth, fov=fov, where=where)
+
+
+def rotation_z(degrees: float) -> np.ndarray:
+    a = math.radians(degrees)
+    return np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
+def test_a_capture_shot_on_its_cameras_casts_the_captures_own_rays(tmp_path):
+    """Smooth 0 and a frame per camera: after the world->asset map of the asset renderer, each frame is the
+    file's camera (its c2w and its pixels' rays), whatever the body's placement."""
+    target = np.array([0.3, -0.2, 0.1])  # a capture with y up, the cameras going round and up and down
+    angles = np.radians([0.0, 50.0, 110.0, 150.0, 230.0, 300.0])
+    eyes = [target + [2.5 * math.cos(a), 0.4 + 0.3 * math.sin(3 * a), 2.0 * math.sin(a)] for a in angles]
+    c2w = np.stack([look_at(eye, target, up=(0.1, 1.0, 0.0)) for eye in eyes])
+    path = write_capture(tmp_path / "transforms.json", c2w, fl_x=70.0, fl_y=70.0, w=80, h=50)
+    placement = Placement(1.7, up_rotation([0.3, -1.0, 0.4]), np.array([0.4, -0.3, 0.2]))
+    motion = types.SimpleNamespace(placement=placement.as_dict(), path="scene.npz")
+    tracks = {"": scene_tracks(n=6)[""]}
+    shot = scene_shot(capture_spec(path, smooth=0.0), tracks, 80, 50, {"a": placement, "b": Placement()})
+    assert shot.focal == pytest.approx(70.0) and (shot.width, shot.height, shot.name) == (80, 50, "walk")
+    assert not np.allclose(shot.c2w[:, :3, 3], c2w[:, :3, 3], atol=0.1)  # in the world, not the asset frame
+    capture = load_camera_file(path)
+    for k in range(6):
+        view = asset_camera(motion, shot.camera_for_frame(k))
+        np.testing.assert_allclose(view.c2w[0], c2w[k], atol=1e-6)
+        for ours, theirs in zip(camera_rays(view, 0), camera_rays(capture, k), strict=True):
+            torch.testing.assert_close(ours, theirs, atol=1e-5, rtol=0)
+    # at another size the horizontal field of view is the file's, unless the camera sets one
+    assert scene_shot(capture_spec(path, 0.0), tracks, 40, 40, {"a": placement}).focal == pytest.approx(35.0)
+    fov = scene_shot(capture_spec(path, 0.0, fov=60.0), tracks, 40, 40, {"a": placement}).focal
+    assert fov == pytest.approx(20.0 / math.tan(math.radians(30.0)))
+
+
+def test_a_capture_shot_between_two_cameras_moves_along_their_segment_and_turns_about_their_axis(tmp_path):
+    """Two cameras, 60 degrees apart about z at one elevation: frame k of 9 is on the segment at the
+    clamped Catmull-Rom smoothstep 3 s^2 - 2 s^3 of s = k / 8, turned 60 s degrees from the first camera."""
+    target = np.array([0.1, 0.2, 0.3])
+    eyes = target + [2.0, 0.0, 1.0], target + 3.0 * np.array([0.5, math.sqrt(0.75), 0.5])
+    c2w = np.stack([look_at(eye, target) for eye in eyes])
+    path = write_capture(tmp_path / "transforms_train.json", c2w, camera_angle_x=0.8, w=W, h=H)
+    shot = scene_shot(capture_spec(path, smooth=0.0), {"": scene_tracks(n=9)[""]}, W, H, {"a": Placement()})
+    s = np.arange(9)[:, None] / 8
+    np.testing.assert_allclose(shot.c2w[:, :3, 3], eyes[0] + (3 * s**2 - 2 * s**3) * (eyes[1] - eyes[0]))
+    for k in range(9):
+        np.testing.assert_allclose(shot.c2w[k, :3, :3], rotation_z(60.0 * k / 8) @ c2w[0, :3, :3], atol=1e-12)
+    assert shot.focal == pytest.approx(0.5 * W / math.tan(0.4))
+    one = scene_shot(capture_spec(path, smooth=0.0), {"": scene_tracks(n=1)[""]}, W, H, {"a": Placement()})
+    np.testing.assert_allclose(one.c2w[0, :3, 3], 0.5 * (eyes[0] + eyes[1]))  # one frame: halfway
+
+
+def test_smoothing_a_zig_zag_capture_straightens_it_and_keeps_its_mean(tmp_path):
+    """A walk along +x zig-zagging 5 cm sideways, its view turning 15 degrees left and right, smoothed over
+    2 views: the centres' second differences and the views' turns shrink, the mean centre stays."""
+    n = 16
+    zig = (-1.0) ** np.arange(n)
+    centres = np.stack([0.1 * np.arange(n), 0.05 * zig, np.full(n, 1.2)], 1)
+    yaw = np.radians(90.0 + 15.0 * zig)
+    ahead = np.stack([np.cos(yaw), np.sin(yaw), np.full(n, -0.2)], 1)
+    c2w = np.stack([look_at(c, c + a) for c, a in zip(centres, ahead, strict=True)])
+    path = write_capture(tmp_path / "transforms_train.json", c2w, camera_angle_x=0.8, w=W, h=H)
+    tracks = {"": scene_tracks(n=n)[""]}
+    shot = scene_shot(capture_spec(path, smooth=2.0), tracks, W, H, {"a": Placement()})
+    smooth = shot.c2w[:, :3, 3]
+    np.testing.assert_allclose(smooth.mean(0), centres.mean(0), atol=1e-12)
+    second = np.linalg.norm(np.diff(smooth, 2, axis=0), axis=1)
+    assert second.max() < 0.25 * np.linalg.norm(np.diff(centres, 2, axis=0), axis=1).min()
+    looks = -shot.c2w[:, :3, 2]
+    turns = np.degrees(np.abs(np.diff(np.arctan2(looks[:, 1], looks[:, 0]))))
+    assert turns.max() < 0.25 * 30.0
+    np.testing.assert_allclose(
+        shot.c2w[:, :3, :3] @ shot.c2w[:, :3, :3].transpose(0, 2, 1),
+        np.tile(np.eye(3), (n, 1, 1)),
+        atol=1e-12,
+    )
+    assert np.linalg.det(shot.c2w[:, :3, :3]) == pytest.approx(np.ones(n))
+    exact = scene_shot(capture_spec(path, smooth=0.0), tracks, W, H, {"a": Placement()})
+    np.testing.assert_allclose(exact.c2w, c2w, atol=1e-9)
+
+
+def test_a_capture_whose_file_is_gone_names_the_camera(tmp_path):
+    c2w = np.stack([look_at(np.array([2.0, 0.0, k]), np.zeros(3)) for k in (0.5, 1.0)])
+    path = write_capture(tmp_path / "transforms_train.json", c2w, camera_angle_x=0.8, w=W, h=H)
+    tracks = {"": scene_tracks()[""]}
+    with pytest.raises(ValueError, match="placements: the capture camera 'walk' needs the body 'a'"):
+        scene_shot(capture_spec(path, 1.0), tracks, W, H, {"b": Placement()})
+    (tmp_path / "transforms_train.json").unlink()
+    with pytest.raises(SceneError) as caught:
+        scene_shot(capture_spec(path, 1.0), tracks, W, H, {"a": Placement()})
+    assert str(caught.value) == f"scene.toml: [[camera]] #1 (walk) path: {path}: camera file not found"

@@ -3,6 +3,7 @@ paths relative to the file, and one line ``FILE: [table] key: problem`` for each
 
 from __future__ import annotations
 
+import json
 import textwrap
 from pathlib import Path
 
@@ -543,6 +544,7 @@ KEY0 = "{time = 0, position = [1, 0, 0], target = [0, 0, 0]}"
 RAMP = '[[collider]]\nname = "ramp"\nshape = "sphere"\nradius = 1\n'
 LOOK = BODY + "[look]\n"
 
+
 MALFORMED = [
     ("[world]\nfps = \n" + BODY, "not valid TOML: Invalid value (at line 2, column 7)"),
     ("[wrld]\nfps = 30\n" + BODY, ": [wrld]: unknown table; did you mean [world]?"),
@@ -760,7 +762,7 @@ MALFORMED = [
     ),
     (
         BODY + "[[camera]]\nkind = 'three-quartr'\n",
-        "(camera1) kind: 'three-quartr' is not one of orbit, fixed, follow, path, front, side, top, "
+        "(camera1) kind: 'three-quartr' is not one of orbit, fixed, follow, path, capture, front, side, top, "
         "three-quarter; did you mean 'three-quarter'?",
     ),
     ("[[look]]\nsquare = 1\n" + BODY, ": [look]: expected a table [look], got [a table]"),
@@ -857,6 +859,116 @@ def test_problem_formats_later_checks_the_same_way(tmp_path):
     assert str(error) == f"{path}: [[action]] #1 (pin) region: 'z<-5' selects no cage vertex"
     body = read_scene(path).bodies[0]
     assert str(problem(body.where, None, "overlaps body2")) == f"{path}: [[body]] #1 (lego): overlaps body2"
+
+
+def _capture(path: Path, cameras: int = 3) -> Path:
+    """A NeRF-synthetic camera file at ``path`` listing ``cameras`` cameras one unit apart, without images."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frames = [
+        {
+            "file_path": f"./r_{k}",
+            "transform_matrix": [[1, 0, 0, k], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1]],
+        }
+        for k in range(cameras)
+    ]
+    path.write_text(json.dumps({"camera_angle_x": 0.7, "w": 8, "h": 6, "frames": frames}))
+    return path
+
+
+def test_a_capture_camera_reads_its_file_relative_to_the_scene(tmp_path):
+    _files(tmp_path)
+    _capture(tmp_path / "captures" / "walk.json")
+    _capture(tmp_path / "captures" / "lego" / "transforms_train.json", cameras=2)
+    (tmp_path / "scenes").mkdir()
+    path = _write(
+        tmp_path / "scenes" / "s.toml",
+        """
+        [[body]]
+        name = "ball"
+        mesh = "../parts/ball.obj"
+        [[body]]
+        name = "lego"
+        asset = "lego"
+        [[camera]]
+        name = "walk"
+        kind = "capture"
+        path = "../captures/walk.json"
+        [[camera]]
+        name = "exact"
+        kind = "capture"
+        path = "../captures/lego"
+        body = "lego"
+        smooth = 0
+        fov = 50
+        """,
+    )
+    captures, f = tmp_path.resolve() / "captures", str(path)
+    assert read_scene(path).cameras == (
+        CameraSpec(
+            name="walk",
+            kind="capture",
+            fov=None,
+            body="lego",  # the first asset body
+            path=str(captures / "walk.json"),
+            smooth=2.0,
+            where=f"{f}: [[camera]] #1 (walk)",
+        ),
+        CameraSpec(
+            name="exact",
+            kind="capture",
+            fov=50.0,
+            body="lego",
+            path=str(captures / "lego"),
+            smooth=0.0,
+            where=f"{f}: [[camera]] #2 (exact)",
+        ),
+    )
+
+
+CAPTURE = '[[camera]]\nname = "walk"\nkind = "capture"\n'
+MESH = '[[body]]\nname = "ball"\nmesh = "parts/ball.obj"\n'
+WALK = MESH + BODY + CAPTURE + "path = 'walk.json'\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (BODY + CAPTURE, "[[camera]] #1 (walk) path: missing"),
+        (BODY + CAPTURE + "path = 'nope.json'\n", "(walk) path: no such file or directory {root}/nope.json"),
+        (
+            BODY + CAPTURE + "path = 'one.json'\n",
+            "(walk) path: {root}/one.json: lists 1 camera; a capture camera moves along at least 2",
+        ),
+        (BODY + CAPTURE + "path = 'bad.json'\n", "(walk) path: {root}/bad.json: malformed JSON"),
+        (BODY + CAPTURE + "path = 'parts'\n", "(walk) path: {root}/parts: is a directory, not a camera file"),
+        (WALK + "smooth = -1\n", "[[camera]] #1 (walk) smooth: must be >= 0, got -1"),
+        (WALK + "smooth = 'more'\n", "[[camera]] #1 (walk) smooth: expected a number, got 'more'"),
+        (
+            WALK + "body = 'ball'\n",
+            "(walk) body: 'ball' is a mesh body; a capture's cameras are in an asset's",
+        ),
+        (WALK + "body = 'lgo'\n", "[[camera]] #1 (walk) body: no body named 'lgo'; did you mean 'lego'?"),
+        (MESH + CAPTURE + "path = 'walk.json'\n", "(walk) body: missing: no [[body]] is an asset"),
+        (WALK + "keyframes = []\n", "(walk) keyframes: not a key of a capture camera, only of a path camera"),
+        (BODY + "[[camera]]\nsmooth = 1\n", "smooth: not a key of an orbit camera, only of a capture camera"),
+        (
+            BODY + "[[camera]]\nkind = 'fixed'\npath = 'walk.json'\n",
+            "(camera1) path: not a key of a fixed camera, only of a capture camera",
+        ),
+    ],
+)
+def test_a_wrong_capture_camera_is_one_line_naming_the_key(tmp_path, text, expected):
+    _files(tmp_path)
+    _capture(tmp_path / "walk.json")
+    _capture(tmp_path / "one.json", cameras=1)
+    (tmp_path / "bad.json").write_text("{frames: []")
+    path = _write(tmp_path / "scene.toml", text)
+    with pytest.raises(SceneError) as caught:
+        read_scene(path)
+    message = str(caught.value)
+    assert "\n" not in message
+    assert message.startswith(f"{path}: ")
+    assert expected.format(root=tmp_path.resolve()) in message
 
 
 EXAMPLE_SCENES = sorted((Path(__file__).parent.parent / "examples" / "scenes").glob("*.toml"))

@@ -40,6 +40,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..config import FieldConfig
+from .contraction import CONTRACTED_RADIUS, ContractionMap
 from .hashgrid import HashGridEncoding
 from .sh import N_COEFFS, spherical_harmonics
 
@@ -137,6 +138,15 @@ class ShellField(nn.Module):
         self.geo_out.bias[:2] = torch.tensor([-self.config.init_radius, 0.0])
         self.geo_out.weight[2 + n_feat :] = directions.T * (4.0 / hidden)
         self.geo_out.bias[2 + n_feat :] = 0.0
+
+    @property
+    def contraction(self) -> ContractionMap | None:
+        """For a field in contracted space (``FieldConfig.contract``), the map of world samples into it: about
+        its centre, the object's unit ball half its box (which holds the contracted ball of radius 2); None
+        for a bounded field."""
+        if not self.config.contract:
+            return None
+        return ContractionMap(self.center.detach(), 1.0 / (CONTRACTED_RADIUS * float(self.scale)))
 
     def to_unit(self, x: torch.Tensor) -> torch.Tensor:
         """World points x (N, 3) -> unit-space points u (N, 3) float32."""

@@ -48,10 +48,33 @@ class FieldBody:
     box: np.ndarray | None = None
 
     @property
+    def rest_map(self):
+        """Where its samples are evaluated: ``to_rest``, then its field's contraction when it lives in
+        contracted space (:class:`~neural.field.contraction.ContractionMap`); None: where they are."""
+        contraction = getattr(self.field, "contraction", None)
+        if contraction is None or self.to_rest is None:
+            return self.to_rest if contraction is None else contraction
+        return ChainedMap(self.to_rest, contraction)
+
+    @property
     def identity(self) -> bool:
         """Whether the body's frame is the world's."""
         f = self.frame
         return f.scale == 1.0 and np.array_equal(f.rotation, np.eye(3)) and not np.any(f.translation)
+
+
+@dataclass
+class ChainedMap:
+    """Two maps of samples (:class:`neural.render.view.RestMap`) one after the other: ``second`` of ``first``,
+    stretches multiplied, a sample kept where both keep it."""
+
+    first: Any
+    second: Any
+
+    def map_rays(self, points: torch.Tensor, unit_dirs: torch.Tensor):
+        points, unit_dirs, stretch, inside = self.first.map_rays(points, unit_dirs)
+        points, unit_dirs, more, within = self.second.map_rays(points, unit_dirs)
+        return points, unit_dirs, stretch * more, inside & within
 
 
 def body_rays(body: FieldBody, origins: torch.Tensor, dirs: torch.Tensor):
@@ -187,7 +210,7 @@ def locate_samples(bodies, merged: MergedSamples, index: torch.Tensor, times=Non
         if part is None or not len(mine):
             continue
         local = merged.local.index_select(0, mine)
-        located = locate(local, part.origins, part.dirs, part.samples, body.to_rest, times)
+        located = locate(local, part.origins, part.dirs, part.samples, body.rest_map, times)
         dropped += located[5]
         outs.append((part.merged.index_select(0, located[0]), *located[1:5], torch.full_like(located[0], b)))
     if not outs:

@@ -181,7 +181,7 @@ def render_rays(
     """Render rays through a NeuS field with a spatially varying kernel (Eq. 2-3).
 
     The field is evaluated once on all S samples ``x = o + t_mid d`` (see :func:`render_samples`), with
-    section lengths ``delta |d|`` in world units.
+    section lengths ``delta |d|`` in world units (a contracted field: where it lives, :func:`field_space`).
 
     origins, dirs : (R, 3) ; samples : packed samples of these R rays ; background : (3,), (R, 3) or None;
     a field with an environment map (``field.environment(dirs)`` not None) shows it instead.
@@ -191,9 +191,8 @@ def render_rays(
     background = ray_background(field, dirs, background)
     if samples.n_rays != origins.shape[0]:
         raise ValueError(f"samples are for {samples.n_rays} rays but {origins.shape[0]} rays were given")
-    return render_samples(
-        field, samples.points(origins, dirs), *_sections(dirs, samples), samples, background, cos_anneal
-    )
+    located = field_space(field, samples.points(origins, dirs), *_sections(dirs, samples))
+    return render_samples(field, *located, samples, background, cos_anneal)
 
 
 def _sections(dirs: torch.Tensor, samples: RaySamples) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -202,6 +201,17 @@ def _sections(dirs: torch.Tensor, samples: RaySamples) -> tuple[torch.Tensor, to
     norm = dirs.norm(dim=1)[samples.ray_indices]
     unit_dirs = dirs[samples.ray_indices] / norm[:, None].clamp_min(1e-12)
     return unit_dirs, samples.deltas * norm, (samples.t_mid - samples.t_starts) * norm
+
+
+def field_space(field: Any, points, unit_dirs, deltas, fronts):
+    """World samples ``points``, ``unit_dirs`` (S, 3), ``deltas``, ``fronts`` (S,) where ``field`` lives: for
+    a field in contracted space (its ``contraction``, :class:`~neural.field.contraction.ContractionMap`) the
+    contracted points and directions with both lengths times the map's stretch; for any other the same."""
+    contraction = getattr(field, "contraction", None)
+    if contraction is None:
+        return points, unit_dirs, deltas, fronts
+    points, unit_dirs, stretch, _ = contraction.map_rays(points, unit_dirs)
+    return points, unit_dirs, deltas * stretch, fronts * stretch
 
 
 def _opacity(field: Any, points, unit_dirs, deltas, fronts, cos_anneal: float):
@@ -317,9 +327,8 @@ def visible_samples(
     for index in _rounds(samples, VISIBLE_FIRST_ROUND, VISIBLE_LAST_ROUND_SAMPLES, alive):
         round_samples = samples.select(index)
         part = round_samples.ray_indices
-        _, alpha = _opacity(
-            field, round_samples.points(origins, dirs), *_sections(dirs, round_samples), cos_anneal
-        )
+        located = field_space(field, round_samples.points(origins, dirs), *_sections(dirs, round_samples))
+        _, alpha = _opacity(field, *located, cos_anneal)
         keep[index] = log_t.index_select(0, part) + log_transmittance(alpha, part, samples.n_rays) > log_min
         log_t.index_add_(0, part, torch.log(torch.clamp(1.0 - alpha.double(), min=MIN_TRANSMITTANCE)))
         alive.copy_(log_t > log_min)

@@ -22,9 +22,16 @@ from dataclasses import dataclass
 
 import torch
 
+from ..field.contraction import contract
 from .fullray import ray_aabb, step_offsets, step_range
 from .occupancy_warp import march_occupied
 from .samples import RaySamples
+
+#: How far contracted rays are marched, in ball radii (contracted radius ``2 - 1 / FAR_RADIUS``); what lies
+#: beyond is the field's environment map.
+FAR_RADIUS = 100.0
+#: Nodes measuring a ray's contracted curve: evenly spaced inside the ball, geometrically spaced beyond.
+CURVE_NODES = (64, 64)
 
 SdfKernelFn = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
@@ -208,6 +215,74 @@ class OccupancyGrid:
             self.occupied,
             self.resolution,
         )
+
+    @torch.no_grad()
+    def sample_contracted(
+        self,
+        origins: torch.Tensor,
+        dirs: torch.Tensor,
+        contraction,
+        step_size: float,
+        max_samples_per_ray: int,
+        perturb: bool = False,
+        generator: torch.Generator | None = None,
+    ) -> RaySamples:
+        """Sections of world rays ``origins``, ``dirs`` (R, 3) from their origin to :data:`FAR_RADIUS` ball
+        radii whose contracted length is ``step_size`` (the grid's units: the box is the contracted space of
+        ``contraction``, a :class:`~neural.field.contraction.ContractionMap`) and whose contracted centre lies
+        in an occupied cell; sections in ``t`` units, near the object as long as ``step_size`` and growing
+        away from it as ``1 / |J d|``.
+
+        Each ray's contracted curve is measured by the chords of :data:`CURVE_NODES` nodes (evenly spaced up
+        to where the ray leaves the unit ball, geometrically spaced beyond, where the curve bends less and
+        less); the samples lie at equal steps of that length (shifted by a random fraction of a step with
+        ``perturb``), each carried back to ``t`` linearly within its chord, and the sections between them
+        meet halfway. A ray keeps its first ``max_samples_per_ray`` sections."""
+        device = origins.device
+        radius, center = contraction.radius, contraction.center.to(origins)
+        norm = dirs.norm(dim=1).clamp_min(1e-30)
+        o = (origins - center) / radius  # ball units
+        d = dirs / norm[:, None]
+        t_close = -(o * d).sum(1)
+        miss2 = ((o * o).sum(1) - t_close**2).clamp_min(0.0)
+        t_far = t_close + (FAR_RADIUS**2 - miss2).clamp_min(0.0).sqrt()
+        t_exit = torch.where(miss2 < 1.0, t_close + (1.0 - miss2).clamp_min(0.0).sqrt(), t_close)
+        t_bend = t_exit.clamp(min=0.0).minimum(t_far)
+        even, far = CURVE_NODES
+        u = torch.linspace(0.0, 1.0, even, device=device)
+        v = torch.linspace(0.0, 1.0, far + 1, device=device)[1:]
+        span = (t_far - t_bend).clamp_min(0.0)
+        nodes = torch.cat(
+            [u * t_bend[:, None], t_bend[:, None] + torch.expm1(v * torch.log1p(span)[:, None])], dim=1
+        )  # (R, K) ball units along the ray
+        curve = contract(o[:, None, :] + nodes[..., None] * d[:, None, :])
+        length = torch.cat(
+            [nodes.new_zeros(len(o), 1), (curve[:, 1:] - curve[:, :-1]).norm(dim=2).cumsum(1)], dim=1
+        )  # (R, K) contracted length from the origin, ball units
+        step = step_size / radius
+        shift = torch.rand(len(o), generator=generator).to(origins) if perturb else nodes.new_zeros(len(o))
+        rank = torch.floor(length / step + shift[:, None] - 0.5)  # centres (j + 1/2 - shift) step before
+        rank = torch.minimum(rank, rank[:, :1] + max_samples_per_ray)
+        counts = (rank[:, 1:] - rank[:, :-1]).long().reshape(-1)  # centres within each chord
+        chord = torch.repeat_interleave(torch.arange(len(counts), device=device), counts)
+        first = torch.repeat_interleave(counts.cumsum(0) - counts, counts)
+        rays = torch.div(chord, nodes.shape[1] - 1, rounding_mode="floor")
+        k = chord + rays  # the chord's first node, flat
+        j = rank.reshape(-1).index_select(0, k) + 1 + (torch.arange(len(chord), device=device) - first)
+        flat_length, flat_nodes = length.reshape(-1), nodes.reshape(-1)
+        t0, l0 = flat_nodes.index_select(0, k), flat_length.index_select(0, k)
+        chord_length = (flat_length.index_select(0, k + 1) - l0).clamp_min(1e-12)
+        slope = (flat_nodes.index_select(0, k + 1) - t0) / chord_length
+        mid = t0 + ((j + 0.5 - shift.index_select(0, rays)) * step - l0) * slope
+        start, end = mid - 0.5 * step * slope, mid + 0.5 * step * slope
+        inner = torch.nonzero(rays[1:] == rays[:-1]).squeeze(1)  # sections that meet the next one
+        meet = 0.5 * (mid.index_select(0, inner) + mid.index_select(0, inner + 1))
+        end[inner], start[inner + 1] = meet, meet
+        points = o.index_select(0, rays) + mid[:, None] * d.index_select(0, rays)
+        keep = torch.nonzero(self.query(center + radius * contract(points))).squeeze(1)
+        scale = (radius / norm).index_select(0, rays[keep])  # ball units -> t
+        t_starts, t_ends, t_mid = (v[keep] * scale for v in (start, end, mid))
+        return RaySamples(rays[keep], t_starts, t_ends, len(o), t_mid)
 
     @torch.no_grad()
     def sample_reference(

@@ -79,10 +79,15 @@ def occupancy_sampler(
     max_samples: int = 1024,
     perturb: bool = False,
 ):
-    """Steps of ``step_size`` (unit space) through the occupied cells of ``grid`` only."""
+    """Steps of ``step_size`` (unit space) through the occupied cells of ``grid`` only; for a field in
+    contracted space, steps of that contracted length along the world rays
+    (:meth:`~neural.render.occupancy.OccupancyGrid.sample_contracted`)."""
     step = step_size / float(field.scale)
+    contraction = getattr(field, "contraction", None)
 
     def sample(origins, dirs):
+        if contraction is not None:
+            return grid.sample_contracted(origins, dirs, contraction, step, max_samples, perturb)
         return grid.sample(origins, dirs, step_size=step, max_samples_per_ray=max_samples, perturb=perturb)
 
     return sample
@@ -171,7 +176,7 @@ def bodies_transmittance(bodies, origins: torch.Tensor, dirs: torch.Tensor) -> t
             samples = body.sampler(o[i : i + chunk], d[i : i + chunk])
             index = torch.arange(len(samples.ray_indices), device=o.device)
             index, points, unit_dirs, deltas, fronts, _ = locate(
-                index, o[i : i + chunk], d[i : i + chunk], samples, body.to_rest
+                index, o[i : i + chunk], d[i : i + chunk], samples, body.rest_map
             )
             geometry = body.field.geometry(points)
             cos = (unit_dirs * geometry.normal).sum(dim=1)

@@ -28,6 +28,7 @@ COMMANDS = (
     "poses",
     "train",
     "extract",
+    "cut",
     "render",
     "eval",
     "cage",

@@ -32,6 +32,7 @@ pipeline without a map, with the asset's rest sampler, exactly what ``shellsim e
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -87,6 +88,10 @@ class DeformedRenderer:
         self.config = asset.narrowband_config() if config is None else config
         self.background = torch.as_tensor(asset.background, dtype=torch.float32, device=self.device)
         self._rest = asset_sampler(asset, self.config, (self.outer, self.inner))
+        self.cut = asset.cut  # a cut asset: its shells hold the object, the backdrop's the rest
+        self._backdrop = None
+        if self.cut is not None:
+            self._backdrop = asset_sampler(asset, self.config, asset.backdrop_meshes())
         self.look = look
         self.obstacles = Obstacles() if obstacles is None else obstacles
         placement = Placement() if placement is None else placement
@@ -141,7 +146,32 @@ class DeformedRenderer:
         points = self.outer.vertices if positions is None else positions
         w = self.world
         placed = Placement(w.scale, w.rotation, w.translation).to_world(np.asarray(points, np.float64))
-        return FieldBody(self.field, sampler, to_rest, w, np.stack([placed.min(0), placed.max(0)]))
+        box = np.stack([placed.min(0), placed.max(0)])
+        return FieldBody(self.field, sampler, self._cut_away(to_rest), w, box)
+
+    def _cut_away(self, to_rest):
+        """``to_rest`` followed, for a cut asset, by keeping only the samples inside the cut (the field's
+        content outside it is the backdrop's)."""
+        from neural.render.bodies import ChainedMap
+        from neural.shell.cutout import RegionMask
+
+        if self.cut is None:
+            return to_rest
+        mask = RegionMask(self.cut, inside=True)
+        return mask if to_rest is None else ChainedMap(to_rest, mask)
+
+    def backdrop_body(self, framed: bool = True):
+        """The :class:`neural.render.bodies.FieldBody` of a cut asset's backdrop: the rest of its field, at
+        rest, through the backdrop's shells, without the cut's samples; placed in the world (``framed``) or in
+        the asset's frame. None for an asset that is not a cut."""
+        from neural.render.bodies import FieldBody
+        from neural.render.ground import WorldFrame
+        from neural.shell.cutout import RegionMask
+
+        if self.cut is None:
+            return None
+        frame = self.world if framed else WorldFrame()
+        return FieldBody(self.field, self._backdrop, RegionMask(self.cut, inside=False), frame)
 
     def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
         """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
@@ -157,6 +187,8 @@ class DeformedRenderer:
         start = time.perf_counter()
         sampler, to_rest = self._frame(positions)
         build = time.perf_counter() - start
+        if self.cut is not None:
+            return self._render_cut(cameras, index, sampler, to_rest, start, build)
         backdrop = t_max = None
         hidden = 0.0  # seconds of the surfaces' t_max, a part of the world's stage
         if self.look is not None:
@@ -179,6 +211,39 @@ class DeformedRenderer:
         stats["ms"] = 1000.0 * (time.perf_counter() - start)
         return image, stats
 
+    def _render_cut(self, cameras, index: int, sampler, to_rest, start: float, build: float):
+        """:meth:`render` of a cut asset: the body (``sampler``, ``to_rest``) and its backdrop, both in the
+        asset's frame, merged by depth (:func:`neural.render.view.render_bodies`) over the field's
+        environment map or the world of the ``look``."""
+        from neural.data import camera_rays
+        from neural.render.bodies import FieldBody
+        from neural.render.fullray import ray_background
+        from neural.render.ground import surface_t_max, world_backdrop
+        from neural.render.view import bodies_transmittance, render_bodies
+
+        bodies = [FieldBody(self.field, sampler, self._cut_away(to_rest)), self.backdrop_body(framed=False)]
+        origins, dirs = camera_rays(cameras, index, device=self.device)
+        t_max = None
+        if self.look is None:
+
+            def behind(o, d):
+                return ray_background(self.field, d, self.background).expand(len(d), 3)
+
+        else:
+
+            def visibility(o, d):
+                return bodies_transmittance(bodies, o, d)
+
+            behind = world_backdrop(self.look, self.world, visibility, self.obstacles)
+            if self.look.ground or self.obstacles:
+                t_max = surface_t_max(self.look, self.world, self.obstacles, origins, dirs)
+        colors, stats = render_bodies(bodies, origins, dirs, self.background, backdrop=behind, t_max=t_max)
+        h, w = int(cameras.height[index]), int(cameras.width[index])
+        stats["counts"] = stats["counts"].reshape(h, w)
+        stats["build_ms"] = 1000.0 * build
+        stats["ms"] = 1000.0 * (time.perf_counter() - start)
+        return colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy(), stats
+
 
 class SceneRenderer:
     """Renders frames of a scene in the world (metres, z up): its neural bodies, each a
@@ -186,7 +251,9 @@ class SceneRenderer:
     (:func:`neural.render.view.render_bodies`); the surfaces of its mesh bodies and its static colliders as
     opaque meshes (:class:`neural.render.obstacles.Meshes`) and ``obstacles``; the world's ground, light, sky
     and shadows of ``look`` (:class:`neural.render.ground.WorldLook`; shadow rays through every body's
-    field, :func:`neural.render.view.bodies_transmittance`).
+    field, :func:`neural.render.view.bodies_transmittance`). A body cut out of a capture
+    (:mod:`neural.shell.cutout`) brings its room, the backdrop of its asset, drawn at rest where the asset is
+    placed, and the world's ground is not drawn: the body stands on its own table.
 
     bodies : one :class:`DeformedRenderer` per neural body (made with its ``placement``, without a look)
     statics : ``(vertices (N, 3) world, faces (F, 3), albedo (3,))`` of the static meshes
@@ -200,6 +267,8 @@ class SceneRenderer:
         from neural.render.obstacles import Obstacles
 
         self.bodies = list(bodies)
+        if look is not None and any(r.cut is not None for r in self.bodies):
+            look = dataclasses.replace(look, ground=False)  # a cut-out body stands on its own room's table
         self.look = look
         self.obstacles = Obstacles() if obstacles is None else obstacles
         self.statics = list(statics)
@@ -220,6 +289,7 @@ class SceneRenderer:
         start = time.perf_counter()
         positions = list(positions) or [None] * len(self.bodies)
         bodies = [r.field_body(p) for r, p in zip(self.bodies, positions, strict=True)]
+        bodies += [r.backdrop_body() for r in self.bodies if r.cut is not None]  # cut assets' rooms, at rest
         opaque = Meshes([*self.statics, *meshes])
         build = time.perf_counter() - start
         origins, dirs = camera_rays(cameras, index, device=self.device)

@@ -13,6 +13,7 @@ from pathlib import Path
 from neural.config import (
     MAX_SEED,
     QUICK_STEPS,
+    SPACES,
     VIEW_ENCODINGS,
     FieldConfig,
     HashGridConfig,
@@ -57,6 +58,7 @@ CONFIG_FIELDS = {
     (PipelineConfig, "downscale"): "downscale",
     (PipelineConfig, "background"): "background",
     (PipelineConfig, "bound"): "bound",
+    (PipelineConfig, "space"): "space",
     (Stage1Config, "steps"): "steps",
     (Stage2Config, "steps"): "stage2_steps",
     (ShellConfig, "resolution"): "shell_resolution",
@@ -100,6 +102,14 @@ class TrainSettings:
     )
     bound: float | None = option(
         help="half-size of the object's box in world units", shown_default="from the dataset"
+    )
+    space: str = option(
+        PipelineConfig.space,
+        choices=SPACES,
+        help="where the field lives: contracted (the object's box is the unit ball and the whole world "
+        "beyond it is pulled into a ball twice as wide, so the room around a real capture is learnt: paper "
+        "Sec. 4.7), bounded (the box only, an environment map beyond it) or auto (contracted for photos "
+        "without alpha)",
     )
     shell_resolution: int | None = option(
         help="grid resolution of the shell extraction",
@@ -152,7 +162,9 @@ class TrainSettings:
     def pipeline_config(self) -> PipelineConfig:
         """The library's settings: these, with what goes with the stage-1 steps where not set."""
         scaled = scaled_defaults(self.steps)
-        config = PipelineConfig(background=self.background, bound=self.bound, downscale=self.downscale)
+        config = PipelineConfig(
+            background=self.background, bound=self.bound, downscale=self.downscale, space=self.space
+        )
         seconds = 60.0 * self.checkpoint_minutes
         config.stage1 = dataclasses.replace(
             config.stage1,

@@ -7,8 +7,8 @@ and centre of mass); :meth:`CameraSettings.shot` turns both into a :class:`Shot`
 :meth:`Shot.camera_for_frame` is a pinhole camera in the world's frame. The asset renderer maps it into the
 asset's frame (:func:`shellsim.render.frames.asset_camera`); the pyvista surface renderer draws the world.
 :func:`scene_shot` is the :class:`Shot` of a scene file's ``[[camera]]`` (:func:`default_scene_camera` where
-the file has none). :func:`orbit_camera` and :func:`orbit_framing` are one camera about a point and the
-distance of a sphere.
+the file has none); a ``capture`` camera moves along a camera file's own cameras (:func:`capture_path`).
+:func:`orbit_camera` and :func:`orbit_framing` are one camera about a point and the distance of a sphere.
 """
 
 from __future__ import annotations
@@ -20,12 +20,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from neural.errors import InputError
 from shellsim.errors import SettingError
 from shellsim.settings import check_choice, check_range, floats, option
 from shellsim.world import UP
 
 if TYPE_CHECKING:
+    from neural.data import Cameras
     from shellsim.scene.spec import CameraSpec
+    from shellsim.world import Placement
 
 #: (W, H) of a motion's frames when neither a size nor a camera file gives one.
 VIDEO_SIZE = (512, 512)
@@ -144,10 +147,18 @@ class CameraSettings:
         return Shot(c2w, focal, width, height, self.kind)
 
 
-def scene_shot(spec: CameraSpec, tracks: dict[str, MotionTrack], width: int, height: int) -> Shot:
+def scene_shot(
+    spec: CameraSpec,
+    tracks: dict[str, MotionTrack],
+    width: int,
+    height: int,
+    placements: dict[str, Placement] | None = None,
+) -> Shot:
     """The :class:`Shot` of the scene camera ``spec`` (one ``[[camera]]`` of a scene file, z up) over a
     scene's motion, ``width`` x ``height`` pixels, horizontal field of view ``spec.fov``: ``tracks`` maps each
-    body's name to its :class:`MotionTrack` and "" to the track of all the bodies together (the same times).
+    body's name to its :class:`MotionTrack` and "" to the track of all the bodies together (the same times);
+    ``placements`` maps each body's name to the :class:`~shellsim.world.Placement` of its asset's frame in the
+    world (needed by a capture camera only).
 
     - orbit: about ``target`` (None: the centre of the bodies' box at frame 0), its azimuth going linearly
       from ``azimuth - degrees / 2`` at the first frame to ``azimuth + degrees / 2`` at the last, at one
@@ -158,10 +169,17 @@ def scene_shot(spec: CameraSpec, tracks: dict[str, MotionTrack], width: int, hei
       ``position - target`` (None: the body's centre of mass at frame 0), looking at that smoothed centre;
     - path: position and target of :func:`_spline` through the keyframes at each frame's time;
     - a preset of :data:`PRESETS`: the shot of ``CameraSettings(camera=kind, fov=spec.fov,
-      elevation=spec.elevation)`` over ``tracks[""]``, keeping every body over the whole motion in view.
+      elevation=spec.elevation)`` over ``tracks[""]``, keeping every body over the whole motion in view;
+    - capture: along the cameras of the file ``spec.path`` (:func:`capture_cameras`, in the asset's frame of
+      ``spec.body``) once over the shot, :func:`capture_path` with ``spec.smooth``, each camera-to-world
+      moved into the world by ``placements[spec.body]`` (rotation ``R c2w``, position
+      :meth:`~shellsim.world.Placement.to_world`): the inverse of
+      :func:`shellsim.render.frames.asset_camera`, so that a frame on a camera of the file casts that
+      camera's rays; ``spec.fov`` None: the median of the cameras' own horizontal fields of view. The
+      shot's pinhole keeps neither their principal points nor ``fy`` nor their distortion.
 
-    A camera that stands where it looks at some frame is a :class:`~shellsim.scene.spec.SceneError` naming
-    the spec's ``where``."""
+    A camera that stands where it looks at some frame, or a capture's camera file that cannot be read, is a
+    :class:`~shellsim.scene.spec.SceneError` naming the spec's ``where``."""
     from shellsim.scene.file import problem
 
     up, every = _unit(UP), tracks[""]
@@ -169,6 +187,20 @@ def scene_shot(spec: CameraSpec, tracks: dict[str, MotionTrack], width: int, hei
         preset = CameraSettings(camera=spec.kind, fov=spec.fov, elevation=spec.elevation)
         return dataclasses.replace(preset.shot(every, width, height), name=spec.name)
     n = len(every.times)
+    if spec.kind == "capture":
+        if placements is None or spec.body not in placements:
+            raise ValueError(f"placements: the capture camera {spec.name!r} needs the body {spec.body!r}")
+        try:
+            cameras = capture_cameras(spec.path, width, height)
+        except InputError as err:
+            raise problem(spec.where, "path", str(err)) from None
+        placement = placements[spec.body]
+        c2w = capture_path(cameras.c2w, n, spec.smooth)
+        c2w[:, :3, :3] = placement.rotation @ c2w[:, :3, :3]
+        c2w[:, :3, 3] = placement.to_world(c2w[:, :3, 3])
+        fov = spec.fov
+        focal = float(np.median(cameras.fx)) if fov is None else 0.5 * width / math.tan(math.radians(fov / 2))
+        return Shot(c2w, focal, width, height, spec.name)
     focal = 0.5 * width / math.tan(0.5 * math.radians(spec.fov))
     centre = 0.5 * (every.lo[0] + every.hi[0])
     target = centre if spec.target is None else np.asarray(spec.target, np.float64)
@@ -207,6 +239,48 @@ def scene_shot(spec: CameraSpec, tracks: dict[str, MotionTrack], width: int, hei
         )
     c2w = np.stack([_look_at(eye, at, up) for eye, at in zip(eyes, targets, strict=True)])
     return Shot(c2w, focal, width, height, spec.name)
+
+
+def capture_cameras(path, width: int, height: int) -> Cameras:
+    """The cameras of the camera file or dataset directory ``path`` (:func:`neural.data.load_camera_file`:
+    their order, the asset's frame), imaging ``width`` x ``height`` pixels (each keeps its horizontal field
+    of view); an :class:`InputError` naming ``path`` when it cannot be read or lists fewer than 2."""
+    from neural.data import load_camera_file
+
+    cameras = load_camera_file(path, width, height)
+    if len(cameras) < 2:
+        raise InputError(f"{path}: lists {len(cameras)} camera; a capture camera moves along at least 2")
+    return cameras
+
+
+def capture_path(c2w, frames: int, smooth: float) -> np.ndarray:
+    """(frames, 4, 4) OpenGL camera-to-world along the cameras ``c2w`` (M, 4, 4), M >= 2, in their order.
+
+    Their centres and their back and image-up axes (columns 2 and 1) are smoothed along the path by a
+    Gaussian of ``smooth`` views (its standard deviation; 0: none), reflected at the ends so that the mean
+    centre is kept, then made orthonormal keeping the viewing direction (right = up x back). Frame k is at
+    ``u_k = k (M - 1) / (frames - 1)`` views (one frame: halfway), the first frame on the first camera and
+    the last on the last: its centre the Catmull-Rom :func:`_spline` through the centres at ``u_k``, its
+    rotation the slerp of the rotations of the views either side; exactly camera ``u_k`` when ``u_k`` is
+    whole and ``smooth`` is 0."""
+    from scipy.ndimage import gaussian_filter1d
+    from scipy.spatial.transform import Rotation, Slerp
+
+    c2w = np.asarray(c2w, np.float64)
+    centres, up, back = c2w[:, :3, 3], c2w[:, :3, 1], c2w[:, :3, 2]
+    if smooth > 0:
+        smoothed = [gaussian_filter1d(a, smooth, axis=0, mode="reflect") for a in (centres, up, back)]
+        centres, up, back = smoothed
+    back = back / np.linalg.norm(back, axis=1, keepdims=True)
+    right = np.cross(up, back)
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    views = np.arange(len(c2w))
+    at = np.linspace(0, views[-1], frames) if frames > 1 else np.full(1, 0.5 * views[-1])
+    slerp = Slerp(views, Rotation.from_matrix(np.stack([right, np.cross(back, right), back], axis=2)))
+    out = np.tile(np.eye(4), (frames, 1, 1))
+    out[:, :3, :3] = slerp(at).as_matrix()
+    out[:, :3, 3] = _spline(views, centres, at)
+    return out
 
 
 def default_scene_camera() -> CameraSpec:

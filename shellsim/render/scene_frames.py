@@ -225,7 +225,7 @@ def render_scene(
     shot = (
         camera.shot(tracks[""], width, height)
         if camera is not None
-        else scene_shot(spec, tracks, width, height)
+        else scene_shot(spec, tracks, width, height, {b.name: b.placement for b in scene.bodies})
     )
     scene = dataclasses.replace(read_scene_motion(scene_path), cameras=scene.cameras, look=scene.look)
     identity, settings = scene_identity(scene), scene_renderer_identity(scene, antialias, look)

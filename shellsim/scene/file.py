@@ -21,6 +21,7 @@ from neural.errors import InputError
 from shellsim.physics.materials import PRESETS, RANGES
 from shellsim.physics.selection import parse_selection
 from shellsim.render.cameras import PRESETS as CAMERA_PRESETS
+from shellsim.render.cameras import VIDEO_SIZE, capture_cameras
 from shellsim.scene.spec import (
     RGB,
     ActionSpec,
@@ -92,6 +93,7 @@ _CAMERA_KINDS = {
     "fixed": ("position", "target"),
     "follow": ("position", "body"),
     "path": ("keyframes",),
+    "capture": ("path", "smooth", "body"),
     **{name: ("elevation",) if elevation is None else () for name, (_, elevation) in CAMERA_PRESETS.items()},
 }
 _LOOK_KEYS = ("ground_colors", "square", "light", "ambient", "diffuse", "shadows", "sky", "collider_color")
@@ -128,7 +130,7 @@ def read_scene(path: str | os.PathLike) -> SceneSpec:
     colliders = tuple(_collider(t, base) for t in _entries(data, "collider", shown, names))
     known = {b.name for b in bodies}
     actions = tuple(_action(t, world, known, names) for t in _entries(data, "action", shown))
-    cameras = tuple(_camera(t, known, names) for t in _entries(data, "camera", shown, {}))
+    cameras = tuple(_camera(t, bodies, names, base) for t in _entries(data, "camera", shown, {}))
     look = _look(_Table(data.get("look", {}), f"{shown}: [look]"))
     return SceneSpec(str(resolved), world, bodies, colliders, actions, cameras, look)
 
@@ -515,7 +517,7 @@ def _keyframes(t: _Table, start: float, end: float) -> tuple[Keyframe, ...]:
     return tuple(frames)
 
 
-def _camera(t: _Table, bodies: set[str], names: dict[str, str]) -> CameraSpec:
+def _camera(t: _Table, bodies: tuple[BodySpec, ...], names: dict[str, str], base: Path) -> CameraSpec:
     d = CameraSpec(name=t.name)
     kind = t.choice("kind", d.kind, _CAMERA_KINDS)
     t.keys(_CAMERA_KEYS, _CAMERA_KINDS, kind)
@@ -525,7 +527,10 @@ def _camera(t: _Table, bodies: set[str], names: dict[str, str]) -> CameraSpec:
         raise t.error("target", "must differ from position")
     body = t.text("body", _REQUIRED if kind == "follow" else None)
     if body is not None:
-        _check_body(t, body, bodies, names)
+        _check_body(t, body, {b.name for b in bodies}, names)
+    capture = kind == "capture"
+    if capture:
+        body = _capture_body(t, body, bodies)
     return CameraSpec(
         name=t.name,
         kind=kind,
@@ -535,11 +540,37 @@ def _camera(t: _Table, bodies: set[str], names: dict[str, str]) -> CameraSpec:
         elevation=t.number("elevation", d.elevation, (-90.0, 90.0, "[]")),
         azimuth=t.number("azimuth", d.azimuth),
         degrees=t.number("degrees", d.degrees, (-3600.0, 3600.0, "[]")),
-        fov=t.number("fov", d.fov, (0.0, 180.0, "()")),
+        fov=t.number("fov", None if capture else d.fov, (0.0, 180.0, "()")),
         body=body,
         keyframes=_camera_keyframes(t) if kind == "path" else (),
+        path=_capture_file(t, base) if capture else None,
+        smooth=t.number("smooth", d.smooth, _NON_NEGATIVE),
         where=t.where,
     )
+
+
+def _capture_body(t: _Table, name: str | None, bodies: tuple[BodySpec, ...]) -> str:
+    """A capture camera's ``body`` (``name``, a body's; None: the file's first asset body): an asset body,
+    in whose asset's frame the capture's cameras are."""
+    assets = [b.name for b in bodies if b.asset is not None]
+    if name is None and not assets:
+        raise t.error("body", "missing: no [[body]] is an asset, in whose frame a capture's cameras are")
+    if name is not None and name not in assets:
+        raise t.error("body", f"{name!r} is a mesh body; a capture's cameras are in an asset's frame")
+    return assets[0] if name is None else name
+
+
+def _capture_file(t: _Table, base: Path) -> str:
+    """A capture camera's ``path``: a camera file or dataset directory, relative to the scene file's
+    directory, that :func:`~shellsim.render.cameras.capture_cameras` reads; its resolved path."""
+    path = (base / t.text("path", _REQUIRED)).resolve()
+    if not path.exists():
+        raise t.error("path", f"no such file or directory {path}")
+    try:
+        capture_cameras(path, *VIDEO_SIZE)  # any size: the file is only read and its cameras counted
+    except InputError as err:
+        raise t.error("path", str(err)) from None
+    return str(path)
 
 
 def _camera_keyframes(t: _Table) -> tuple[CameraKeyframe, ...]:

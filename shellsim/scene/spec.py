@@ -175,10 +175,14 @@ class CameraSpec:
     - ``path``: along ``keyframes`` (at least 2, times increasing), its position and target interpolated
       by a Catmull-Rom spline through them, held before the first and after the last;
     - ``front``, ``side``, ``top``, ``three-quarter``: the presets of :data:`shellsim.render.cameras.PRESETS`,
-      still, keeping every body over the whole shot in view (three-quarter at ``elevation``).
+      still, keeping every body over the whole shot in view (three-quarter at ``elevation``);
+    - ``capture``: along the cameras of the camera file ``path`` (a ``transforms*.json`` or a dataset
+      directory, in the asset's frame of the asset body ``body``) once over the shot, in the file's order,
+      their path smoothed over ``smooth`` views (0: the file's own cameras).
 
-    ``fov`` [degrees] horizontal (as :mod:`shellsim.render.cameras`); ``target`` None (orbit, fixed): the
-    centre of the bodies' box at t = 0; ``distance`` None: the least that keeps every body in view.
+    ``fov`` [degrees] horizontal (as :mod:`shellsim.render.cameras`; None, capture only: the file's own);
+    ``target`` None (orbit, fixed): the centre of the bodies' box at t = 0; ``distance`` None: the least
+    that keeps every body in view.
     """
 
     name: str
@@ -189,9 +193,11 @@ class CameraSpec:
     elevation: float = 20.0
     azimuth: float = 30.0
     degrees: float = 30.0
-    fov: float = 40.0
+    fov: float | None = 40.0
     body: str | None = None
     keyframes: tuple[CameraKeyframe, ...] = ()
+    path: str | None = None  # resolved path of a capture's camera file
+    smooth: float = 2.0  # [views] standard deviation of a capture's Gaussian smoothing
     where: str = ""
 
 

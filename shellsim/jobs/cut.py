@@ -89,6 +89,7 @@ def cut(settings: CutSettings) -> CutResult:
     from neural.files import write_atomically
     from neural.shell.cutout import Cut, cut_shells, propose_cut
     from shellsim.io.outputs import check_writable_dir, lock_output
+    from shellsim.jobs.extract import asset_shell_config
 
     asset = load_asset(settings.asset)
     if asset.cut is not None:
@@ -99,16 +100,14 @@ def cut(settings: CutSettings) -> CutResult:
     if (out / "asset.json").exists():
         raise SettingError("out", "holds an asset already; choose another directory or delete it", value=out)
     lock_output(check_writable_dir(out, "out"), "out")
+    given = None
+    if settings.box is not None:  # an empty box is refused before any work
+        given = Cut(np.array(settings.box[:3]), np.array(settings.box[3:]))
     device = device_setting(settings.device)
     start = time.perf_counter()
     field = load_field(asset, device)
-    given = None
-    if settings.box is not None:
-        given = Cut(np.array(settings.box[:3]), np.array(settings.box[3:]))
     region = propose_cut(field, asset.up, settings.center, settings.radius, given, str(device))
-    known = {f.name for f in dataclasses.fields(ShellConfig)}
-    stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}
-    config = ShellConfig(**{**stored, "resolution": settings.resolution})
+    config = asset_shell_config(asset, {"resolution": settings.resolution})
     shells = cut_shells(field, region, config, str(device))
     if not len(shells.outer.faces):
         raise InputError(f"{asset.root}: the field holds nothing inside the cut {region.to_dict()}")

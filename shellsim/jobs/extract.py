@@ -81,6 +81,17 @@ class ExtractResult:
     seconds: float
 
 
+def asset_shell_config(asset, overrides: dict) -> ShellConfig:
+    """The :class:`ShellConfig` the asset's shells were extracted with (its ``asset.json``), ``overrides``
+    {field: value} replacing some; a :class:`SettingError` of ``asset`` when they do not make one."""
+    known = {f.name for f in dataclasses.fields(ShellConfig)}
+    stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}
+    try:
+        return ShellConfig(**{**stored, **overrides})
+    except (TypeError, ValueError) as err:
+        raise SettingError("asset", f"shell parameters: {err}", value=asset.root) from None
+
+
 @holds_outputs
 def extract(settings: ExtractSettings) -> ExtractResult:
     """Extract the shells of ``settings.asset`` again and replace its shell files."""
@@ -93,12 +104,7 @@ def extract(settings: ExtractSettings) -> ExtractResult:
     refuse_shipped(asset, "extract")
     lock_output(check_writable_dir(asset.root, "asset"), "asset")  # new shells and asset.json go there
     device = device_setting(settings.device)
-    known = {f.name for f in dataclasses.fields(ShellConfig)}
-    stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}
-    try:
-        config = ShellConfig(**{**stored, **settings.shell_overrides()})
-    except (TypeError, ValueError) as err:
-        raise SettingError("asset", f"shell parameters: {err}", value=asset.root) from None
+    config = asset_shell_config(asset, settings.shell_overrides())
     grid = f"a shell grid of {config.resolution}^3 nodes"
     check_memory("resolution", shell_bytes(config.resolution), grid, "to extract the shells", device)
     if settings.max_peel is not None:

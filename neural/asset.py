@@ -138,6 +138,17 @@ class Asset:
         return h.hexdigest()
 
     @property
+    def contraction(self):
+        """For an asset whose field lives in contracted space, the map of world points into it
+        (:class:`~neural.field.contraction.ContractionMap`, the field's own: the unit ball the normalised
+        capture's, of radius ``1 / scale``); None for a bounded one."""
+        from .field.contraction import ContractionMap
+
+        if not self.meta.get("field", {}).get("contract", False):
+            return None
+        return ContractionMap(self.center, 1.0 / self.scale)
+
+    @property
     def cut(self):
         """The region of a cut asset (:class:`neural.shell.cutout.Cut`: its shells hold the object cut out
         of a capture, its ``backdrop_outer`` / ``backdrop_inner`` files the rest); None for any other."""

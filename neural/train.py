@@ -328,7 +328,7 @@ def train_stage2(
         meta, _ = load_checkpoint(ckpt, field, optimizer)
         start, final = int(meta["step"]), meta.get("final")
         log.info("resuming stage 2 from %s at step %d", ckpt, start)
-    sampler = narrow_band_sampler(EmbreeCaster(outer, inner), narrowband)
+    sampler = narrow_band_sampler(EmbreeCaster(outer, inner), narrowband, field.contraction)
     pixels = PixelSampler(data, device, config.seed + start, config.random_background)
     bar = _progress(config.steps, start, "stage 2")
     history, clock = [], _TrainingClock()

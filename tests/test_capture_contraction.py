@@ -21,6 +21,7 @@ from neural.config import HashGridConfig, PipelineConfig, ShellConfig, Stage1Con
 from neural.data import load_dataset
 from neural.metrics import psnr
 from neural.pipeline import train_asset
+from neural.render.ground import WorldLook
 from neural.render.view import asset_sampler, render_camera
 from neural.shell.cutout import Cut, RegionMask, cut_shells, propose_cut
 from shellsim.cli.main import main
@@ -125,6 +126,8 @@ def test_body_and_backdrop_at_rest_render_as_the_uncut_capture(capture, tmp_path
         uncut, _ = whole.render(data.cameras, int(v))
         together, _ = parts.render(data.cameras, int(v))
         assert psnr(together, uncut) >= 35.0
+    # in a world with a look, the body stands on its own table: no checkered ground under it
+    assert DeformedRenderer(cut_asset, field, None, look=WorldLook()).look.ground is False
 
 
 def test_the_body_mask_and_the_backdrop_mask_split_every_sample():

@@ -100,7 +100,7 @@ def _field(scale: float = 0.5, center=(0.2, -0.1, 0.3)):
 
 
 def test_contracted_steps_cover_the_ray_to_far_away_at_the_step_length():
-    from neural.render.occupancy import FAR_RADIUS
+    from neural.field.contraction import FAR_RADIUS
     from neural.render.view import field_occupancy_grid, occupancy_sampler
 
     field = _field()
@@ -148,11 +148,41 @@ def test_a_contracted_asset_loads_with_its_contraction(tmp_path):
     ball = trimesh.creation.icosphere(subdivisions=1, radius=0.3)
     normalisation = {"center": [0.2, -0.1, 0.3], "scale": 1.0}  # the object's box: 1 / scale = 1 each side
     save_asset(tmp_path, field, ball, ball, {"name": "room", "normalisation": normalisation})
-    loaded = load_field(load_asset(tmp_path))
+    asset = load_asset(tmp_path)
+    loaded = load_field(asset)
     assert loaded.contraction.radius == field.contraction.radius
+    assert asset.contraction.radius == field.contraction.radius  # what its narrow band counts widths by
+    torch.testing.assert_close(asset.contraction.center, field.contraction.center.double())
     x = torch.randn(50, 3, generator=torch.Generator().manual_seed(0)) * 5
     d = torch.nn.functional.normalize(torch.randn(50, 3), dim=1)
     torch.testing.assert_close(loaded.contraction.map_rays(x, d)[0], field.contraction.map_rays(x, d)[0])
     torch.testing.assert_close(
         loaded.contraction.to_world(loaded.contraction.to_field(x)), x, atol=1e-4, rtol=1e-4
     )
+
+
+def test_narrow_band_intervals_far_out_are_counted_by_their_contracted_width():
+    """Along a radius, ``contract`` maps ``r > 1`` to ``2 - 1 / r``: a shell between radii 3 and 4 (world
+    width 1) is 1/12 wide in contracted space and gets the samples of that width, not of 1."""
+    import numpy as np
+    import trimesh
+
+    from neural.config import NarrowBandConfig
+    from neural.field.contraction import ContractionMap
+    from neural.render.narrowband import narrow_band_samples
+    from neural.render.raycast import EmbreeCaster
+
+    caster = EmbreeCaster(
+        trimesh.creation.icosphere(subdivisions=4, radius=4.0),
+        trimesh.creation.icosphere(subdivisions=4, radius=3.0),
+    )
+    config = NarrowBandConfig(delta_s=0.01, w_s=0.0, n_max=64, max_peel=4)
+    origins, dirs = np.array([[-10.0, 0.0, 0.0]]), np.array([[2.0, 0.0, 0.0]])
+    _, world = narrow_band_samples(caster, origins, dirs, config)
+    _, contracted = narrow_band_samples(caster, origins, dirs, config, contraction=ContractionMap())
+    assert world.counts.tolist() == [64]
+    r_enter, r_exit = (10.0 - 2.0 * t for t in (contracted.interval_enter[0], contracted.interval_exit[0]))
+    assert 3.9 < r_enter < 4.001 and 2.9 < r_exit < 3.001
+    width = (2.0 - 1.0 / r_enter) - (2.0 - 1.0 / r_exit)
+    assert contracted.counts.tolist() == [int(np.ceil(width / 0.01)) + 1]
+    assert contracted.counts[0] in (9, 10)

@@ -98,6 +98,16 @@ def samples_per_interval(width: np.ndarray, config: NarrowBandConfig) -> np.ndar
     return np.minimum(n, config.n_max).astype(np.int64)
 
 
+def interval_widths(starts, units, rays, d_enter, d_exit, contraction=None) -> np.ndarray:
+    """(I,) widths of the intervals ``[d_enter, d_exit]`` (I,) along unit rays ``starts``, ``units`` (R, 3) of
+    ``rays`` (I,): world widths, or for a ``contraction`` the chords between the contracted ends."""
+    if contraction is None:
+        return d_exit - d_enter
+    origin, unit = torch.as_tensor(starts[rays]), torch.as_tensor(units[rays])
+    ends = [contraction.to_field(origin + torch.as_tensor(d)[:, None] * unit) for d in (d_enter, d_exit)]
+    return (ends[1] - ends[0]).norm(dim=-1).numpy()
+
+
 def samples_from_intervals(
     interval_rays: np.ndarray, d_enter: np.ndarray, d_exit: np.ndarray, n: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -143,6 +153,7 @@ def narrow_band_samples(
     config: NarrowBandConfig | None = None,
     near: float = 0.0,
     device: torch.device | str = "cpu",
+    contraction=None,
 ) -> tuple[RaySamples, NarrowBandStats]:
     """Samples of all rays in the narrow band between M+ and M- (Procedure 3, vectorised over rays).
 
@@ -154,6 +165,10 @@ def narrow_band_samples(
         config: sampling settings; ``NarrowBandConfig()`` when omitted.
         near: rays start at ``t = near``; a ray starting inside M+ has an interval opening there.
         device: where the returned tensors live.
+        contraction: for shells of a field in contracted space, its
+            :class:`~neural.field.contraction.ContractionMap`: an interval's width is then its length there
+            (the chord between its contracted ends), so that a wall far behind the object gets the samples
+            its contracted width needs, not those of its world width.
 
     Returns ``RaySamples`` (with ``t_positions``: samples at the ends of an interval are not at their
     section midpoints) and ``NarrowBandStats``.
@@ -173,7 +188,7 @@ def narrow_band_samples(
     t_inner = np.full(n_rays, np.inf)
     t_inner[meets] = t_meets
     rays, d_enter, d_exit = intervals_from_hits(ray_idx, t, entering, t_inner, config.max_peel)
-    n = samples_per_interval(d_exit - d_enter, config)
+    n = samples_per_interval(interval_widths(starts, units, rays, d_enter, d_exit, contraction), config)
     # Back to units of dirs from the ray origin: an affine map per ray, so sample placement commutes with it.
     scale = 1.0 / norms[rays]
     d_enter, d_exit = near + d_enter * scale, near + d_exit * scale
@@ -196,6 +211,7 @@ def narrow_band_samples_reference(
     config: NarrowBandConfig | None = None,
     near: float = 0.0,
     device: torch.device | str = "cpu",
+    contraction=None,
 ) -> tuple[RaySamples, NarrowBandStats]:
     """Slow twin of :func:`narrow_band_samples`: Procedure 3 line by line, one ray at a time, with a
     brute-force float64 ray-triangle test against every face. Same arguments and results (for tests)."""

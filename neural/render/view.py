@@ -93,13 +93,16 @@ def occupancy_sampler(
     return sample
 
 
-def narrow_band_sampler(caster, config):
+def narrow_band_sampler(caster, config, contraction=None):
     """Procedure 3: samples only inside the shells (``caster`` a :class:`~neural.render.raycast.ShellCaster`
-    of them, ``config`` a ``NarrowBandConfig``)."""
+    of them, ``config`` a ``NarrowBandConfig``; ``contraction``: the field's, for shells of a field in
+    contracted space, whose intervals are then counted by their contracted widths)."""
     from .narrowband import narrow_band_samples
 
     def sample(origins, dirs):
-        samples, _ = narrow_band_samples(caster, origins, dirs, config, device=origins.device)
+        samples, _ = narrow_band_samples(
+            caster, origins, dirs, config, device=origins.device, contraction=contraction
+        )
         return samples
 
     sample.rays_per_chunk = NARROW_BAND_CHUNK
@@ -114,7 +117,9 @@ def asset_sampler(asset, config=None, shells=None):
 
     outer, inner = (asset.outer_mesh(), asset.inner_mesh()) if shells is None else shells
     return narrow_band_sampler(
-        EmbreeCaster(outer, inner), asset.narrowband_config() if config is None else config
+        EmbreeCaster(outer, inner),
+        asset.narrowband_config() if config is None else config,
+        asset.contraction,
     )
 
 

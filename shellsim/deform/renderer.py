@@ -54,7 +54,8 @@ class DeformedRenderer:
     device : torch device of the field ("cpu", "cuda"); the inverse map runs on the matching Warp device
     config : narrow-band settings; None takes the asset's ``meta["narrowband"]`` (or the defaults)
     look : :class:`neural.render.ground.WorldLook` of the world behind the body (ground, light, shadows,
-        sky); None: the asset's background colour
+        sky; a body cut out of a capture has no ground: it stands on its own table); None: the asset's
+        background colour
     placement : :class:`shellsim.world.Placement` of the asset's frame in the world (with ``look``; None: the
         identity)
     obstacles : :class:`neural.render.obstacles.Obstacles` of the world, drawn with ``look`` (None: none)
@@ -92,6 +93,7 @@ class DeformedRenderer:
         self._backdrop = None
         if self.cut is not None:
             self._backdrop = asset_sampler(asset, self.config, asset.backdrop_meshes())
+            look = _without_ground(look)  # it stands on its own room's table
         self.look = look
         self.obstacles = Obstacles() if obstacles is None else obstacles
         placement = Placement() if placement is None else placement
@@ -238,11 +240,7 @@ class DeformedRenderer:
             if self.look.ground or self.obstacles:
                 t_max = surface_t_max(self.look, self.world, self.obstacles, origins, dirs)
         colors, stats = render_bodies(bodies, origins, dirs, self.background, backdrop=behind, t_max=t_max)
-        h, w = int(cameras.height[index]), int(cameras.width[index])
-        stats["counts"] = stats["counts"].reshape(h, w)
-        stats["build_ms"] = 1000.0 * build
-        stats["ms"] = 1000.0 * (time.perf_counter() - start)
-        return colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy(), stats
+        return _camera_image(colors, stats, cameras, index, start, build)
 
 
 class SceneRenderer:
@@ -267,8 +265,8 @@ class SceneRenderer:
         from neural.render.obstacles import Obstacles
 
         self.bodies = list(bodies)
-        if look is not None and any(r.cut is not None for r in self.bodies):
-            look = dataclasses.replace(look, ground=False)  # a cut-out body stands on its own room's table
+        if any(r.cut is not None for r in self.bodies):
+            look = _without_ground(look)  # a cut-out body stands on its own room's table
         self.look = look
         self.obstacles = Obstacles() if obstacles is None else obstacles
         self.statics = list(statics)
@@ -306,8 +304,20 @@ class SceneRenderer:
             if self.look.ground or self.obstacles or opaque:
                 t_max = surface_t_max(self.look, world, self.obstacles, origins, dirs, opaque)
         colors, stats = render_bodies(bodies, origins, dirs, self.background, backdrop=backdrop, t_max=t_max)
-        h, w = int(cameras.height[index]), int(cameras.width[index])
-        stats["counts"] = stats["counts"].reshape(h, w)
-        stats["build_ms"] = 1000.0 * build
-        stats["ms"] = 1000.0 * (time.perf_counter() - start)
-        return colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy(), stats
+        return _camera_image(colors, stats, cameras, index, start, build)
+
+
+def _camera_image(colors, stats: dict, cameras, index: int, start: float, build: float):
+    """Image (H, W, 3) float32 in [0, 1] of camera ``index``'s colours (H W, 3) from
+    :func:`neural.render.view.render_bodies`, and its ``stats`` with ``counts`` (H, W), ``build_ms``
+    (``build`` seconds) and ``ms`` since ``start`` (``time.perf_counter``)."""
+    h, w = int(cameras.height[index]), int(cameras.width[index])
+    stats["counts"] = stats["counts"].reshape(h, w)
+    stats["build_ms"] = 1000.0 * build
+    stats["ms"] = 1000.0 * (time.perf_counter() - start)
+    return colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy(), stats
+
+
+def _without_ground(look):
+    """``look`` (a :class:`neural.render.ground.WorldLook`, or None) without its ground."""
+    return None if look is None else dataclasses.replace(look, ground=False)

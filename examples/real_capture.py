@@ -2,10 +2,12 @@
 
 1. ``shellsim train`` on photos without alpha: the field lives in contracted space, so the room around the
    object is learnt with it (OUT/capture);
-2. ``shellsim cut``: the object cut out, by the supporting plane found in the field and the surface the
-   cameras look at: a body with its own shells, the rest of the field its backdrop (OUT/body);
-3. a scene file (OUT/shot.toml): the body as jelly, its base pinned to its table, its top pulled aside and
-   let go, seen along the capture's own camera path (a ``capture`` camera, smoothed);
+2. ``shellsim cut``: the object cut out, by the supporting plane found in the field (a table, else a wall)
+   and the surface the cameras look at: a body with its own shells, the rest of the field its backdrop
+   (OUT/body);
+3. a scene file (OUT/shot.toml): the body as jelly, its base pinned to its table (or its back to the wall
+   it hangs on), its top (or front) pulled aside and let go, seen along the capture's own camera path (a
+   ``capture`` camera, smoothed);
 4. ``shellsim scene`` simulates it and ``shellsim render --scene`` draws the frames and an MP4
    (OUT/shot.mp4) at the capture's aspect.
 
@@ -22,9 +24,14 @@ import argparse
 import logging
 from pathlib import Path
 
+import numpy as np
+
+from neural.asset import load_asset
 from neural.device import configure_process
 from neural.errors import ShellsimError
+from neural.shell.cutout import is_table
 from shellsim.cli.main import main as shellsim
+from shellsim.world import up_rotation
 
 SHOT = """# {name} cut out of its capture: jelly on its own table, seen along the capture's cameras.
 [world]
@@ -42,15 +49,15 @@ damping = 0.01
 [[action]]
 kind = "pin"
 body = "object"
-region = ["z<10%"]
+region = ["{pin}"]
 
 [[action]]
 kind = "grab"
 body = "object"
-region = ["z>75%"]
+region = ["{grab}"]
 start = 0.0
 end = {release}
-keyframes = [{{ time = {release}, position = [{pull}, 0, 0] }}]
+keyframes = [{{ time = {release}, position = {pull} }}]
 
 [[camera]]
 name = "capture"
@@ -86,12 +93,15 @@ def main(argv: list[str] | None = None) -> Path:
         _run(["cut", "--asset", str(capture), "--out", str(body), *device])
     cameras = data / "transforms.json" if (data / "transforms.json").is_file() else data
     duration = (args.frames - 1) / 24.0
+    pin, grab, aside = holds(load_asset(body))
     text = SHOT.format(
         name=data.name,
         duration=round(duration, 4),
         size=args.size,
+        pin=pin,
+        grab=grab,
         release=round(duration / 4, 4),
-        pull=round(0.15 * args.size, 4),
+        pull=[round(0.15 * args.size * float(a), 4) for a in aside],
         cameras=cameras.as_posix(),
     )
     (out / "shot.toml").write_text(text)
@@ -103,6 +113,22 @@ def main(argv: list[str] | None = None) -> Path:
     render = ["render", "--scene", str(scene), "--scene-camera", "capture", "--out", str(out / "frames")]
     _run([*render, "--width", str(args.width), "--height", str(height), "--video", str(video), *device])
     return video
+
+
+def holds(body) -> tuple[str, str, np.ndarray]:
+    """Where the cut ``body`` (an :class:`neural.asset.Asset`) is pinned, where it is grabbed (regions of
+    the scene file) and the world direction (3,) it is pulled along: an object on its table (or with no
+    plane) by its base and its top, pulled along x; one hanging on its wall by the side against the wall
+    and the side away from it, pulled sideways along the wall."""
+    cut = body.cut
+    if cut.normal is None or is_table(cut.normal, body.up):
+        return "z<10%", "z>75%", np.array([1.0, 0.0, 0.0])
+    away = up_rotation(body.up) @ cut.normal  # the wall's normal in the world (the body is placed up)
+    axis = int(np.argmax(np.abs(away[:2])))
+    name, other = "xy"[axis], "yx"[axis]
+    if away[axis] > 0:
+        return f"{name}<10%", f"{name}>75%", np.eye(3)["xy".index(other)]
+    return f"{name}>90%", f"{name}<25%", np.eye(3)["xy".index(other)]
 
 
 def _run(argv: list[str]) -> None:

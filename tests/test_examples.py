@@ -46,3 +46,26 @@ def test_example_runs_tiny(tmp_path, script, motion, frames):
     images = sorted((out / frames).glob("*.png"))
     assert [Image.open(p).size for p in images] == [(16, 12)] * 2
     assert (out / motion.replace(".npz", ".mp4")).stat().st_size > 0
+
+
+@pytest.mark.parametrize(
+    "normal, pin, grab, aside",
+    [
+        ((0.0, 0.0, 1.0), "z<10%", "z>75%", (1, 0, 0)),  # on its table
+        ((1.0, 0.0, 0.0), "x<10%", "x>75%", (0, 1, 0)),  # on a wall behind it, facing +x
+        ((0.0, -1.0, 0.0), "y>90%", "y<25%", (1, 0, 0)),  # on a wall facing -y
+    ],
+)
+def test_the_real_capture_shot_pins_the_body_where_it_rests(normal, pin, grab, aside):
+    import importlib.util
+    from types import SimpleNamespace
+
+    from neural.shell.cutout import Cut
+
+    spec = importlib.util.spec_from_file_location("real_capture", ROOT / "examples" / "real_capture.py")
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    body = SimpleNamespace(cut=Cut([-1, -1, -1], [1, 1, 1], [0, 0, 0], normal), up=np.array([0.0, 0.0, 1.0]))
+    got_pin, got_grab, got_aside = example.holds(body)
+    assert (got_pin, got_grab) == (pin, grab)
+    np.testing.assert_allclose(got_aside, aside)

@@ -130,11 +130,12 @@ def propose_cut(
     """The cut of the object the cameras look at: the field's surface (``|f| <`` a voxel) on a
     :data:`PROPOSAL_GRID`^3 grid over the ball ``center``, ``radius`` (defaults: the field's centre, the
     cameras' focus, and its unit ball), the supporting plane among those points by RANSAC (the plane with
-    most points within a voxel whose normal is within :data:`PLANE_TILT_DEGREES` of ``up`` (3,); none when
-    fewer than a tenth of the points lie on one), and the connected part of the surface above that plane
-    nearest the centre, boxed with :data:`BOX_MARGIN_VOXELS` to spare; a box without plane when there is
-    no plane. With ``box`` (a :class:`Cut` the user named) the box is that one, and only the plane is
-    found, among the surface inside it. An :class:`InputError` when no surface lies there."""
+    most points within a voxel whose normal is within :data:`PLANE_TILT_DEGREES` of ``up`` (3,), a table;
+    else the wall the object hangs on, :func:`_object_plane`; none when fewer than a tenth of the points
+    lie on one), and the connected part of the surface above (in front of) that plane nearest the centre,
+    boxed with :data:`BOX_MARGIN_VOXELS` to spare; a box without plane when there is no plane. With
+    ``box`` (a :class:`Cut` the user named) the box is that one, and only the plane is found, among the
+    surface inside it. An :class:`InputError` when no surface lies there."""
     from scipy import ndimage
 
     ball_center, ball_radius = _unit_ball(field)
@@ -162,9 +163,9 @@ def propose_cut(
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
     if box is not None:
         inside = box.contains(torch.as_tensor(points)).numpy()
-        plane = _supporting_plane(points[inside], up, voxel) if inside.sum() >= 16 else None
+        plane = _object_plane(points[inside], up, voxel, center) if inside.sum() >= 16 else None
         return box if plane is None else Cut(box.lo, box.hi, *plane)
-    plane = _supporting_plane(points, up, voxel)
+    plane = _object_plane(points, up, voxel, center)
     keep = surface.copy()
     if plane is not None:
         point, normal = plane
@@ -180,6 +181,21 @@ def propose_cut(
     return Cut(lo, hi) if plane is None else Cut(lo, hi, *plane)
 
 
+def _object_plane(points: np.ndarray, up: np.ndarray, tolerance: float, center: np.ndarray):
+    """The plane the object rests on among surface ``points`` (N, 3): ``(point (3,), unit normal (3,))`` of
+    the table it stands on (:func:`_supporting_plane`) or else of the wall it hangs on (the plane through
+    most points, of any tilt; its normal towards ``center`` (3,), the cameras' focus, in front of it); None
+    when neither holds a tenth of the points."""
+    plane = _supporting_plane(points, up, tolerance)
+    if plane is not None:
+        return plane
+    plane = _supporting_plane(points, up, tolerance, table=False)
+    if plane is None:
+        return None
+    point, normal = plane
+    return point, normal if (center - point) @ normal >= 0 else -normal
+
+
 def world_sdf_and_kernel(field, x: torch.Tensor):
     """``field.sdf_and_kernel`` at world points ``x`` (N, 3): a contracted field's at their contracted
     points (the identity in its unit ball; beyond it, values in contracted units)."""
@@ -188,13 +204,19 @@ def world_sdf_and_kernel(field, x: torch.Tensor):
     return field.sdf_and_kernel(x if contraction is None else contraction.to_field(x))
 
 
-def _supporting_plane(points: np.ndarray, up: np.ndarray, tolerance: float):
+def is_table(normal, up) -> bool:
+    """Whether a plane of unit ``normal`` (3,) is one an object stands on: within :data:`PLANE_TILT_DEGREES`
+    of the unit ``up`` (3,)."""
+    return float(np.dot(normal, up)) >= math.cos(math.radians(PLANE_TILT_DEGREES))
+
+
+def _supporting_plane(points: np.ndarray, up: np.ndarray, tolerance: float, table: bool = True):
     """``(point (3,), unit normal (3,) towards up)`` of the plane through most ``points`` (N, 3) within
-    ``tolerance`` whose normal is within :data:`PLANE_TILT_DEGREES` of ``up``, refitted by least squares to
-    its inliers; None when it holds fewer than a tenth of the points."""
+    ``tolerance``, refitted by least squares to its inliers, among planes whose normal is within
+    :data:`PLANE_TILT_DEGREES` of ``up`` (``table``) or of any tilt; None when it holds fewer than a tenth
+    of the points."""
     rng = np.random.default_rng(0)
     best, best_count = None, 0
-    min_cos = math.cos(math.radians(PLANE_TILT_DEGREES))
     for _ in range(PLANE_TRIES):
         a, b, c = points[rng.choice(len(points), 3, replace=False)]
         normal = np.cross(b - a, c - a)
@@ -202,7 +224,7 @@ def _supporting_plane(points: np.ndarray, up: np.ndarray, tolerance: float):
             continue
         normal /= np.linalg.norm(normal)
         normal = normal if normal @ up >= 0 else -normal
-        if normal @ up < min_cos:
+        if table and not is_table(normal, up):
             continue
         count = int((np.abs((points - a) @ normal) < tolerance).sum())
         if count > best_count:

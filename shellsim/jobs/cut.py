@@ -4,9 +4,10 @@ that can be caged, simulated and deformed like any asset) and which keeps the ca
 
 The region is a box, a ball (``center``, ``radius``) or, when neither is given, the one
 :func:`neural.shell.cutout.propose_cut` finds: the connected part of the surface the cameras look at,
-above the supporting plane found in the field. The plane becomes the asset's ``up`` (so the body stands on
-the ground of a shot as it stood on its table) and the region's floor. The field's weights are copied;
-``asset.json`` records the cut (``cut``: box and plane) and the backdrop's shells (``files``).
+above the supporting plane found in the field (a table, else the wall it hangs on). The plane is the
+region's floor, and a table becomes the asset's ``up`` (so the body stands on the ground of a shot as it
+stood on its table). The field's weights are copied; ``asset.json`` records the cut (``cut``: box and
+plane) and the backdrop's shells (``files``).
 """
 
 from __future__ import annotations
@@ -87,7 +88,7 @@ def cut(settings: CutSettings) -> CutResult:
     from neural.asset import command_line, load_asset, load_field, write_meta
     from neural.errors import InputError
     from neural.files import write_atomically
-    from neural.shell.cutout import Cut, cut_shells, propose_cut
+    from neural.shell.cutout import Cut, cut_shells, is_table, propose_cut
     from shellsim.io.outputs import check_writable_dir, lock_output
     from shellsim.jobs.extract import asset_shell_config
 
@@ -111,6 +112,7 @@ def cut(settings: CutSettings) -> CutResult:
     shells = cut_shells(field, region, config, str(device))
     if not len(shells.outer.faces):
         raise InputError(f"{asset.root}: the field holds nothing inside the cut {region.to_dict()}")
+    stands = region.normal is not None and is_table(region.normal, asset.up)  # on a table, not on a wall
     out.mkdir(parents=True, exist_ok=True)
     files = {**asset.meta["files"], **BACKDROP_FILES}
     write_atomically(
@@ -125,7 +127,7 @@ def cut(settings: CutSettings) -> CutResult:
         **asset.meta,
         "name": out.name,
         "files": files,
-        "up": region.normal.tolist() if region.normal is not None else asset.meta.get("up", [0.0, 0.0, 1.0]),
+        "up": (region.normal if stands else asset.up).tolist(),
         "shell": {**dataclasses.asdict(config), **shells.stats},
         "cut": {**region.to_dict(), "from": asset.name, "command": command_line()},
     }

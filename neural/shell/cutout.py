@@ -163,9 +163,9 @@ def propose_cut(
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
     if box is not None:
         inside = box.contains(torch.as_tensor(points)).numpy()
-        plane = _object_plane(points[inside], up, voxel, center) if inside.sum() >= 16 else None
+        plane = _object_plane(points[inside], up, voxel) if inside.sum() >= 16 else None
         return box if plane is None else Cut(box.lo, box.hi, *plane)
-    plane = _object_plane(points, up, voxel, center)
+    plane = _object_plane(points, up, voxel)
     keep = surface.copy()
     if plane is not None:
         point, normal = plane
@@ -181,11 +181,11 @@ def propose_cut(
     return Cut(lo, hi) if plane is None else Cut(lo, hi, *plane)
 
 
-def _object_plane(points: np.ndarray, up: np.ndarray, tolerance: float, center: np.ndarray):
+def _object_plane(points: np.ndarray, up: np.ndarray, tolerance: float):
     """The plane the object rests on among surface ``points`` (N, 3): ``(point (3,), unit normal (3,))`` of
     the table it stands on (:func:`_supporting_plane`) or else of the wall it hangs on (the plane through
-    most points, of any tilt; its normal towards ``center`` (3,), the cameras' focus, in front of it); None
-    when neither holds a tenth of the points."""
+    most points, of any tilt; its normal towards the side where more of the other points lie, the object's:
+    behind a wall the cameras see little); None when neither holds a tenth of the points."""
     plane = _supporting_plane(points, up, tolerance)
     if plane is not None:
         return plane
@@ -193,7 +193,8 @@ def _object_plane(points: np.ndarray, up: np.ndarray, tolerance: float, center: 
     if plane is None:
         return None
     point, normal = plane
-    return point, normal if (center - point) @ normal >= 0 else -normal
+    height = (points - point) @ normal
+    return point, normal if (height > tolerance).sum() >= (height < -tolerance).sum() else -normal
 
 
 def world_sdf_and_kernel(field, x: torch.Tensor):

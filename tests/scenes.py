@@ -331,6 +331,10 @@ class SphereField:
         dist = r.norm(dim=1)
         return Geometry(dist - self.radius, torch.full_like(dist, self.inv_s), r / dist[:, None])
 
+    def sdf_and_kernel(self, x):
+        geo = self.geometry(x)
+        return geo.sdf, 1.0 / geo.inv_s
+
     def radiance(self, x, d, geo):
         return torch.sigmoid(torch.stack([x[:, 0] + d[:, 2], x[:, 1], x[:, 2] * 2.0], dim=1))
 

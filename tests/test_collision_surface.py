@@ -177,3 +177,18 @@ def test_the_cache_is_read_and_a_corrupt_one_rebuilt(ball, tmp_path, monkeypatch
     with monkeypatch.context() as patch:
         patch.setattr("neural.asset.load_field", refuse)
         surface_of_asset(asset, cage, max_faces=MAX_FACES, resolution=RESOLUTION)  # cached again
+
+
+def test_the_surface_of_a_cut_asset_is_that_of_its_region(ball):
+    """A body cut out of a capture collides as the field inside its cut: the half ball above a plane."""
+    from neural.shell.cutout import Cut
+
+    asset, cage = ball
+    cut = Cut(CENTER - HALF, CENTER + HALF, point=CENTER, normal=[0.0, 0.0, 1.0])
+    asset.meta["cut"] = cut.to_dict()
+    surface = surface_of_asset(asset, cage, max_faces=MAX_FACES, resolution=RESOLUTION)
+    cell = np.linalg.norm(np.full(3, 2 * HALF)) / RESOLUTION
+    assert surface.vertices[:, 2].min() > CENTER[2] - cell
+    mesh = trimesh.Trimesh(surface.vertices, surface.faces, process=False)
+    assert mesh.is_watertight
+    assert mesh.volume == pytest.approx(2 / 3 * math.pi * RADIUS**3, rel=0.04)

@@ -211,6 +211,15 @@ def is_table(normal, up) -> bool:
     return float(np.dot(normal, up)) >= math.cos(math.radians(PLANE_TILT_DEGREES))
 
 
+def region_sdf_and_kernel(field, x: torch.Tensor, cut: Cut | None = None):
+    """:func:`world_sdf_and_kernel` at world points ``x`` (N, 3), with the SDF cut to ``cut``'s region
+    (``max(f, distance)``: nothing outside it) when one is given."""
+    sdf, s = world_sdf_and_kernel(field, x)
+    if cut is not None:
+        sdf = torch.maximum(sdf, cut.distance(x.double()).to(sdf))
+    return sdf, s
+
+
 def _supporting_plane(points: np.ndarray, up: np.ndarray, tolerance: float, table: bool = True):
     """``(point (3,), unit normal (3,) towards up)`` of the plane through most ``points`` (N, 3) within
     ``tolerance``, refitted by least squares to its inliers, among planes whose normal is within
@@ -251,9 +260,7 @@ def cut_shells(field, cut: Cut, config: ShellConfig, device: str = "cpu") -> Fie
     hi_u = lo_u + 2.0 * half * scale
 
     def unit_fn(u: torch.Tensor):
-        x = field.center + u / scale
-        sdf, s = world_sdf_and_kernel(field, x)
-        sdf = torch.maximum(sdf, cut.distance(x.double()).to(sdf))
+        sdf, s = region_sdf_and_kernel(field, field.center + u / scale, cut)
         return sdf * scale, s * scale
 
     with torch.no_grad():

@@ -215,11 +215,14 @@ def surface_of_mesh(
     return _decimated(mesh.vertices, faces, cage_vertices, cage_tets, max_faces, what)
 
 
-def _sample_sdf(field, lo: np.ndarray, spacing: float, shape) -> np.ndarray:
-    """The signed distance ``field.geometry(x).sdf`` at the nodes ``lo + index * spacing`` of a grid of
-    ``shape`` (X, Y, Z): (X, Y, Z) float32, on the CPU without autograd, whole x-slabs of at most
-    :data:`CHUNK` nodes (or one slab) at a time."""
+def _sample_sdf(field, lo: np.ndarray, spacing: float, shape, cut=None) -> np.ndarray:
+    """The field's signed distance at the nodes ``lo + index * spacing`` of a grid of ``shape`` (X, Y, Z)
+    (:func:`neural.shell.cutout.region_sdf_and_kernel`: at contracted points for a field in contracted
+    space, cut to the region of a ``cut`` asset): (X, Y, Z) float32, on the CPU without autograd, whole
+    x-slabs of at most :data:`CHUNK` nodes (or one slab) at a time."""
     import torch
+
+    from neural.shell.cutout import region_sdf_and_kernel
 
     axes = [lo[k] + spacing * np.arange(shape[k]) for k in range(3)]
     yz = np.stack(np.meshgrid(axes[1], axes[2], indexing="ij"), -1).reshape(-1, 2)
@@ -229,14 +232,15 @@ def _sample_sdf(field, lo: np.ndarray, spacing: float, shape) -> np.ndarray:
         for x0 in range(0, shape[0], slab):
             xs = axes[0][x0 : x0 + slab]
             points = np.concatenate([np.repeat(xs, len(yz))[:, None], np.tile(yz, (len(xs), 1))], axis=1)
-            sdf = field.geometry(torch.from_numpy(points.astype(np.float32))).sdf
+            sdf = region_sdf_and_kernel(field, torch.from_numpy(points.astype(np.float32)), cut)[0]
             out[x0 : x0 + len(xs)] = sdf.cpu().numpy().reshape(len(xs), shape[1], shape[2])
     return out
 
 
-def _level_set(field, cage_vertices: np.ndarray, resolution: int, what: str):
-    """Vertices (N, 3), faces (F, 3) of the parts of ``field``'s zero level set over the cage's bounding
-    box with at least :data:`MIN_PART` of the largest part's area (step 1 of the module docstring)."""
+def _level_set(field, cage_vertices: np.ndarray, resolution: int, what: str, cut=None):
+    """Vertices (N, 3), faces (F, 3) of the parts of ``field``'s zero level set (inside ``cut``'s region,
+    :func:`_sample_sdf`) over the cage's bounding box with at least :data:`MIN_PART` of the largest part's
+    area (step 1 of the module docstring)."""
     import trimesh
 
     from neural.shell.extract import marching_cubes_mesh
@@ -244,7 +248,7 @@ def _level_set(field, cage_vertices: np.ndarray, resolution: int, what: str):
     lo, hi = cage_vertices.min(axis=0), cage_vertices.max(axis=0)
     spacing = float(np.linalg.norm(hi - lo)) / resolution
     shape = tuple(int(n) for n in np.ceil((hi - lo) / spacing) + 1)
-    mesh = marching_cubes_mesh(_sample_sdf(field, lo, spacing, shape), lo, spacing)
+    mesh = marching_cubes_mesh(_sample_sdf(field, lo, spacing, shape, cut), lo, spacing)
     if len(mesh.faces) == 0:
         raise InputError(f"{what}: the field's zero level set is empty inside the cage")
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
@@ -325,7 +329,7 @@ def surface_of_asset(
     if surface is not None:
         return surface
     start, what = time.perf_counter(), f"asset {asset.name!r}"
-    vertices, faces = _level_set(load_field(asset, "cpu"), cage_vertices, resolution, what)
+    vertices, faces = _level_set(load_field(asset, "cpu"), cage_vertices, resolution, what, asset.cut)
     surface = _decimated(vertices, faces, cage_vertices, cage_tets, max_faces, what)
     save_surface(path, key, surface)
     logger.info(

@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> Path:
 def holds(body) -> tuple[str, str, np.ndarray]:
     """Where the cut ``body`` (an :class:`neural.asset.Asset`) is pinned, where it is grabbed (regions of
     the scene file) and the world direction (3,) it is pulled along: an object on its table (or with no
-    plane) by its base and its top, pulled along x; one hanging on its wall by the side against the wall
+    plane) by its base and its top, pulled along x; one hanging on its wall by its back part against the wall
     and the side away from it, pulled sideways along the wall."""
     cut = body.cut
     if cut.normal is None or is_table(cut.normal, body.up):
@@ -126,9 +126,9 @@ def holds(body) -> tuple[str, str, np.ndarray]:
     away = up_rotation(body.up) @ cut.normal  # the wall's normal in the world (the body is placed up)
     axis = int(np.argmax(np.abs(away[:2])))
     name, other = "xy"[axis], "yx"[axis]
-    if away[axis] > 0:
-        return f"{name}<10%", f"{name}>75%", np.eye(3)["xy".index(other)]
-    return f"{name}>90%", f"{name}<25%", np.eye(3)["xy".index(other)]
+    if away[axis] > 0:  # the back 40%: the plaque and the neck, a jelly cantilever sags from less
+        return f"{name}<40%", f"{name}>75%", np.eye(3)["xy".index(other)]
+    return f"{name}>60%", f"{name}<25%", np.eye(3)["xy".index(other)]
 
 
 def _run(argv: list[str]) -> None:

@@ -23,7 +23,15 @@ from neural.metrics import psnr
 from neural.pipeline import train_asset
 from neural.render.ground import WorldLook
 from neural.render.view import asset_sampler, render_camera
-from neural.shell.cutout import Cut, RegionMask, cut_shells, is_table, propose_cut
+from neural.shell.cutout import (
+    FLOOR_VOXELS,
+    PROPOSAL_GRID,
+    Cut,
+    RegionMask,
+    cut_shells,
+    is_table,
+    propose_cut,
+)
 from shellsim.cli.main import main
 from shellsim.deform.renderer import DeformedRenderer
 
@@ -173,7 +181,8 @@ def test_the_proposed_cut_finds_the_table_or_the_wall_and_boxes_the_object_on_it
     field = _PlaneAndBall(normal)
     cut = propose_cut(field, up=(0.0, 0.0, 1.0), center=(0.0, 0.0, 0.0), radius=1.0)
     np.testing.assert_allclose(cut.normal, normal, atol=0.02)  # towards the object, whatever the tilt
-    assert abs(float(np.dot(cut.point, normal))) < 0.02
+    floor = FLOOR_VOXELS * 2.0 / (PROPOSAL_GRID - 1)  # the floor is that many voxels over the plane
+    assert abs(float(np.dot(cut.point, normal)) - floor) < 0.01
     ball = field.ball.numpy()
     np.testing.assert_allclose(cut.lo, ball - 0.35, atol=0.1)  # the ball's box and its margin
     np.testing.assert_allclose(cut.hi, ball + 0.35, atol=0.1)

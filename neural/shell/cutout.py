@@ -38,6 +38,9 @@ PROPOSAL_GRID = 96
 PLANE_TRIES = 256
 #: A proposed box reaches this many proposal voxels past the surface it holds.
 BOX_MARGIN_VOXELS = 3
+#: The cut's floor lies this many proposal voxels above (in front of) the supporting plane, so that the
+#: table's or wall's own surface, its kernel's width, stays whole with the backdrop when the body moves.
+FLOOR_VOXELS = 2
 
 
 @dataclass(frozen=True)
@@ -132,10 +135,11 @@ def propose_cut(
     cameras' focus, and its unit ball), the supporting plane among those points by RANSAC (the plane with
     most points within a voxel whose normal is within :data:`PLANE_TILT_DEGREES` of ``up`` (3,), a table;
     else the wall the object hangs on, :func:`_object_plane`; none when fewer than a tenth of the points
-    lie on one), and the connected part of the surface above (in front of) that plane nearest the centre,
-    boxed with :data:`BOX_MARGIN_VOXELS` to spare; a box without plane when there is no plane. With
-    ``box`` (a :class:`Cut` the user named) the box is that one, and only the plane is found, among the
-    surface inside it. An :class:`InputError` when no surface lies there."""
+    lie on one), and the connected part of the surface above (in front of) that plane, from
+    :data:`FLOOR_VOXELS` over it (the cut's floor), nearest the centre, boxed with
+    :data:`BOX_MARGIN_VOXELS` to spare; a box without plane when there is no plane. With ``box`` (a
+    :class:`Cut` the user named) the box is that one, and only the floor is found, among the surface inside
+    it. An :class:`InputError` when no surface lies there."""
     from scipy import ndimage
 
     ball_center, ball_radius = _unit_ball(field)
@@ -164,12 +168,16 @@ def propose_cut(
     if box is not None:
         inside = box.contains(torch.as_tensor(points)).numpy()
         plane = _object_plane(points[inside], up, voxel) if inside.sum() >= 16 else None
-        return box if plane is None else Cut(box.lo, box.hi, *plane)
+        return (
+            box
+            if plane is None
+            else Cut(box.lo, box.hi, plane[0] + FLOOR_VOXELS * voxel * plane[1], plane[1])
+        )
     plane = _object_plane(points, up, voxel)
     keep = surface.copy()
-    if plane is not None:
-        point, normal = plane
-        keep &= (nodes - point) @ normal > 2.0 * voxel
+    if plane is not None:  # the floor: the table's (or wall's) own surface stays with the backdrop
+        plane = (plane[0] + FLOOR_VOXELS * voxel * plane[1], plane[1])
+        keep &= (nodes - plane[0]) @ plane[1] > 0.0
     labels, count = ndimage.label(ndimage.binary_dilation(keep, iterations=1), structure=np.ones((3, 3, 3)))
     labels = np.where(keep, labels, 0)
     if count == 0 or not labels.any():

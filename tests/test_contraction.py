@@ -100,7 +100,7 @@ def _field(scale: float = 0.5, center=(0.2, -0.1, 0.3)):
 
 
 def test_contracted_steps_cover_the_ray_to_far_away_at_the_step_length():
-    from neural.field.contraction import FAR_RADIUS
+    from neural.render.occupancy import FAR_RADIUS
     from neural.render.view import field_occupancy_grid, occupancy_sampler
 
     field = _field()

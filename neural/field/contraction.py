@@ -18,12 +18,6 @@ import torch
 
 #: Radius of the ball the whole space is contracted into.
 CONTRACTED_RADIUS = 2.0
-#: The part of the contracted ball (radius) a field's content fills: its samples and shells end there, at
-#: ``FAR_RADIUS = 1 / (2 - 2 BALL_FILL)`` ball radii in the world, and the environment map holds what lies
-#: beyond. Shells reaching nearer the ball's edge (infinity) turn inside out: flat triangles between
-#: vertices carried back from there no longer follow the contracted surface.
-BALL_FILL = 0.94
-FAR_RADIUS = 1.0 / (CONTRACTED_RADIUS * (1.0 - BALL_FILL))
 
 
 def contract(x: torch.Tensor) -> torch.Tensor:

@@ -22,11 +22,14 @@ from dataclasses import dataclass
 
 import torch
 
-from ..field.contraction import FAR_RADIUS, contract
+from ..field.contraction import contract
 from .fullray import ray_aabb, step_offsets, step_range
 from .occupancy_warp import march_occupied
 from .samples import RaySamples
 
+#: How far contracted rays are marched, in ball radii (contracted radius ``2 - 1 / FAR_RADIUS``); what lies
+#: beyond is the field's environment map.
+FAR_RADIUS = 100.0
 #: Nodes measuring a ray's contracted curve: evenly spaced inside the ball, geometrically spaced beyond.
 CURVE_NODES = (64, 64)
 
@@ -224,12 +227,11 @@ class OccupancyGrid:
         perturb: bool = False,
         generator: torch.Generator | None = None,
     ) -> RaySamples:
-        """Sections of world rays ``origins``, ``dirs`` (R, 3) from their origin to
-        :data:`~neural.field.contraction.FAR_RADIUS` ball radii (beyond: the environment map) whose
-        contracted length is ``step_size`` (the grid's units: the box is the contracted space of
-        ``contraction``, a :class:`~neural.field.contraction.ContractionMap`) and whose contracted centre
-        lies in an occupied cell; sections in ``t`` units, near the object as long as ``step_size`` and
-        growing away from it as ``1 / |J d|``.
+        """Sections of world rays ``origins``, ``dirs`` (R, 3) from their origin to :data:`FAR_RADIUS` ball
+        radii whose contracted length is ``step_size`` (the grid's units: the box is the contracted space of
+        ``contraction``, a :class:`~neural.field.contraction.ContractionMap`) and whose contracted centre lies
+        in an occupied cell; sections in ``t`` units, near the object as long as ``step_size`` and growing
+        away from it as ``1 / |J d|``.
 
         Each ray's contracted curve is measured by the chords of :data:`CURVE_NODES` nodes (evenly spaced up
         to where the ray leaves the unit ball, geometrically spaced beyond, where the curve bends less and

@@ -2,10 +2,10 @@
 level-set extraction there (so the paper's zeta, dt etc. apply in unit space), map the meshes to world.
 
 A field in contracted space (``field.contraction``) is extracted in that space, as the paper does for
-unbounded scenes (Sec. 4.7): its cube holds the contracted ball, and its content ends at
-:data:`~neural.field.contraction.BALL_FILL` of the ball's radius (f is raised to the distance to that
-ball, so no shell reaches infinity); the meshes' vertices, held within :data:`SHELL_REACH` of its radius,
-are carried back to the world by the inverse contraction."""
+unbounded scenes (Sec. 4.7): its cube holds the contracted ball, outside which nothing is (f is raised to
+the distance to the ball, :data:`BALL_FILL` of its radius, so no shell reaches infinity), and the meshes'
+vertices, held within :data:`SHELL_REACH` of its radius, are carried back to the world by the inverse
+contraction."""
 
 from __future__ import annotations
 
@@ -14,11 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..field.contraction import BALL_FILL, CONTRACTED_RADIUS
+from ..field.contraction import CONTRACTED_RADIUS
 from .extract import ShellConfig, extract_shells, sample_grid, shell_width_stats
 
-#: The most (part of the contracted ball's radius) a contracted field's shells may reach once dilated beyond
-#: its content (:data:`~neural.field.contraction.BALL_FILL`).
+#: The part of the contracted ball (radius) a contracted field's content may fill before its shells are
+#: extracted (world radius ``1 / (2 - 2 BALL_FILL)`` object radii), and the most their vertices may reach
+#: once dilated: its edge is at infinity, where flat triangles between carried-back vertices turn inside out.
+BALL_FILL = 0.94
 SHELL_REACH = 0.985
 
 

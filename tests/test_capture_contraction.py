@@ -187,3 +187,6 @@ def test_the_proposed_cut_finds_the_table_or_the_wall_and_boxes_the_object_on_it
     np.testing.assert_allclose(cut.lo, ball - 0.35, atol=0.1)  # the ball's box and its margin
     np.testing.assert_allclose(cut.hi, ball + 0.35, atol=0.1)
     assert is_table(cut.normal, (0.0, 0.0, 1.0)) == (normal[2] == 1.0)
+    named = propose_cut(field, up=(0.0, 0.0, 1.0), box=Cut(ball - 0.6, ball + 0.6))  # the user's box
+    np.testing.assert_allclose(named.lo, ball - 0.6)
+    np.testing.assert_allclose(named.normal, normal, atol=0.02)  # and the floor found inside it

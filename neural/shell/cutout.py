@@ -134,7 +134,7 @@ def propose_cut(
     :data:`PROPOSAL_GRID`^3 grid over the ball ``center``, ``radius`` (defaults: the field's centre, the
     cameras' focus, and its unit ball), the supporting plane among those points by RANSAC (the plane with
     most points within a voxel whose normal is within :data:`PLANE_TILT_DEGREES` of ``up`` (3,), a table;
-    else the wall the object hangs on, :func:`_object_plane`; none when fewer than a tenth of the points
+    else the wall the object hangs on, :func:`_object_floor`; none when fewer than a tenth of the points
     lie on one), and the connected part of the surface above (in front of) that plane, from
     :data:`FLOOR_VOXELS` over it (the cut's floor), nearest the centre, boxed with
     :data:`BOX_MARGIN_VOXELS` to spare; a box without plane when there is no plane. With ``box`` (a
@@ -167,17 +167,12 @@ def propose_cut(
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
     if box is not None:
         inside = box.contains(torch.as_tensor(points)).numpy()
-        plane = _object_plane(points[inside], up, voxel) if inside.sum() >= 16 else None
-        return (
-            box
-            if plane is None
-            else Cut(box.lo, box.hi, plane[0] + FLOOR_VOXELS * voxel * plane[1], plane[1])
-        )
-    plane = _object_plane(points, up, voxel)
+        floor = _object_floor(points[inside], up, voxel) if inside.sum() >= 16 else None
+        return box if floor is None else Cut(box.lo, box.hi, *floor)
+    floor = _object_floor(points, up, voxel)
     keep = surface.copy()
-    if plane is not None:  # the floor: the table's (or wall's) own surface stays with the backdrop
-        plane = (plane[0] + FLOOR_VOXELS * voxel * plane[1], plane[1])
-        keep &= (nodes - plane[0]) @ plane[1] > 0.0
+    if floor is not None:
+        keep &= (nodes - floor[0]) @ floor[1] > 0.0
     labels, count = ndimage.label(ndimage.binary_dilation(keep, iterations=1), structure=np.ones((3, 3, 3)))
     labels = np.where(keep, labels, 0)
     if count == 0 or not labels.any():
@@ -186,23 +181,26 @@ def propose_cut(
     nearest = np.argmin(np.linalg.norm(nodes[marked] - center, axis=1))
     part = nodes[labels == labels[tuple(a[nearest] for a in marked)]]
     lo, hi = part.min(0) - BOX_MARGIN_VOXELS * voxel, part.max(0) + BOX_MARGIN_VOXELS * voxel
-    return Cut(lo, hi) if plane is None else Cut(lo, hi, *plane)
+    return Cut(lo, hi) if floor is None else Cut(lo, hi, *floor)
 
 
-def _object_plane(points: np.ndarray, up: np.ndarray, tolerance: float):
-    """The plane the object rests on among surface ``points`` (N, 3): ``(point (3,), unit normal (3,))`` of
-    the table it stands on (:func:`_supporting_plane`) or else of the wall it hangs on (the plane through
-    most points, of any tilt; its normal towards the side where more of the other points lie, the object's:
-    behind a wall the cameras see little); None when neither holds a tenth of the points."""
-    plane = _supporting_plane(points, up, tolerance)
-    if plane is not None:
-        return plane
-    plane = _supporting_plane(points, up, tolerance, table=False)
+def _object_floor(points: np.ndarray, up: np.ndarray, voxel: float):
+    """The cut's floor among surface ``points`` (N, 3) of a proposal grid of ``voxel`` spacing: ``(point
+    (3,), unit normal (3,))`` of the plane the object rests on, raised :data:`FLOOR_VOXELS` along its
+    normal. The plane is the table it stands on (:func:`_supporting_plane`) or else the wall it hangs on
+    (the plane through most points, of any tilt; its normal towards the side where more of the other points
+    lie, the object's: behind a wall the cameras see little); None when neither holds a tenth of the
+    points."""
+    plane = _supporting_plane(points, up, voxel)
     if plane is None:
-        return None
+        plane = _supporting_plane(points, up, voxel, table=False)
+        if plane is None:
+            return None
+        height = (points - plane[0]) @ plane[1]
+        if (height > voxel).sum() < (height < -voxel).sum():
+            plane = (plane[0], -plane[1])
     point, normal = plane
-    height = (points - point) @ normal
-    return point, normal if (height > tolerance).sum() >= (height < -tolerance).sum() else -normal
+    return point + FLOOR_VOXELS * voxel * normal, normal
 
 
 def world_sdf_and_kernel(field, x: torch.Tensor):

@@ -54,9 +54,18 @@ def random_unit(rng, n):
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def ambiguous_rays(stats, dirs, config, n_rays):
-    """Rays with an interval whose width sits on a step of N's ceil (float32 Embree vs float64 may differ)."""
+def ambiguous_rays(stats, origins, dirs, config, n_rays, contraction=None):
+    """Rays with an interval whose width (world, or contracted with ``contraction``) sits on a step of N's
+    ceil (float32 Embree vs float64 may differ)."""
     widths = (stats.interval_exit - stats.interval_enter) * np.linalg.norm(dirs[stats.interval_rays], axis=1)
+    if contraction is not None:
+        o, d = origins[stats.interval_rays], dirs[stats.interval_rays]
+        ends = [o + t[:, None] * d for t in (stats.interval_enter, stats.interval_exit)]
+        widths = np.linalg.norm(
+            contraction.to_field(torch.as_tensor(ends[1])).numpy()
+            - contraction.to_field(torch.as_tensor(ends[0])).numpy(),
+            axis=1,
+        )
     x = (widths - config.w_s) / config.delta_s
     near_step = (np.abs(x - np.round(x)) < 2e-3) | (widths < 1e-4)
     flagged = np.zeros(n_rays, dtype=bool)
@@ -64,14 +73,18 @@ def ambiguous_rays(stats, dirs, config, n_rays):
     return flagged
 
 
-def assert_matches_reference(outer, inner, origins, dirs, config, near=0.0, intersector=None):
+def assert_matches_reference(
+    outer, inner, origins, dirs, config, near=0.0, intersector=None, contraction=None
+):
     """The fast sampler on ``intersector`` (default: Embree on ``outer``, ``inner``) against the per-ray
     float64 twin on ``outer``, ``inner``."""
     n = len(origins)
     intersector = EmbreeCaster(outer, inner) if intersector is None else intersector
-    fast, fast_stats = narrow_band_samples(intersector, origins, dirs, config, near=near)
-    ref, ref_stats = narrow_band_samples_reference(outer, inner, origins, dirs, config, near=near)
-    skip = ambiguous_rays(fast_stats, dirs, config, n) | ambiguous_rays(ref_stats, dirs, config, n)
+    kwargs = dict(near=near, contraction=contraction)
+    fast, fast_stats = narrow_band_samples(intersector, origins, dirs, config, **kwargs)
+    ref, ref_stats = narrow_band_samples_reference(outer, inner, origins, dirs, config, **kwargs)
+    skip = ambiguous_rays(fast_stats, origins, dirs, config, n, contraction)
+    skip |= ambiguous_rays(ref_stats, origins, dirs, config, n, contraction)
     assert skip.mean() < 0.02
     ok = torch.as_tensor(~skip)
     np.testing.assert_array_equal(fast_stats.counts[~skip], ref_stats.counts[~skip])
@@ -107,6 +120,22 @@ def test_row_of_shells_several_bands_match_reference(rng, max_peel):
     _, stats = assert_matches_reference(outer, inner, origins, dirs, config)
     intervals_per_ray = np.bincount(stats.interval_rays, minlength=300)
     assert intervals_per_ray.max() == (3 if max_peel == 8 else 2)
+
+
+def test_row_of_shells_counted_in_contracted_space_match_reference(rng):
+    """With a contraction about the middle shell (unit ball radius 0.8), the outer shells lie beyond it and
+    their intervals are counted by their contracted widths, alike in both samplers."""
+    from neural.field.contraction import ContractionMap
+
+    outer, inner = row_of_three()
+    origins = np.column_stack([np.full(300, -5.0), rng.uniform(-1.1, 1.1, (300, 2))])
+    dirs = np.column_stack([np.ones(300), rng.normal(scale=0.05, size=(300, 2))])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    config = NarrowBandConfig(delta_s=0.05, w_s=0.05, n_max=16, max_peel=8)
+    contraction = ContractionMap((0.0, 0.0, 0.0), 0.8)
+    _, stats = assert_matches_reference(outer, inner, origins, dirs, config, contraction=contraction)
+    _, world = narrow_band_samples(EmbreeCaster(outer, inner), origins, dirs, config)
+    assert stats.counts.sum() < world.counts.sum()  # the far shells' intervals are narrower there
 
 
 def test_torus_matches_reference(rng):

@@ -214,7 +214,8 @@ def narrow_band_samples_reference(
     contraction=None,
 ) -> tuple[RaySamples, NarrowBandStats]:
     """Slow twin of :func:`narrow_band_samples`: Procedure 3 line by line, one ray at a time, with a
-    brute-force float64 ray-triangle test against every face. Same arguments and results (for tests)."""
+    brute-force float64 ray-triangle test against every face (and, with a ``contraction``, each interval's
+    width the distance between its contracted ends). Same arguments and results (for tests)."""
     config = NarrowBandConfig() if config is None else config
     origins, dirs = as_rays(origins, dirs)
     tri_outer = np.asarray(outer.triangles, dtype=np.float64)
@@ -243,6 +244,9 @@ def narrow_band_samples_reference(
                     break
                 d_exit = min(hit_distance, d_minus)
                 w = d_exit - d_enter
+                if contraction is not None:
+                    ends = torch.as_tensor(np.stack([start + d_enter * unit, start + d_exit * unit]))
+                    w = float(np.linalg.norm(np.diff(contraction.to_field(ends).numpy(), axis=0)))
                 n = min(int(np.ceil(max(w - config.w_s, 0.0) / config.delta_s)) + 1, config.n_max)
                 tau = np.linspace(d_enter, d_exit, n + 2)
                 bounds = np.concatenate([[d_enter], 0.5 * (tau[1:-2] + tau[2:-1]), [d_exit]])

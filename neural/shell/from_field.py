@@ -53,12 +53,13 @@ def extract_field_shells(field, config: ShellConfig, device: str) -> FieldShells
     result = extract_shells(f, s, np.full(3, -1.0), spacing, config)
     outer, inner = result.outer, result.inner
     for mesh in (outer, inner):
-        mesh.vertices = mesh.vertices / scale + center
-        if contraction is not None:
-            y = torch.as_tensor(mesh.vertices) - field.center.detach().double().cpu()
+        offset = mesh.vertices / scale  # (V, 3) world units about the centre (contracted ones if contracted)
+        if contraction is not None:  # held within SHELL_REACH of the contracted ball, carried back
             reach = CONTRACTED_RADIUS * contraction.radius * SHELL_REACH
-            y = y * (reach / y.norm(dim=1, keepdim=True).clamp_min(reach))
-            mesh.vertices = contraction.to_world(y + field.center.detach().double().cpu()).numpy()
+            offset = offset * (reach / np.maximum(np.linalg.norm(offset, axis=1, keepdims=True), reach))
+            mesh.vertices = contraction.to_world(torch.as_tensor(offset + center)).numpy()
+        else:
+            mesh.vertices = offset + center
     stats = {f"width_{k}": float(v) for k, v in shell_width_stats(outer, inner).items()}  # world units
     stats.update(outer_faces=int(len(outer.faces)), inner_faces=int(len(inner.faces)))
     return FieldShells(outer, inner, stats)

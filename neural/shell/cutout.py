@@ -6,8 +6,9 @@ plane the object rests on) whose content becomes a **body** with its own shells,
   distance to it, positive outside: the body's SDF is ``max(f, distance)``, the field's content cut off at
   the region's faces);
 - :func:`propose_cut`: the region the cameras look at when the user names none: the field's surface
-  near their focus point, the supporting plane found there by RANSAC (normal within
-  :data:`PLANE_TILT_DEGREES` of up), and the connected part of the surface above it nearest the focus;
+  near their focus point, the supporting plane found there by RANSAC (a table, normal within
+  :data:`PLANE_TILT_DEGREES` of up; else the wall the object hangs on), and the connected part of the
+  surface above it nearest the focus;
 - :func:`cut_shells`: Procedure 2 on the cut field over a grid around the region (so the body's shells are
   as fine as the extraction's resolution over the object, not over the whole room);
 - :class:`RegionMask`: a map of samples (:class:`neural.render.view.RestMap`) that keeps those inside (the

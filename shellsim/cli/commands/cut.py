@@ -14,8 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="cut the object out of a captured asset: a body to simulate, the room as its backdrop",
         description="Writes a new asset whose shells hold only the object (named by --box, by --center and "
         "--radius, or proposed: the surface the cameras look at, above the supporting plane found in the "
-        "field) and which keeps the rest of the field as a static backdrop drawn around every frame. The "
-        "plane becomes the asset's up, so the body stands on the ground of a shot as on its own table.",
+        "field, a table or else the wall it hangs on) and which keeps the rest of the field as a static "
+        "backdrop drawn around every frame. A table becomes the asset's up, so the body stands on the "
+        "ground of a shot as on its own table.",
     )
     add_options(p, CutSettings)
     p.set_defaults(func=run)

@@ -807,12 +807,18 @@ MALFORMED = [
 def test_a_malformed_file_is_one_line_naming_the_table_and_key(tmp_path, text, expected):
     _files(tmp_path)
     path = _write(tmp_path / "scene.toml", text)
+    assert expected in _one_line_error(path)
+
+
+def _one_line_error(path) -> str:
+    """The message of the :class:`SceneError` reading the scene file ``path`` raises, checked to be one line
+    that starts with the file's name."""
     with pytest.raises(SceneError) as caught:
         read_scene(path)
     message = str(caught.value)
     assert "\n" not in message
     assert message.startswith(f"{path}: ")
-    assert expected in message
+    return message
 
 
 @pytest.mark.parametrize(
@@ -963,12 +969,7 @@ def test_a_wrong_capture_camera_is_one_line_naming_the_key(tmp_path, text, expec
     _capture(tmp_path / "one.json", cameras=1)
     (tmp_path / "bad.json").write_text("{frames: []")
     path = _write(tmp_path / "scene.toml", text)
-    with pytest.raises(SceneError) as caught:
-        read_scene(path)
-    message = str(caught.value)
-    assert "\n" not in message
-    assert message.startswith(f"{path}: ")
-    assert expected.format(root=tmp_path.resolve()) in message
+    assert expected.format(root=tmp_path.resolve()) in _one_line_error(path)
 
 
 EXAMPLE_SCENES = sorted((Path(__file__).parent.parent / "examples" / "scenes").glob("*.toml"))

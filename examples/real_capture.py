@@ -33,7 +33,7 @@ from neural.shell.cutout import is_table
 from shellsim.cli.main import main as shellsim
 from shellsim.world import up_rotation
 
-SHOT = """# {name} cut out of its capture: jelly on its own table, seen along the capture's cameras.
+SHOT = """# {name} cut out of its capture: jelly where it rests, seen along the capture's cameras.
 [world]
 duration = {duration}
 substeps = 4
@@ -125,10 +125,10 @@ def holds(body) -> tuple[str, str, np.ndarray]:
         return "z<10%", "z>75%", np.array([1.0, 0.0, 0.0])
     away = up_rotation(body.up) @ cut.normal  # the wall's normal in the world (the body is placed up)
     axis = int(np.argmax(np.abs(away[:2])))
-    name, other = "xy"[axis], "yx"[axis]
+    name, aside = "xy"[axis], np.eye(3)[1 - axis]  # pulled along the other horizontal axis
     if away[axis] > 0:  # the back 40%: the plaque and the neck, a jelly cantilever sags from less
-        return f"{name}<40%", f"{name}>75%", np.eye(3)["xy".index(other)]
-    return f"{name}>60%", f"{name}<25%", np.eye(3)["xy".index(other)]
+        return f"{name}<40%", f"{name}>75%", aside
+    return f"{name}>60%", f"{name}<25%", aside
 
 
 def _run(argv: list[str]) -> None:

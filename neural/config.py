@@ -206,6 +206,8 @@ class Stage1Config:
     occupancy_resolution: int = 128
     occupancy_every: int = 16
     random_background: bool = False  # see PixelSampler; only for images with alpha
+    error_sampling: float = 0.0  # share of the rays drawn where the running error is high (see PixelSampler)
+    error_tile: int = 16  # pixels per side of the tiles whose error PixelSampler keeps
     eval_every: int = 1000
     eval_views: int = 2  # held-out views of the periodic evaluations (0: all); the final one uses all
     checkpoint_every: int = 250
@@ -225,11 +227,12 @@ class Stage1Config:
 
 def _check_stage(config) -> None:
     """The checks of the fields both training stages have."""
-    _check(config, 1, math.inf, "steps", "eval_every", "checkpoint_every", integer=True)
+    _check(config, 1, math.inf, "steps", "eval_every", "checkpoint_every", "error_tile", integer=True)
     _check(config, 0, math.inf, "warmup_steps", "eval_views", integer=True)
     _check(config, 0, MAX_SEED, "seed", integer=True)
     _check(config, 0, math.inf, "lr_encoding", "lr_network", ends="()")
     _check(config, 0, 1, "final_lr_factor", ends="(]")
+    _check(config, 0, 1, "error_sampling")
     _check(config, 0, math.inf, "checkpoint_seconds")
     _check_bool(config, "random_background")
 
@@ -248,6 +251,8 @@ class Stage2Config:
     warmup_steps: int = 100
     final_lr_factor: float = 0.1
     random_background: bool = False  # see PixelSampler; only for images with alpha
+    error_sampling: float = 0.0  # share of the rays drawn where the running error is high (see PixelSampler)
+    error_tile: int = 16  # pixels per side of the tiles whose error PixelSampler keeps
     eval_every: int = 500
     eval_views: int = 2  # held-out views of the periodic evaluations (0: all); the final one uses all
     checkpoint_every: int = 250

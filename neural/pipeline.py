@@ -86,13 +86,12 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
     )
     field_ = build_field(data, config.field, device, config.stage1.seed, config.space)
     stage1 = train_stage1(field_, data, out_dir, config.stage1, device)
-    shells = _load_shells(out_dir / "checkpoints", config)
-    extraction_seconds = 0.0
+    shells, extraction_seconds = _load_shells(out_dir / "checkpoints", config) or (None, 0.0)
     if shells is None:
         tick = time.perf_counter()
         shells = extract_field_shells(field_, config.shell, device)
-        _save_shells(out_dir / "checkpoints", config, shells)
         extraction_seconds = time.perf_counter() - tick
+        _save_shells(out_dir / "checkpoints", config, shells, extraction_seconds)
     narrowband = config.narrowband.scaled(1.0 / float(data.normalisation.scale))  # unit cube -> world
     stage2 = train_stage2(
         field_, data, shells.outer, shells.inner, out_dir, config.stage2, narrowband, device
@@ -134,9 +133,9 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
 
 
 def training_curve(stage1: list[dict], extraction_seconds: float, stage2: list[dict]) -> list[dict]:
-    """Held-out PSNR against training minutes of this run: the stage-1 evaluations (occupancy-grid
-    rendering), then the stage-2 ones (narrow band) after stage 1's and the extraction's time. Minutes
-    leave the evaluations out; a stage this run resumed after counts from the resumption."""
+    """Held-out PSNR against training minutes: the stage-1 evaluations (occupancy-grid rendering), then the
+    stage-2 ones (narrow band) after stage 1's and the extraction's time. Minutes leave the evaluations out
+    and add up over the runs that resumed the training."""
     keys = ("step", "psnr", "ssim", "samples_per_pixel")
     stage1_seconds = stage1[-1]["train_seconds"] if stage1 else 0.0
     points = [(1, m, m["train_seconds"]) for m in stage1]
@@ -176,15 +175,18 @@ def _shell_key(config: PipelineConfig) -> dict:
     )
 
 
-def _save_shells(ckpt_dir: Path, config: PipelineConfig, shells: FieldShells) -> None:
-    """Keep the extracted shells so that a resumed run skips the extraction; shells.json is written last."""
+def _save_shells(ckpt_dir: Path, config: PipelineConfig, shells: FieldShells, seconds: float) -> None:
+    """Keep the extracted shells (and the ``seconds`` their extraction took) so that a resumed run skips the
+    extraction; shells.json is written last."""
     for name, mesh in (("shell_outer.ply", shells.outer), ("shell_inner.ply", shells.inner)):
         write_atomically(ckpt_dir / name, lambda tmp, m=mesh: m.export(tmp))
-    write_text_atomically(ckpt_dir / "shells.json", json.dumps({**_shell_key(config), "stats": shells.stats}))
+    saved = {**_shell_key(config), "stats": shells.stats, "seconds": seconds}
+    write_text_atomically(ckpt_dir / "shells.json", json.dumps(saved))
 
 
-def _load_shells(ckpt_dir: Path, config: PipelineConfig) -> FieldShells | None:
-    """The shells an earlier run extracted with the same settings after the same stage 1, else None."""
+def _load_shells(ckpt_dir: Path, config: PipelineConfig) -> tuple[FieldShells, float] | None:
+    """The shells an earlier run extracted with the same settings after the same stage 1, with the seconds
+    that took; else None."""
     import trimesh
 
     try:
@@ -196,7 +198,7 @@ def _load_shells(ckpt_dir: Path, config: PipelineConfig) -> FieldShells | None:
         return None
     meshes = [trimesh.load(ckpt_dir / f, force="mesh", process=False) for f in SHELL_FILES[:2]]
     log.info("%s: reusing the shells extracted by an earlier run", ckpt_dir)
-    return FieldShells(*meshes, saved["stats"])
+    return FieldShells(*meshes, saved["stats"]), float(saved.get("seconds", 0.0))
 
 
 def _rmdir(path: Path) -> None:

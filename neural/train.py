@@ -72,16 +72,33 @@ def set_learning_rate(
 
 
 class PixelSampler:
-    """Random training pixels with their colours (uniform over all pixels of the training views).
+    """Random training pixels with their colours: uniform over all pixels of the training views, or partly
+    where the field is still wrong.
 
     With ``random_background`` and images that have alpha, every fully transparent pixel (alpha 0) gets its
     own uniformly random colour, which the render then uses as its background (Instant-NGP's practice): an
     empty pixel only matches when its ray stays empty, so the field cannot hide floaters in
     background-coloured space. Pixels with any coverage keep the images' background: a partly covered edge
     pixel stays a composite that an opaque surface crossing the pixel can match.
+
+    With ``error_sampling`` > 0, that share of the rays is drawn from an error map (Instant-NGP's): the
+    training views are cut into tiles of ``tile`` x ``tile`` pixels, each keeping a running mean of the
+    squared colour error of the rays drawn in it (:meth:`record`); those rays pick a tile with probability
+    proportional to its error, then a pixel uniformly inside it. The other rays stay uniform, so every tile
+    keeps being visited and its error stays current. Tiles start at an error of 1 (the most a colour in
+    [0, 1] can have), so all are visited early. The loss is not reweighted: the rays go to edges and texture,
+    and pixels that are already right would give little gradient anyway.
     """
 
-    def __init__(self, data: SceneData, device: str, seed: int, random_background: bool = False):
+    def __init__(
+        self,
+        data: SceneData,
+        device: str,
+        seed: int,
+        random_background: bool = False,
+        error_sampling: float = 0.0,
+        tile: int = 16,
+    ):
         self.data = data
         self.cameras = data.cameras
         idx = np.asarray(data.train_idx)
@@ -94,13 +111,19 @@ class PixelSampler:
         self.height, self.width = self.images.shape[1:3]
         self.device = device
         self.generator = torch.Generator(device="cpu").manual_seed(seed)
+        self.error_sampling, self.tile = error_sampling, tile
+        self.tiles = (-(-self.height // tile), -(-self.width // tile))  # tiles per column, per row
+        self.errors = torch.ones(len(idx) * self.tiles[0] * self.tiles[1], device=device)  # (N * ty * tx,)
+        self.drawn = torch.zeros(0, dtype=torch.long, device=device)  # (n,) tile of each ray last drawn
 
     def sample(self, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """n random pixels -> origins (n, 3), dirs (n, 3), rgb (n, 3), background (3,) or (n, 3)."""
         g = self.generator
-        k = torch.randint(0, len(self.views), (n,), generator=g).to(self.device)
-        py = torch.randint(0, self.height, (n,), generator=g).to(self.device)
-        px = torch.randint(0, self.width, (n,), generator=g).to(self.device)
+        k, py, px = self._uniform(n - round(n * self.error_sampling))
+        if self.error_sampling > 0:
+            k_e, py_e, px_e = self._by_error(n - len(k))
+            k, py, px = torch.cat([k, k_e]), torch.cat([py, py_e]), torch.cat([px, px_e])
+            self.drawn = (k * self.tiles[0] + py // self.tile) * self.tiles[1] + px // self.tile
         origins, dirs = pixel_to_ray(self.cameras, self.views[k], px + 0.5, py + 0.5)
         rgb = self.images[k, py, px]
         if self.empty is None:
@@ -109,6 +132,56 @@ class PixelSampler:
         colours = torch.rand((n, 3), generator=g).to(self.device)
         # the images hold fg a + bg0 (1 - a) = bg0 where a = 0: the new colour is the pixel's colour there
         return origins, dirs, torch.where(empty, colours, rgb), torch.where(empty, colours, self.background)
+
+    def _uniform(self, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """n pixels uniform over the training views: view (n,), row (n,), column (n,)."""
+        g = self.generator
+        k = torch.randint(0, len(self.views), (n,), generator=g).to(self.device)
+        py = torch.randint(0, self.height, (n,), generator=g).to(self.device)
+        px = torch.randint(0, self.width, (n,), generator=g).to(self.device)
+        return k, py, px
+
+    def _by_error(self, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """n pixels in tiles drawn in proportion to their error, uniform inside: view, row, column (n,)."""
+        cdf = torch.cumsum(self.errors.double(), 0)
+        u = (torch.rand(n, generator=self.generator, dtype=torch.float64).to(self.device)) * cdf[-1]
+        cell = torch.searchsorted(cdf, u).clamp_(max=len(cdf) - 1)
+        per_view = self.tiles[0] * self.tiles[1]
+        k, rest = cell // per_view, cell % per_view
+        y0, x0 = (rest // self.tiles[1]) * self.tile, (rest % self.tiles[1]) * self.tile
+        inside = torch.rand((2, n), generator=self.generator).to(self.device)  # tiles at an edge are cut
+        py = y0 + (inside[0] * (self.height - y0).clamp(max=self.tile)).long()
+        px = x0 + (inside[1] * (self.width - x0).clamp(max=self.tile)).long()
+        return k, py, px
+
+    def record(self, squared_errors: torch.Tensor) -> None:
+        """Fold the squared colour errors (n,) of the rays last drawn into their tiles' running means."""
+        if self.error_sampling > 0:
+            sums = torch.zeros_like(self.errors).index_add_(
+                0, self.drawn, squared_errors.detach().to(self.errors)
+            )
+            counts = torch.bincount(self.drawn, minlength=len(self.errors))
+            self.errors = (self.errors + sums) / (1 + counts)  # a tile not drawn keeps its error
+
+    def state(self) -> dict[str, torch.Tensor]:
+        """The error map for a training checkpoint: ``{"pixel_errors": (N * ty * tx,) float32}``."""
+        return {"pixel_errors": self.errors.clone()} if self.error_sampling > 0 else {}
+
+    def load_state(self, state: dict[str, torch.Tensor]) -> None:
+        """Restore :meth:`state`; an error map of other tiles or none at all leaves the fresh one."""
+        errors = state.get("pixel_errors")
+        if errors is not None and errors.shape == self.errors.shape:
+            self.errors = errors.to(self.errors)
+
+
+def _pixel_sampler(data: SceneData, device: str, config, start: int, extra: dict) -> PixelSampler:
+    """The pixel sampler of a training stage resumed at step ``start``, its error map from the checkpoint's
+    ``extra`` tensors."""
+    pixels = PixelSampler(
+        data, device, config.seed + start, config.random_background, config.error_sampling, config.error_tile
+    )
+    pixels.load_state(extra)
+    return pixels
 
 
 def regularisers(
@@ -162,13 +235,14 @@ def _psnr(color: torch.Tensor, target: torch.Tensor) -> float:
 
 
 class _TrainingClock:
-    """Seconds this run has spent training: wall time since it started, evaluations excluded."""
+    """Seconds a stage has spent training: ``before`` (its earlier runs, from the checkpoint) plus the wall
+    time since this run started, evaluations excluded."""
 
-    def __init__(self):
-        self.start, self.excluded = time.perf_counter(), 0.0
+    def __init__(self, before: float = 0.0):
+        self.before, self.start, self.excluded = before, time.perf_counter(), 0.0
 
     def seconds(self) -> float:
-        return time.perf_counter() - self.start - self.excluded
+        return self.before + time.perf_counter() - self.start - self.excluded
 
 
 def _periodic_evaluation(
@@ -190,6 +264,12 @@ def _periodic_evaluation(
         f"{metrics['samples_per_pixel']:.2f} samples/pixel"
     )
     return metrics
+
+
+def _resumed_history(meta: dict) -> tuple[list[dict], _TrainingClock]:
+    """The evaluations and the training clock of a stage, carried on from its checkpoint's ``meta`` (empty
+    for a fresh stage): a run resumed across sessions keeps one curve against its whole training time."""
+    return list(meta.get("history", [])), _TrainingClock(float(meta.get("seconds", 0.0)))
 
 
 def _progress(total: int, start: int, desc: str):
@@ -227,13 +307,13 @@ def train_stage1(
     ckpt = Path(out_dir) / "checkpoints" / "stage1.safetensors"
     optimizer = make_optimizer(field, config.lr_encoding, config.lr_network)
     grid = field_occupancy_grid(field, config.occupancy_resolution)
-    start, n_rays, final = 0, config.initial_rays, None
+    start, n_rays, final, extra, meta = 0, config.initial_rays, None, {}, {}
     if ckpt.is_file():
         meta, extra = load_checkpoint(ckpt, field, optimizer)
         grid.load_state(extra)
         start, n_rays, final = int(meta["step"]), int(meta["n_rays"]), meta.get("final")
         log.info("resuming stage 1 from %s at step %d", ckpt, start)
-    pixels = PixelSampler(data, device, config.seed + start, config.random_background)
+    pixels = _pixel_sampler(data, device, config, start, extra)
     reg_gen = torch.Generator().manual_seed(config.seed + 7 + start)
     sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray, perturb=True)
     eval_sampler = occupancy_sampler(grid, field, config.step_size, config.max_samples_per_ray)
@@ -245,11 +325,12 @@ def train_stage1(
         "sharp": config.lambda_k,
     }
     bar = _progress(config.steps, start, "stage 1")
-    history, clock = [], _TrainingClock()
+    history, clock = _resumed_history(meta)
 
     def save(done: int) -> None:
         meta = {"step": done, "n_rays": n_rays, "final": final if done == config.steps else None}
-        save_checkpoint(ckpt, field, optimizer, grid.state(), meta)
+        meta.update(history=history, seconds=clock.seconds())
+        save_checkpoint(ckpt, field, optimizer, {**grid.state(), **pixels.state()}, meta)
 
     checkpoints, done = _Checkpointer(config, save, start), start
     try:
@@ -267,6 +348,7 @@ def train_stage1(
                 bar.update(1)
                 continue
             out = render_rays(field, origins, dirs, samples, ray_background, cos_anneal=anneal)
+            pixels.record(((out["color"].detach() - target) ** 2).mean(-1))
             k = max(1, int(n_samples * config.reg_fraction))
             pick = torch.randperm(n_samples, generator=reg_gen)[:k].to(origins.device)
             reg = regularisers(
@@ -323,20 +405,20 @@ def train_stage2(
     torch.manual_seed(config.seed)
     ckpt = Path(out_dir) / "checkpoints" / "stage2.safetensors"
     optimizer = make_optimizer(field, config.lr_encoding, config.lr_network)
-    start, final = 0, None
+    start, final, extra, meta = 0, None, {}, {}
     if ckpt.is_file():
-        meta, _ = load_checkpoint(ckpt, field, optimizer)
+        meta, extra = load_checkpoint(ckpt, field, optimizer)
         start, final = int(meta["step"]), meta.get("final")
         log.info("resuming stage 2 from %s at step %d", ckpt, start)
     sampler = narrow_band_sampler(EmbreeCaster(outer, inner), narrowband, field.contraction)
-    pixels = PixelSampler(data, device, config.seed + start, config.random_background)
+    pixels = _pixel_sampler(data, device, config, start, extra)
     bar = _progress(config.steps, start, "stage 2")
-    history, clock = [], _TrainingClock()
+    history, clock = _resumed_history(meta)
 
     def save(done: int) -> None:
-        save_checkpoint(
-            ckpt, field, optimizer, None, {"step": done, "final": final if done == config.steps else None}
-        )
+        meta = {"step": done, "final": final if done == config.steps else None}
+        meta.update(history=history, seconds=clock.seconds())
+        save_checkpoint(ckpt, field, optimizer, pixels.state(), meta)
 
     checkpoints, done = _Checkpointer(config, save, start), start
     try:
@@ -345,6 +427,7 @@ def train_stage2(
             origins, dirs, target, ray_background = pixels.sample(config.rays)
             samples = sampler(origins, dirs)
             out = render_rays(field, origins, dirs, samples, ray_background)
+            pixels.record(((out["color"].detach() - target) ** 2).mean(-1))
             loss = color_loss(out["color"], target)  # Eq. 9 only: no regularisers in stage 2
             optimizer.zero_grad(set_to_none=True)
             loss.backward()

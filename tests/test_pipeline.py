@@ -164,6 +164,10 @@ def test_a_resumed_run_keeps_shells_time_and_normal_permissions(tmp_path, monkey
     training = json.loads((out / "asset.json").read_text())["training"]
     assert training["runs"] == 2
     assert abs(training["wall_minutes"] * 60 - (first + second)) < 1.0, (training, first, second)
+    # one curve over both runs: stage 1's evaluation from the first, stage 2's after it and the extraction
+    curve = training["curve"]
+    assert [(p["stage"], p["step"]) for p in curve] == [(1, 10), (2, 4)]
+    assert 0 <= curve[0]["minutes"] <= curve[1]["minutes"]  # rounded to 0.01
     for name in ("field.safetensors", "shell_outer.ply", "asset.json"):
         assert (out / name).stat().st_mode & 0o777 == 0o644, name
     assert not (out / "checkpoints").exists()

@@ -84,6 +84,54 @@ def test_random_background_only_behind_empty_pixels(sphere_data):
     torch.testing.assert_close(rgb, stored_rgb)
 
 
+def test_error_sampling_draws_tiles_in_proportion_to_their_error(sphere_data):
+    """Closed form: a tile with error e is drawn with probability e / sum(errors); the pixel is uniform inside
+    it, also in the tiles cut by the image's edge (32 pixels in tiles of 12: 12, 12, 8)."""
+    pixels = PixelSampler(sphere_data, "cpu", seed=5, error_sampling=1.0, tile=12)
+    assert pixels.tiles == (3, 3)
+    errors = torch.full_like(pixels.errors, 0.01)
+    view_2 = 2 * 9
+    errors[view_2 + 8] = 0.5  # the corner tile of the third view: rows and columns 24-31
+    errors[view_2 + 4] = 0.25  # its centre tile: rows and columns 12-23
+    pixels.errors = errors.clone()
+    n = 40000
+    k, py, px = pixels._by_error(n)
+    tiles = (k * 3 + py // 12) * 3 + px // 12
+    counts = torch.bincount(tiles, minlength=len(errors)).double()
+    expected = n * errors.double() / errors.sum()
+    assert ((counts - expected).abs() <= 5 * expected.sqrt() + 1).all()  # within 5 sigma of a Poisson count
+    corner = (k == 2) & (py >= 24) & (px >= 24)
+    assert corner.sum() == counts[view_2 + 8] and py.max() == 31 and px.max() == 31
+    in_corner = torch.stack([py[corner], px[corner]], 1) - 24
+    assert torch.bincount(in_corner[:, 0] * 8 + in_corner[:, 1], minlength=64).min() > 0  # all 8x8 pixels
+    origins, dirs, rgb, _ = pixels.sample(1000)
+    assert len(pixels.drawn) == len(origins) == len(rgb) == 1000 and torch.isfinite(dirs).all()
+
+
+def test_error_map_keeps_the_running_mean_of_each_tile(sphere_data):
+    """record() folds the squared errors of the rays last drawn into (old + sum) / (1 + count) per tile (a
+    slow loop is the reference); uniform draws record too, and a map of other tiles is not restored."""
+    pixels = PixelSampler(sphere_data, "cpu", seed=9, error_sampling=0.5, tile=8)
+    before = pixels.errors.clone()
+    pixels.sample(3000)
+    drawn = pixels.drawn.clone()
+    squared = torch.rand(3000, generator=torch.Generator().manual_seed(1))
+    pixels.record(squared)
+    expected = before.clone()
+    for tile in drawn.unique().tolist():
+        mine = squared[drawn == tile]
+        expected[tile] = (before[tile] + mine.sum()) / (1 + len(mine))
+    torch.testing.assert_close(pixels.errors, expected)
+    restored = PixelSampler(sphere_data, "cpu", seed=0, error_sampling=0.5, tile=8)
+    restored.load_state(pixels.state())
+    assert torch.equal(restored.errors, pixels.errors)
+    other = PixelSampler(sphere_data, "cpu", seed=0, error_sampling=0.5, tile=16)
+    other.load_state(pixels.state())
+    assert other.errors.eq(1).all()
+    uniform = PixelSampler(sphere_data, "cpu", seed=9)
+    assert uniform.state() == {}
+
+
 def test_the_same_command_trains_the_same_field(sphere_data, tmp_path):
     """The initial weights come from the seed, not from torch's global generator (which is left as it
     was), and training from them is deterministic: two runs give bit-identical fields."""
@@ -126,7 +174,9 @@ def test_stage1_resumes_from_its_checkpoint(sphere_data, tmp_path):
         torch.testing.assert_close(value, weights[key], rtol=0, atol=0)
     assert result["final"] is not None and result["final"]["step"] == 20
     longer = train_stage1(resumed, sphere_data, tmp_path, small_stage1(30), "cpu")
-    assert [h["step"] for h in longer["history"]] == [30]
+    # one curve over both runs: the first run's evaluation stays, and the clock goes on from its time
+    assert [h["step"] for h in longer["history"]] == [20, 30]
+    assert 0 < longer["history"][0]["train_seconds"] < longer["history"][1]["train_seconds"]
 
 
 def _run_cli(argv, capsys):

@@ -72,6 +72,8 @@ CONFIG_FIELDS = {
     (Stage1Config, "eval_views"): "eval_views",
     (Stage2Config, "eval_views"): "eval_views",
     (Stage1Config, "seed"): "seed",
+    (Stage1Config, "error_sampling"): "error_sampling",
+    (Stage2Config, "error_sampling"): "error_sampling",
 }
 
 
@@ -99,6 +101,11 @@ class TrainSettings:
         help="train with a random colour behind the fully transparent pixels of images with alpha, so that "
         "no floater can hide in background-coloured space (costs about 1.3 dB held-out on lego; small "
         "floaters apart from the object are dropped from the shells anyway)",
+    )
+    error_sampling: float = option(
+        Stage1Config.error_sampling,
+        help="share of the training rays drawn where the colour error is high (tiles of the training views "
+        "in proportion to their running error, as Instant-NGP's error map); the rest are uniform",
     )
     bound: float | None = option(
         help="half-size of the object's box in world units", shown_default="from the dataset"
@@ -173,6 +180,7 @@ class TrainSettings:
             occupancy_resolution=scaled["occupancy_resolution"],
             lambda_k=self.sharpness,
             random_background=self.random_background,
+            error_sampling=self.error_sampling,
             checkpoint_seconds=seconds,
             eval_every=self.eval_every,
             eval_views=self.eval_views,
@@ -183,6 +191,7 @@ class TrainSettings:
             steps=scaled["stage2_steps"] if self.stage2_steps is None else self.stage2_steps,
             seed=(self.seed + 1) % (MAX_SEED + 1),
             random_background=self.random_background,
+            error_sampling=self.error_sampling,
             checkpoint_seconds=seconds,
             eval_views=self.eval_views,
         )

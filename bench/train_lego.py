@@ -3,13 +3,13 @@
 
 Runs ``shellsim train --data DATA --out OUT --downscale D --steps N --eval-every K --eval-views V`` (any
 further ``shellsim train`` options after ``--``) in a child process, then reads the curve of held-out PSNR
-(V = 0: all 12 held-out views, every 8th; at 800x800 the default is the first 2, as the evaluation of
-all 12 takes longer than 1000 steps there) against training minutes that the command records in ``asset.json``:
-stage-1 points rendered with the training occupancy grid (within 0.01 dB of full-ray rendering on lego),
-then stage-2 points in the narrow band (what ``shellsim eval`` reports), after the shell extraction's time.
-Minutes leave the evaluations out. Prints the curve, the first minute at which it reached 27 and 28 dB, the
-final narrow-band figures (all 12 views) and the command's whole wall time. Target on a 2-core CPU: 28 dB
-held-out (narrow band) within 25 minutes at 200x200. Run it on a quiet machine.
+(V = 0: all 12 held-out views, every 8th; the default, but the first 2 at 800x800, where each view takes
+seconds) against training minutes that the command records in ``asset.json``: stage-1 points rendered with
+the training occupancy grid (within 0.01 dB of full-ray rendering on lego), then stage-2 points in the narrow
+band (what ``shellsim eval`` reports), after the shell extraction's time. Minutes leave the evaluations
+out. Prints the curve, the first minute at which it reached 27 and 28 dB, the final narrow-band figures (all
+12 views) and the command's whole wall time. Target on a 2-core CPU: 28 dB held-out (narrow band) within 25
+minutes at 200x200. Run it on a quiet machine.
 
 OUT is removed first, unless ``--resume``: then the command continues the run OUT holds (a run of hours,
 interrupted with Ctrl-C, goes on across sessions) and the minutes add up over its runs.

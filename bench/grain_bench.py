@@ -16,7 +16,7 @@ field from grain of the narrow band's few samples. Per renderer it prints the me
 Run it on a quiet machine.
 
     python bench/grain_bench.py --asset lego --data ../shared/data/lego [--size 512] [--views 4]
-        [--antialias 4]
+        [--antialias 4] [--full-ray] [--save DIR]
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
@@ -52,6 +53,14 @@ def grain_figures(render: np.ndarray, photo: np.ndarray) -> dict:
     }
 
 
+def save(path: Path, image: np.ndarray) -> None:
+    """Write an (H, W, 3) image in [0, 1] as an 8-bit PNG."""
+    from PIL import Image
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)).save(path)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -66,6 +75,7 @@ def main() -> None:
     parser.add_argument(
         "--full-ray", action="store_true", help="also full-ray rendering of the field (the grain's source)"
     )
+    parser.add_argument("--save", help="also write each render and photo here as PNG (VIEW_RENDERER.png)")
     parser.add_argument("--device", default="cpu")
     args = parser.parse_args()
     import torch  # after configure_process
@@ -104,6 +114,9 @@ def main() -> None:
         for v in np.asarray(data.test_idx)[: args.views]:
             view = data.cameras.subset([int(v)])
             image, stats = render_one(view)
+            if args.save:
+                save(Path(args.save) / f"{v:03d}_{name.replace(' ', '_')}.png", image)
+                save(Path(args.save) / f"{v:03d}_photo.png", data.images[v])
             rows.append(
                 {**grain_figures(image, data.images[v]), "spp": stats["samples_per_pixel"], "ms": stats["ms"]}
             )

@@ -211,11 +211,14 @@ def regularisers(
     }
 
 
-def evaluate(field: ShellField, data: SceneData, views, sampler, background: torch.Tensor) -> dict:
-    """Mean PSNR, SSIM, samples per pixel and ms per frame over dataset ``views`` with ``sampler``."""
+def evaluate(
+    field: ShellField, data: SceneData, views, sampler, background: torch.Tensor, render=render_camera
+) -> dict:
+    """Mean PSNR, SSIM, samples per pixel and ms per frame over dataset ``views`` with ``sampler``;
+    ``render`` takes and returns what :func:`~neural.render.view.render_camera` does."""
     psnrs, ssims, spps, times = [], [], [], []
     for v in views:
-        image, stats = render_camera(field, data.cameras, int(v), sampler, background)
+        image, stats = render(field, data.cameras, int(v), sampler, background)
         psnrs.append(psnr(image, data.images[v]))
         ssims.append(ssim(image, data.images[v]))
         spps.append(stats["samples_per_pixel"])

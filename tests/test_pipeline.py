@@ -101,6 +101,15 @@ def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     nb, full = report["narrow_band"], report["full_ray"]
     assert nb["samples_per_pixel"] < full["samples_per_pixel"] / 5
     assert abs(nb["psnr"] - full["psnr"]) < 3.0
+    # 4 jittered rays per pixel: 4 renders of about the same samples each, the same view within a few dB
+    assert main(["eval", "--asset", str(asset_dir), "--data", str(data), "--views", "1", "--no-full-ray"]
+                + ["--antialias", "4", "--json", str(out)]) == 0  # fmt: skip
+    four = json.loads(out.read_text())
+    assert four["antialias"] == 4 and report["antialias"] == 1
+    ratio = four["narrow_band"]["samples_per_pixel"] / nb["samples_per_pixel"]
+    assert 3.6 < ratio < 4.4 and abs(four["narrow_band"]["psnr"] - nb["psnr"]) < 2.0, (ratio, four)
+    assert main(["eval", "--asset", str(asset_dir), "--data", str(data), "--antialias", "0"]) == 2
+    assert "--antialias: expected 1 to 64 rays per pixel, got 0" in capsys.readouterr().err
     before = load_asset(asset_dir).outer_mesh().vertices.copy()
     extract = ["extract", "--asset", str(asset_dir), "--resolution", "48", "--sigma-min", "0.05"]
     assert main(extract + ["--max-peel", "6"]) == 0

@@ -4,6 +4,7 @@ the same field, on the held-out views (every 8th) of the dataset it was trained 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 from dataclasses import dataclass
 
@@ -11,6 +12,7 @@ from neural.config import PipelineConfig
 from neural.device import DEVICES, processor
 from shellsim.errors import SettingError
 from shellsim.io.outputs import holds_outputs
+from shellsim.render.cameras import MAX_ANTIALIAS
 from shellsim.settings import check_choice, check_required, config_bounds, device_setting, option
 
 
@@ -22,6 +24,11 @@ class EvalSettings:
     data: str = option(help="dataset directory the asset was trained on", required=True)
     downscale: int | None = option(help="image downscale factor", shown_default="the asset's training one")
     views: int | None = option(help="evaluate only the first N held-out views", shown_default="all")
+    antialias: int = option(
+        1,
+        help="jittered rays per pixel, averaged: a box filter over each pixel, as the photos' when they are "
+        "shrunk (1: one ray through each pixel's centre)",
+    )
     full_ray: bool = option(
         True, flag="--no-full-ray", negate=True, help="skip the (slow) full-ray reference"
     )
@@ -38,6 +45,10 @@ class EvalSettings:
                 PipelineConfig(downscale=self.downscale)
         if self.views is not None and self.views < 1:
             raise SettingError("views", f"expected a positive integer, got {self.views}")
+        if not 1 <= self.antialias <= MAX_ANTIALIAS:
+            raise SettingError(
+                "antialias", f"expected 1 to {MAX_ANTIALIAS} rays per pixel, got {self.antialias}"
+            )
         check_choice("device", self.device, DEVICES)
 
 
@@ -63,6 +74,7 @@ class EvalResult:
     """What :func:`evaluate` measured.
 
     asset, data : the asset directory and the dataset; downscale : the images' downscale factor
+    antialias : jittered rays per pixel of every render
     processor : what ``ms_per_frame`` was measured on; heldout_views : the dataset indices evaluated
     narrow_band : the asset's renderer (Procedure 3); full_ray : full-ray rendering of the same field (None
         when not asked for); speedup : full ray's ms per frame over narrow band's (None without full ray)
@@ -72,6 +84,7 @@ class EvalResult:
     asset: str
     data: str
     downscale: int
+    antialias: int
     processor: str
     heldout_views: list[int]
     narrow_band: ViewMetrics
@@ -95,9 +108,10 @@ def evaluate(settings: EvalSettings) -> EvalResult:
     from neural.data import load_dataset
     from neural.files import write_text_atomically
     from neural.metrics import lpips_status
-    from neural.render.view import asset_sampler, full_ray_sampler
+    from neural.render.view import asset_sampler, full_ray_sampler, render_camera
     from neural.train import evaluate as evaluate_views
     from shellsim.io.outputs import check_writable_dir, check_writable_file, lock_output
+    from shellsim.render.frames import antialiased
 
     if settings.json:
         lock_output(check_writable_file(settings.json, "json"), "json")
@@ -111,12 +125,20 @@ def evaluate(settings: EvalSettings) -> EvalResult:
     views = np.asarray(data.test_idx)[: settings.views]
     field = load_field(asset, device)
     bg = torch.as_tensor(asset.background, dtype=torch.float32, device=device)
-    narrow_band = evaluate_views(field, data, views, asset_sampler(asset), bg)  # 'shellsim render' at rest
-    full_ray = evaluate_views(field, data, views, full_ray_sampler(field), bg) if settings.full_ray else None
+
+    def render(field, cameras, index, sampler, background):  # render_camera with settings.antialias rays
+        one = functools.partial(render_camera, field, index=0, sampler=sampler, background=background)
+        return antialiased(one, settings.antialias)(cameras.subset([index]))
+
+    narrow_band = evaluate_views(field, data, views, asset_sampler(asset), bg, render)  # 'shellsim render'
+    full_ray = (
+        evaluate_views(field, data, views, full_ray_sampler(field), bg, render) if settings.full_ray else None
+    )
     result = EvalResult(
         asset=str(asset.root),
         data=str(settings.data),
         downscale=downscale,
+        antialias=settings.antialias,
         processor=processor(device),
         heldout_views=[int(v) for v in views],
         narrow_band=ViewMetrics.of(narrow_band),

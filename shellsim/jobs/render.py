@@ -16,7 +16,14 @@ from neural.device import DEVICES
 from shellsim.errors import SettingError
 from shellsim.io.outputs import check_writable_dir, check_writable_file, holds_outputs, lock_output
 from shellsim.memory import check_memory, render_bytes
-from shellsim.render.cameras import MOTION_ANTIALIAS, OPTIONS, VIDEO_SIZE, CameraSettings, camera_option
+from shellsim.render.cameras import (
+    MAX_ANTIALIAS,
+    MOTION_ANTIALIAS,
+    OPTIONS,
+    VIDEO_SIZE,
+    CameraSettings,
+    camera_option,
+)
 from shellsim.render.result import RenderResult
 from shellsim.render.world import WorldSettings, world_option
 from shellsim.settings import check_choice, check_required, device_setting, option
@@ -117,8 +124,10 @@ class RenderSettings:
         CameraSettings.of(self)
         if self.fps is not None and not (self.fps > 0 and math.isfinite(self.fps)):
             raise SettingError("fps", f"expected a positive number, got {self.fps}")
-        if self.antialias is not None and not 1 <= self.antialias <= 64:
-            raise SettingError("antialias", f"expected 1 to 64 rays per pixel, got {self.antialias}")
+        if self.antialias is not None and not 1 <= self.antialias <= MAX_ANTIALIAS:
+            raise SettingError(
+                "antialias", f"expected 1 to {MAX_ANTIALIAS} rays per pixel, got {self.antialias}"
+            )
         check_choice("device", self.device, DEVICES)
         if self.scene is not None:
             return

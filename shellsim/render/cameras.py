@@ -35,6 +35,7 @@ VIDEO_SIZE = (512, 512)
 #: Jittered rays per pixel of a motion's frames by default (:func:`shellsim.render.frames.antialiased`); rest
 #: views take 1, the pixel-centre rays that ``shellsim eval`` scores.
 MOTION_ANTIALIAS = 4
+MAX_ANTIALIAS = 64  # jittered rays per pixel at most
 
 #: Horizontal field of view of the cameras, degrees, and the elevation above the horizon of the orbit, the
 #: follow camera and the three-quarter preset.

@@ -35,6 +35,9 @@ from .files import write_atomically, write_bytes_atomically, write_text_atomical
 FORMAT = "shellsim-asset"
 FORMAT_VERSION = 1
 REQUIRED_FILES = ("field", "shell_outer", "shell_inner")
+#: Weights an asset stores in half precision, widened back to float32 on loading: the hash table, nearly all
+#: of a field's bytes (Instant-NGP keeps its tables in half precision too).
+HALF_PRECISION = ("encoding.table",)
 CAGE_FILE = "cage.npz"
 
 
@@ -266,12 +269,14 @@ def write_safetensors(path, tensors: dict, metadata: dict[str, str] | None = Non
 
 
 def save_asset(root, field, outer, inner, meta: dict) -> Path:
-    """Write an asset directory: ``field.safetensors``, the two shells as PLY and ``asset.json`` (last, so a
-    directory with an ``asset.json`` is complete). ``meta`` supplies everything but format/files/field."""
+    """Write an asset directory: ``field.safetensors`` (:data:`HALF_PRECISION` weights as float16), the two
+    shells as PLY and ``asset.json`` (last, so a directory with an ``asset.json`` is complete). ``meta``
+    supplies everything but format/files/field."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     files = {"field": "field.safetensors", "shell_outer": "shell_outer.ply", "shell_inner": "shell_inner.ply"}
     state = {k: v.detach().contiguous().cpu() for k, v in field.state_dict().items()}
+    state.update({k: state[k].half() for k in HALF_PRECISION})
     write_safetensors(root / files["field"], state)
     outer.export(root / files["shell_outer"])
     inner.export(root / files["shell_inner"])

@@ -110,6 +110,17 @@ def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     assert 3.6 < ratio < 4.4 and abs(four["narrow_band"]["psnr"] - nb["psnr"]) < 2.0, (ratio, four)
     assert main(["eval", "--asset", str(asset_dir), "--data", str(data), "--antialias", "0"]) == 2
     assert "--antialias: expected 1 to 64 rays per pixel, got 0" in capsys.readouterr().err
+    # the asset as stored (its hash table in float16) scores what the trained field scored in memory
+    assert (
+        main(["eval", "--asset", str(asset_dir), "--data", str(data), "--no-full-ray", "--json", str(out)])
+        == 0
+    )
+    trained = load_asset(asset_dir).meta["metrics"]["stage2_narrow_band"]
+    stored = json.loads(out.read_text())["narrow_band"]
+    assert stored["views"] == trained["views"] and abs(stored["psnr"] - trained["psnr"]) < 0.02, (
+        stored,
+        trained,
+    )
     before = load_asset(asset_dir).outer_mesh().vertices.copy()
     extract = ["extract", "--asset", str(asset_dir), "--resolution", "48", "--sigma-min", "0.05"]
     assert main(extract + ["--max-peel", "6"]) == 0

@@ -154,12 +154,12 @@ class PixelSampler:
         px = x0 + (inside[1] * (self.width - x0).clamp(max=self.tile)).long()
         return k, py, px
 
-    def record(self, squared_errors: torch.Tensor) -> None:
-        """Fold the squared colour errors (n,) of the rays last drawn into their tiles' running means."""
+    def record(self, colors: torch.Tensor, targets: torch.Tensor) -> None:
+        """Fold the squared colour errors of the rays last drawn, rendered ``colors`` (n, 3) against their
+        ``targets`` (n, 3) (mean over the channels), into their tiles' running means."""
         if self.error_sampling > 0:
-            sums = torch.zeros_like(self.errors).index_add_(
-                0, self.drawn, squared_errors.detach().to(self.errors)
-            )
+            squared_errors = ((colors.detach() - targets) ** 2).mean(-1).to(self.errors)
+            sums = torch.zeros_like(self.errors).index_add_(0, self.drawn, squared_errors)
             counts = torch.bincount(self.drawn, minlength=len(self.errors))
             self.errors = (self.errors + sums) / (1 + counts)  # a tile not drawn keeps its error
 
@@ -351,7 +351,7 @@ def train_stage1(
                 bar.update(1)
                 continue
             out = render_rays(field, origins, dirs, samples, ray_background, cos_anneal=anneal)
-            pixels.record(((out["color"].detach() - target) ** 2).mean(-1))
+            pixels.record(out["color"], target)
             k = max(1, int(n_samples * config.reg_fraction))
             pick = torch.randperm(n_samples, generator=reg_gen)[:k].to(origins.device)
             reg = regularisers(
@@ -430,7 +430,7 @@ def train_stage2(
             origins, dirs, target, ray_background = pixels.sample(config.rays)
             samples = sampler(origins, dirs)
             out = render_rays(field, origins, dirs, samples, ray_background)
-            pixels.record(((out["color"].detach() - target) ** 2).mean(-1))
+            pixels.record(out["color"], target)
             loss = color_loss(out["color"], target)  # Eq. 9 only: no regularisers in stage 2
             optimizer.zero_grad(set_to_none=True)
             loss.backward()

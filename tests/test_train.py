@@ -109,14 +109,16 @@ def test_error_sampling_draws_tiles_in_proportion_to_their_error(sphere_data):
 
 
 def test_error_map_keeps_the_running_mean_of_each_tile(sphere_data):
-    """record() folds the squared errors of the rays last drawn into (old + sum) / (1 + count) per tile (a
-    slow loop is the reference); uniform draws record too, and a map of other tiles is not restored."""
+    """record() folds the squared colour errors of the rays last drawn into (old + sum) / (1 + count) per
+    tile (a slow loop is the reference); uniform draws record too, and a map of other tiles is not
+    restored."""
     pixels = PixelSampler(sphere_data, "cpu", seed=9, error_sampling=0.5, tile=8)
     before = pixels.errors.clone()
     pixels.sample(3000)
     drawn = pixels.drawn.clone()
-    squared = torch.rand(3000, generator=torch.Generator().manual_seed(1))
-    pixels.record(squared)
+    colors, targets = torch.rand((2, 3000, 3), generator=torch.Generator().manual_seed(1))
+    pixels.record(colors, targets)
+    squared = ((colors - targets) ** 2).mean(1)  # each ray's squared error, the mean over its channels
     expected = before.clone()
     for tile in drawn.unique().tolist():
         mine = squared[drawn == tile]

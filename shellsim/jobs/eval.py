@@ -12,7 +12,7 @@ from neural.config import PipelineConfig
 from neural.device import DEVICES, processor
 from shellsim.errors import SettingError
 from shellsim.io.outputs import holds_outputs
-from shellsim.render.cameras import MAX_ANTIALIAS
+from shellsim.render.cameras import check_antialias
 from shellsim.settings import check_choice, check_required, config_bounds, device_setting, option
 
 
@@ -45,10 +45,7 @@ class EvalSettings:
                 PipelineConfig(downscale=self.downscale)
         if self.views is not None and self.views < 1:
             raise SettingError("views", f"expected a positive integer, got {self.views}")
-        if not 1 <= self.antialias <= MAX_ANTIALIAS:
-            raise SettingError(
-                "antialias", f"expected 1 to {MAX_ANTIALIAS} rays per pixel, got {self.antialias}"
-            )
+        check_antialias(self.antialias)
         check_choice("device", self.device, DEVICES)
 
 

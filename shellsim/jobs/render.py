@@ -17,12 +17,12 @@ from shellsim.errors import SettingError
 from shellsim.io.outputs import check_writable_dir, check_writable_file, holds_outputs, lock_output
 from shellsim.memory import check_memory, render_bytes
 from shellsim.render.cameras import (
-    MAX_ANTIALIAS,
     MOTION_ANTIALIAS,
     OPTIONS,
     VIDEO_SIZE,
     CameraSettings,
     camera_option,
+    check_antialias,
 )
 from shellsim.render.result import RenderResult
 from shellsim.render.world import WorldSettings, world_option
@@ -124,10 +124,8 @@ class RenderSettings:
         CameraSettings.of(self)
         if self.fps is not None and not (self.fps > 0 and math.isfinite(self.fps)):
             raise SettingError("fps", f"expected a positive number, got {self.fps}")
-        if self.antialias is not None and not 1 <= self.antialias <= MAX_ANTIALIAS:
-            raise SettingError(
-                "antialias", f"expected 1 to {MAX_ANTIALIAS} rays per pixel, got {self.antialias}"
-            )
+        if self.antialias is not None:
+            check_antialias(self.antialias)
         check_choice("device", self.device, DEVICES)
         if self.scene is not None:
             return

@@ -37,6 +37,13 @@ VIDEO_SIZE = (512, 512)
 MOTION_ANTIALIAS = 4
 MAX_ANTIALIAS = 64  # jittered rays per pixel at most
 
+
+def check_antialias(rays: int) -> None:
+    """:class:`SettingError` for ``antialias`` unless ``rays`` lies in 1 to :data:`MAX_ANTIALIAS`."""
+    if not 1 <= rays <= MAX_ANTIALIAS:
+        raise SettingError("antialias", f"expected 1 to {MAX_ANTIALIAS} rays per pixel, got {rays}")
+
+
 #: Horizontal field of view of the cameras, degrees, and the elevation above the horizon of the orbit, the
 #: follow camera and the three-quarter preset.
 ORBIT_FOV_DEG = 40.0

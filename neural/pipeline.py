@@ -12,6 +12,7 @@ import logging
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from .asset import command_line, save_asset
@@ -23,7 +24,7 @@ from .field import ShellField
 from .field.contraction import CONTRACTED_RADIUS
 from .files import write_atomically, write_text_atomically
 from .shell.from_field import FieldShells, extract_field_shells
-from .train import train_stage1, train_stage2
+from .train import Continuation, train_stage1, train_stage2
 
 log = logging.getLogger(__name__)
 
@@ -55,8 +56,12 @@ def train_asset(
     device: str,
     name: str | None = None,
     keep_checkpoints: bool = False,
+    init=None,
 ) -> Path:
-    """Run Procedure 4 on the dataset in ``data_dir`` and write the asset to ``out_dir``."""
+    """Run Procedure 4 on the dataset in ``data_dir`` and write the asset to ``out_dir``. With ``init`` (an
+    asset trained on the same dataset), stage 1 continues that asset's field from the step its own stage 1
+    reached to ``config.stage1.steps``, on the asset's field settings; the curve's minutes go on from the
+    asset's training minutes."""
     out_dir = Path(out_dir)
     if (out_dir / "asset.json").is_file() and not (out_dir / "checkpoints").is_dir():
         raise InputError(
@@ -66,13 +71,14 @@ def train_asset(
     runs = _read_runs(ckpt_dir)
     started = time.time()
     try:
-        return _train(data_dir, out_dir, config, device, name, keep_checkpoints, runs, started)
+        return _train(data_dir, out_dir, config, device, name, keep_checkpoints, runs, started, init)
     finally:  # also on an interrupt or an error: the next run adds its time to this one's
         if ckpt_dir.is_dir():
             _write_runs(ckpt_dir, runs["seconds"] + time.time() - started, runs["runs"] + 1)
 
 
-def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs: dict, started: float):
+def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs: dict, started: float, init):
+    start = _start_asset(init, config.stage1.steps) if init is not None else None
     data = load_dataset(
         data_dir, downscale=config.downscale, background=config.background, bound=config.bound
     )
@@ -84,8 +90,12 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
         int(data.cameras.width[0]),
         int(data.cameras.height[0]),
     )
-    field_ = build_field(data, config.field, device, config.stage1.seed, config.space)
-    stage1 = train_stage1(field_, data, out_dir, config.stage1, device)
+    if start is None:
+        field_ = build_field(data, config.field, device, config.stage1.seed, config.space)
+        continuation, earlier = None, None
+    else:
+        field_, continuation, earlier = _continued_field(start, data, device)
+    stage1 = train_stage1(field_, data, out_dir, config.stage1, device, continuation)
     shells, extraction_seconds = _load_shells(out_dir / "checkpoints", config) or (None, 0.0)
     if shells is None:
         tick = time.perf_counter()
@@ -120,6 +130,7 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
             "runs": runs["runs"] + 1,
             "torch": torch.__version__,
             "curve": training_curve(stage1["history"], extraction_seconds, stage2["history"]),
+            **({"init": earlier} if earlier else {}),
         },
         "metrics": {"stage1_full_ray": stage1["final"], "stage2_narrow_band": stage2["final"]},
     }
@@ -130,6 +141,51 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
         _rmdir(out_dir / "checkpoints")
     log.info("asset written to %s:\n%s", out_dir, json.dumps(meta["metrics"], indent=1))
     return out_dir
+
+
+def _start_asset(init, steps: int):
+    """The asset a training continues, checked before the dataset is loaded."""
+    from .asset import load_asset
+
+    asset = load_asset(init)
+    done = asset.meta.get("training", {}).get("stage1", {}).get("steps")
+    if not isinstance(done, int) or isinstance(done, bool) or done < 1:
+        raise InputError(f"{asset.root / 'asset.json'}: records no stage-1 steps (training.stage1.steps)")
+    if done >= steps:
+        raise InputError(
+            f"{asset.root}: its stage 1 ran {done} steps already; continuing it takes more stage-1 steps "
+            f"than that (asked for {steps})"
+        )
+    return asset
+
+
+def _continued_field(asset, data: SceneData, device: str):
+    """``asset``'s field in training mode, the :class:`Continuation` of its stage 1 and the facts of it that
+    the new ``asset.json`` records under ``training.init``. The dataset must be normalised as the asset is."""
+    from .asset import load_field
+
+    norm = data.normalisation
+    same = np.allclose(norm.center, asset.center, rtol=0, atol=1e-6 * asset.scale) and np.isclose(
+        float(norm.scale), asset.scale, rtol=1e-6, atol=0
+    )
+    if not same:
+        raise InputError(
+            f"{asset.root}: trained on other data (its normalisation, centre {list(asset.center)} and scale "
+            f"{asset.scale}, is not this dataset's, centre {[float(c) for c in norm.center]} and scale "
+            f"{float(norm.scale)})"
+        )
+    training = asset.meta["training"]
+    curve = training.get("curve") or [{}]
+    minutes = float(curve[-1].get("minutes", 0.0))
+    field_ = load_field(asset, device).train()
+    earlier = {
+        "asset": asset.name,
+        "stage1_steps": training["stage1"]["steps"],
+        "minutes": minutes,
+        "command": training.get("command"),
+        "curve": curve,
+    }
+    return field_, Continuation(training["stage1"]["steps"], 60.0 * minutes), earlier
 
 
 def training_curve(stage1: list[dict], extraction_seconds: float, stage2: list[dict]) -> list[dict]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -63,10 +64,11 @@ def make_optimizer(field: ShellField, lr_encoding: float, lr_network: float) -> 
 
 
 def set_learning_rate(
-    optimizer: torch.optim.Optimizer, step: int, steps: int, warmup: int, final: float
+    optimizer: torch.optim.Optimizer, step: int, steps: int, warmup: int, final: float, fresh_at: int = 0
 ) -> None:
-    """Linear warm-up then exponential decay to ``final`` x the base rate at the last step."""
-    factor = min(1.0, (step + 1) / max(warmup, 1)) * final ** (step / max(steps, 1))
+    """Linear warm-up over ``warmup`` steps from ``fresh_at`` (the step the optimizer's state started at),
+    times exponential decay to ``final`` x the base rate at the last step."""
+    factor = min(1.0, (step - fresh_at + 1) / max(warmup, 1)) * final ** (step / max(steps, 1))
     for group in optimizer.param_groups:
         group["lr"] = group["base_lr"] * factor
 
@@ -300,17 +302,34 @@ class _Checkpointer:
             log.info("%s: interrupted; checkpoint saved at step %d", stage, done)
 
 
+@dataclass(frozen=True)
+class Continuation:
+    """Where a stage 1 starts that continues a trained field (an asset's): the step its schedule had reached
+    and the training seconds spent on it so far (the curve's minutes go on from them)."""
+
+    step: int
+    seconds: float
+
+
 def train_stage1(
-    field: ShellField, data: SceneData, out_dir: Path, config: Stage1Config, device: str
+    field: ShellField,
+    data: SceneData,
+    out_dir: Path,
+    config: Stage1Config,
+    device: str,
+    continuation: Continuation | None = None,
 ) -> dict:
     """Stage 1 (Procedure 4 lines 1-5): full-ray volume rendering with Eq. 8, on the occupancy grid's samples
     that light reaches (:func:`~neural.render.fullray.visible_samples`, ``config.min_transmittance``). Resumes
-    from ``out_dir/checkpoints/stage1.safetensors``; returns the final held-out evaluation."""
+    from ``out_dir/checkpoints/stage1.safetensors``; without one, a ``continuation`` starts at its step with
+    the field as given and a fresh optimizer, warmed up again. Returns the final held-out evaluation."""
     torch.manual_seed(config.seed)
     ckpt = Path(out_dir) / "checkpoints" / "stage1.safetensors"
     optimizer = make_optimizer(field, config.lr_encoding, config.lr_network)
     grid = field_occupancy_grid(field, config.occupancy_resolution)
     start, n_rays, final, extra, meta = 0, config.initial_rays, None, {}, {}
+    if continuation is not None:
+        start, meta = continuation.step, {"fresh_at": continuation.step, "seconds": continuation.seconds}
     if ckpt.is_file():
         meta, extra = load_checkpoint(ckpt, field, optimizer)
         grid.load_state(extra)
@@ -329,10 +348,11 @@ def train_stage1(
     }
     bar = _progress(config.steps, start, "stage 1")
     history, clock = _resumed_history(meta)
+    fresh_at = int(meta.get("fresh_at", 0))
 
     def save(done: int) -> None:
         meta = {"step": done, "n_rays": n_rays, "final": final if done == config.steps else None}
-        meta.update(history=history, seconds=clock.seconds())
+        meta.update(history=history, seconds=clock.seconds(), fresh_at=fresh_at)
         save_checkpoint(ckpt, field, optimizer, {**grid.state(), **pixels.state()}, meta)
 
     checkpoints, done = _Checkpointer(config, save, start), start
@@ -341,7 +361,9 @@ def train_stage1(
             if step % config.occupancy_every == 0:
                 with torch.no_grad():
                     grid.update(sdf_kernel_fn(field), step)
-            set_learning_rate(optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor)
+            set_learning_rate(
+                optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor, fresh_at
+            )
             origins, dirs, target, ray_background = pixels.sample(n_rays)
             anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
             candidates = sampler(origins, dirs)

@@ -57,6 +57,11 @@ def test_train_defaults_are_the_pipelines():
     assert from_args(TrainSettings, args).pipeline_config() == PipelineConfig()
     quick = TrainSettings("d", "o", steps=200).pipeline_config()
     assert (quick.stage2.steps, quick.shell.resolution, quick.stage1.target_samples) == (34, 128, 16384)
+    gentle = TrainSettings("d", "o", stage2_rate=0.1).pipeline_config()
+    assert gentle.stage2.lr_encoding == pytest.approx(0.1 * PipelineConfig().stage1.lr_encoding)
+    assert gentle.stage2.lr_network == pytest.approx(0.1 * PipelineConfig().stage1.lr_network)
+    with pytest.raises(SettingError, match="^stage2_rate"):
+        TrainSettings("d", "o", stage2_rate=0.0)
 
 
 def test_cage_defaults_are_the_cage_configs(tmp_path):

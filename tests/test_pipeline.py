@@ -191,3 +191,63 @@ def test_a_resumed_run_keeps_shells_time_and_normal_permissions(tmp_path, monkey
     for name in ("field.safetensors", "shell_outer.ply", "asset.json"):
         assert (out / name).stat().st_mode & 0o777 == 0o644, name
     assert not (out / "checkpoints").exists()
+
+
+def test_a_continued_training_starts_from_the_assets_field_step_and_minutes(tmp_path, monkeypatch, capsys):
+    """``init``: stage 1 goes on from the asset's own weights (as saved) at the step its stage 1 reached, the
+    curve's minutes after the asset's; more steps than it had are needed, and the same data."""
+    import dataclasses
+
+    from scenes import write_sphere_scene
+
+    import neural.pipeline as pipeline
+    from neural.asset import load_field
+    from neural.errors import InputError
+
+    data = write_sphere_scene(tmp_path / "data", n_views=8, size=16)
+    config = PipelineConfig(
+        field=FieldConfig(hashgrid=HashGridConfig(log2_table_size=12, max_resolution=64)),
+        stage1=Stage1Config(steps=10, target_samples=2048, initial_rays=128, occupancy_resolution=16),
+        shell=ShellConfig(resolution=32),
+        stage2=Stage2Config(steps=4, rays=256),
+        bound=1.0,
+    )
+    first = train_asset(data, tmp_path / "first", config, "cpu")
+    earlier = load_asset(first)
+    saved = load_field(earlier).state_dict()
+    seen = {}
+    stage1 = pipeline.train_stage1
+
+    def watched_stage1(field, data, out_dir, config, device, continuation=None):
+        seen["weights"] = {k: v.clone() for k, v in field.state_dict().items()}
+        seen["continuation"], seen["training"] = continuation, field.training
+        return stage1(field, data, out_dir, config, device, continuation)
+
+    monkeypatch.setattr(pipeline, "train_stage1", watched_stage1)
+    longer = dataclasses.replace(config, stage1=dataclasses.replace(config.stage1, steps=16))
+    second = train_asset(data, tmp_path / "second", longer, "cpu", init=first)
+    assert seen["training"]
+    for key, value in saved.items():
+        assert torch.equal(seen["weights"][key], value), key
+    minutes = earlier.meta["training"]["curve"][-1]["minutes"]
+    assert seen["continuation"].step == 10
+    assert seen["continuation"].seconds == pytest.approx(60.0 * minutes)
+    training = load_asset(second).meta["training"]
+    assert training["init"]["stage1_steps"] == 10 and training["init"]["minutes"] == minutes
+    assert training["init"]["curve"] == earlier.meta["training"]["curve"]
+    assert [(p["stage"], p["step"]) for p in training["curve"]] == [(1, 16), (2, 4)]
+    assert training["curve"][0]["minutes"] >= minutes
+    # the continued asset records its own stage-1 steps, so it can be continued in turn
+    assert training["stage1"]["steps"] == 16
+
+    with pytest.raises(InputError, match="ran 10 steps already"):
+        train_asset(data, tmp_path / "none", config, "cpu", init=first)
+    assert not (tmp_path / "none" / "asset.json").exists()
+    elsewhere = dataclasses.replace(longer, bound=2.0)  # another box: another normalisation
+    with pytest.raises(InputError, match="trained on other data"):
+        train_asset(data, tmp_path / "other", elsewhere, "cpu", init=first)
+    argv = ["train", "--data", str(data), "--out", str(tmp_path / "cli"), "--init", str(tmp_path / "nowhere")]
+    capsys.readouterr()  # the progress bars so far
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "nowhere" in err

@@ -316,3 +316,17 @@ def test_stage2_ramps_its_rates_up_from_the_fresh_optimiser(sphere_data, tmp_pat
     networks = max(v for k, v in moves.items() if not k.startswith(GRID_PARAMETERS))
     for move, rate in ((grids, config.lr_encoding), (networks, config.lr_network)):
         assert rate / 8 * 0.99 <= move <= rate / 8 + 1e-6, (moves, rate)  # 1e-6: float32 rounding near 1
+
+
+def test_learning_rate_warms_up_from_the_optimizers_first_step_and_decays_over_the_schedule():
+    """A fresh optimizer at step 12000 of an 18000-step schedule (a continued training): warm-up over 100
+    steps from there, times 0.1 ** (step / 18000)."""
+    from neural.train import set_learning_rate
+
+    param = torch.nn.Parameter(torch.zeros(1))
+    optimizer = torch.optim.Adam([{"params": [param], "lr": 1.0, "base_lr": 3e-2}])
+    for step, warm in ((12000, 1 / 100), (12049, 50 / 100), (12099, 1.0), (17999, 1.0)):
+        set_learning_rate(optimizer, step, 18000, 100, 0.1, fresh_at=12000)
+        assert optimizer.param_groups[0]["lr"] == pytest.approx(3e-2 * warm * 0.1 ** (step / 18000))
+    set_learning_rate(optimizer, 0, 18000, 100, 0.1)  # a fresh training: from step 0
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(3e-2 / 100)

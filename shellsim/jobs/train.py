@@ -74,6 +74,8 @@ CONFIG_FIELDS = {
     (Stage1Config, "seed"): "seed",
     (Stage1Config, "error_sampling"): "error_sampling",
     (Stage2Config, "error_sampling"): "error_sampling",
+    (Stage2Config, "lr_encoding"): "stage2_rate",
+    (Stage2Config, "lr_network"): "stage2_rate",
 }
 
 
@@ -156,6 +158,18 @@ class TrainSettings:
         help="random seed of the initial weights and of the rays drawn: the same command trains the same "
         "asset (on the CPU); another seed is another draw",
     )
+    init: str | None = option(
+        help="continue the training of this asset (a name or directory, trained on the same data): stage 1 "
+        "goes on from its field and the step its stage 1 reached, to --steps, with a fresh optimizer; the "
+        "field's settings (table size, kernel grid, view encoding, space) are the asset's, and the minutes "
+        "of the training curve go on from its own. A long training thus accumulates across sessions",
+        shown_default="a fresh field",
+    )
+    stage2_rate: float = option(
+        1.0,
+        help="stage 2's learning rates as a fraction of stage 1's base rates (1 suits a field still learning; "
+        "a converged one, as after --init, keeps more of its quality with about 0.1)",
+    )
     name: str | None = option(help="asset name", shown_default="the output directory's name")
     keep_checkpoints: bool = option(False, help="keep OUT/checkpoints after success")
     device: str = option("auto", help="cpu, cuda or auto")
@@ -188,6 +202,8 @@ class TrainSettings:
         )
         config.stage2 = dataclasses.replace(
             config.stage2,
+            lr_encoding=config.stage1.lr_encoding * self.stage2_rate,
+            lr_network=config.stage1.lr_network * self.stage2_rate,
             steps=scaled["stage2_steps"] if self.stage2_steps is None else self.stage2_steps,
             seed=(self.seed + 1) % (MAX_SEED + 1),
             random_background=self.random_background,
@@ -240,6 +256,7 @@ def train(settings: TrainSettings) -> TrainResult:
         device,
         name=settings.name,
         keep_checkpoints=settings.keep_checkpoints,
+        init=settings.init,
     )
     meta = load_asset(root).meta
     metrics = meta.get("metrics", {})

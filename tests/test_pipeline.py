@@ -11,7 +11,7 @@ import igl
 import numpy as np
 import pytest
 import torch
-from scenes import write_fuzzy_scene
+from scenes import write_fuzzy_scene, write_sphere_scene
 
 from neural.asset import load_asset
 from neural.device import pick_device, processor
@@ -20,6 +20,14 @@ from neural.pipeline import PipelineConfig, train_asset
 from neural.shell import ShellConfig
 from neural.train import Stage1Config, Stage2Config
 from shellsim.cli.main import main
+
+TINY = PipelineConfig(  # a sphere trained in seconds: 10 stage-1 steps, 4 stage-2 steps
+    field=FieldConfig(hashgrid=HashGridConfig(log2_table_size=12, max_resolution=64)),
+    stage1=Stage1Config(steps=10, target_samples=2048, initial_rays=128, occupancy_resolution=16),
+    shell=ShellConfig(resolution=32),
+    stage2=Stage2Config(steps=4, rays=256),
+    bound=1.0,
+)
 
 
 @pytest.fixture(scope="module")  # trains for about 40 s on 2 cores: its tests are marked slow
@@ -145,18 +153,10 @@ def test_a_resumed_run_keeps_shells_time_and_normal_permissions(tmp_path, monkey
     import os
     import time
 
-    from scenes import write_sphere_scene
-
     import neural.pipeline as pipeline
 
     data = write_sphere_scene(tmp_path / "data", n_views=8, size=16)
-    config = PipelineConfig(
-        field=FieldConfig(hashgrid=HashGridConfig(log2_table_size=12, max_resolution=64)),
-        stage1=Stage1Config(steps=10, target_samples=2048, initial_rays=128, occupancy_resolution=16),
-        shell=ShellConfig(resolution=32),
-        stage2=Stage2Config(steps=4, rays=256),
-        bound=1.0,
-    )
+    config = TINY
     stage2 = pipeline.train_stage2
 
     def interrupted_stage2(*args, **kwargs):
@@ -198,20 +198,12 @@ def test_a_continued_training_starts_from_the_assets_field_step_and_minutes(tmp_
     curve's minutes after the asset's; more steps than it had are needed, and the same data."""
     import dataclasses
 
-    from scenes import write_sphere_scene
-
     import neural.pipeline as pipeline
     from neural.asset import load_field
     from neural.errors import InputError
 
     data = write_sphere_scene(tmp_path / "data", n_views=8, size=16)
-    config = PipelineConfig(
-        field=FieldConfig(hashgrid=HashGridConfig(log2_table_size=12, max_resolution=64)),
-        stage1=Stage1Config(steps=10, target_samples=2048, initial_rays=128, occupancy_resolution=16),
-        shell=ShellConfig(resolution=32),
-        stage2=Stage2Config(steps=4, rays=256),
-        bound=1.0,
-    )
+    config = TINY
     first = train_asset(data, tmp_path / "first", config, "cpu")
     earlier = load_asset(first)
     saved = load_field(earlier).state_dict()

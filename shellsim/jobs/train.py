@@ -167,8 +167,8 @@ class TrainSettings:
     )
     stage2_rate: float = option(
         1.0,
-        help="stage 2's learning rates as a fraction of stage 1's base rates (1 suits a field still learning; "
-        "a converged one, as after --init, keeps more of its quality with about 0.1)",
+        help="stage 2's learning rates as a fraction of stage 1's base rates (1 suits a field still "
+        "learning; a converged one, as after --init, keeps more of its quality with about 0.1)",
     )
     name: str | None = option(help="asset name", shown_default="the output directory's name")
     keep_checkpoints: bool = option(False, help="keep OUT/checkpoints after success")

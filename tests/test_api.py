@@ -257,7 +257,7 @@ def test_train_returns_the_figures_its_asset_records(tmp_path, monkeypatch):
 
     figures = {"psnr": 25.0, "ssim": 0.9, "samples_per_pixel": 2.0, "ms_per_frame": 9.0, "views": [0, 8]}
 
-    def pipeline(data, out, config, device, name=None, keep_checkpoints=False):
+    def pipeline(data, out, config, device, name=None, keep_checkpoints=False, init=None):
         sphere = trimesh.creation.icosphere(subdivisions=1)
         root = write_asset_dir(out, sphere, sphere, name or "fake")
         meta = json.loads((root / "asset.json").read_text())

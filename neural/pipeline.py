@@ -6,6 +6,7 @@ of the runs so far), then the asset in ``OUT``, so an interrupted run resumes wh
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -16,7 +17,7 @@ import numpy as np
 import torch
 
 from .asset import command_line, save_asset
-from .config import FieldConfig, PipelineConfig
+from .config import FieldConfig, NarrowBandConfig, PipelineConfig, Stage2Config
 from .data import SceneData, load_dataset
 from .device import processor
 from .errors import InputError
@@ -63,16 +64,96 @@ def train_asset(
     reached to ``config.stage1.steps``, on the asset's field settings; the curve's minutes go on from the
     asset's training minutes."""
     out_dir = Path(out_dir)
+    _refuse_finished(out_dir)
+    with _counted_runs(out_dir / "checkpoints") as (runs, started):
+        return _train(data_dir, out_dir, config, device, name, keep_checkpoints, runs, started, init)
+
+
+def finetune_asset(
+    asset_spec,
+    data_dir,
+    out_dir,
+    config: Stage2Config,
+    narrowband: NarrowBandConfig,
+    device: str,
+    name: str | None = None,
+    keep_checkpoints: bool = False,
+) -> Path:
+    """Stage 2 again (Procedure 4 lines 8-13) on a finished asset: its field fine-tuned inside its own shells
+    with the narrow-band sampling ``narrowband`` (world units), so that it adapts to denser or sparser
+    samples; written as a new asset to ``out_dir`` (resumed from ``out_dir/checkpoints``). ``data_dir`` must
+    hold the asset's training data. The new ``asset.json`` keeps the asset's record; ``training.finetune``
+    lists the fine-tunings and the curve goes on from the asset's minutes."""
+    from .asset import load_asset, load_field, load_mesh
+
+    out_dir = Path(out_dir)
+    _refuse_finished(out_dir)
+    asset = load_asset(asset_spec)
+    meta, training = asset.meta, asset.meta.get("training", {})
+    data = load_dataset(
+        data_dir,
+        downscale=training.get("downscale", 1),
+        background=meta.get("background", PipelineConfig.background),
+        bound=1.0 / asset.scale,  # the asset's: then only the centre can differ
+    )
+    _check_same_data(asset, data)
+    field_ = load_field(asset, device).train()
+    outer, inner = (load_mesh(asset.file(key)) for key in ("shell_outer", "shell_inner"))
+    with _counted_runs(out_dir / "checkpoints") as (runs, started):
+        stage2 = train_stage2(field_, data, outer, inner, out_dir, config, narrowband, device)
+        wall_minutes = (runs["seconds"] + time.time() - started) / 60.0
+    minutes = _asset_minutes(asset)
+    curve = [
+        {**p, "minutes": round(minutes + p["minutes"], 2)} for p in training_curve([], 0.0, stage2["history"])
+    ]
+    done = {
+        "asset": asset.name,
+        "command": command_line(),
+        "stage2": dataclasses.asdict(config),
+        "narrowband_before": meta.get("narrowband"),
+        "narrow_band_before": meta.get("metrics", {}).get("stage2_narrow_band"),
+        "minutes_before": minutes,
+        "wall_minutes": round(wall_minutes, 2),
+    }
+    new_meta = {k: v for k, v in meta.items() if k not in ("format", "format_version", "files", "field")}
+    new_meta.update(
+        name=name or out_dir.name,
+        narrowband=dataclasses.asdict(narrowband),
+        training={
+            **training,
+            "curve": [*training.get("curve", []), *curve],
+            "wall_minutes": round(float(training.get("wall_minutes", 0.0)) + wall_minutes, 2),
+            "finetune": [*training.get("finetune", []), done],
+        },
+        # the figures of the field before (the eval's and the earlier shells' too) no longer hold
+        metrics={
+            **{k: v for k, v in meta.get("metrics", {}).items() if k == "stage1_full_ray"},
+            "stage2_narrow_band": stage2["final"],
+        },
+    )
+    save_asset(out_dir, field_, outer, inner, new_meta)
+    if not keep_checkpoints:
+        _remove_checkpoints(out_dir)
+    log.info("fine-tuned asset written to %s: %s", out_dir, json.dumps(stage2["final"]))
+    return out_dir
+
+
+def _refuse_finished(out_dir: Path) -> None:
+    """Training writes into an output directory only while its checkpoints are there."""
     if (out_dir / "asset.json").is_file() and not (out_dir / "checkpoints").is_dir():
         raise InputError(
             f"{out_dir}: holds a finished asset already; choose another output directory or delete it"
         )
-    ckpt_dir = out_dir / "checkpoints"
-    runs = _read_runs(ckpt_dir)
-    started = time.time()
+
+
+@contextlib.contextmanager
+def _counted_runs(ckpt_dir: Path):
+    """Yields the earlier runs' ``{"seconds", "runs"}`` and this run's start; on leaving, also on an interrupt
+    or an error, this run is added to them, so that the next run adds its time to this one's."""
+    runs, started = _read_runs(ckpt_dir), time.time()
     try:
-        return _train(data_dir, out_dir, config, device, name, keep_checkpoints, runs, started, init)
-    finally:  # also on an interrupt or an error: the next run adds its time to this one's
+        yield runs, started
+    finally:
         if ckpt_dir.is_dir():
             _write_runs(ckpt_dir, runs["seconds"] + time.time() - started, runs["runs"] + 1)
 
@@ -136,9 +217,7 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
     }
     save_asset(out_dir, field_, shells.outer, shells.inner, meta)
     if not keep_checkpoints:
-        for file in (*CHECKPOINT_FILES, *SHELL_FILES):
-            (out_dir / "checkpoints" / file).unlink(missing_ok=True)
-        _rmdir(out_dir / "checkpoints")
+        _remove_checkpoints(out_dir)
     log.info("asset written to %s:\n%s", out_dir, json.dumps(meta["metrics"], indent=1))
     return out_dir
 
@@ -164,6 +243,23 @@ def _continued_field(asset, data: SceneData, device: str):
     the new ``asset.json`` records under ``training.init``. The dataset must be normalised as the asset is."""
     from .asset import load_field
 
+    _check_same_data(asset, data)
+    training = asset.meta["training"]
+    minutes = _asset_minutes(asset)
+    curve = training.get("curve") or [{}]
+    field_ = load_field(asset, device).train()
+    earlier = {
+        "asset": asset.name,
+        "stage1_steps": training["stage1"]["steps"],
+        "minutes": minutes,
+        "command": training.get("command"),
+        "curve": curve,
+    }
+    return field_, Continuation(training["stage1"]["steps"], 60.0 * minutes), earlier
+
+
+def _check_same_data(asset, data: SceneData) -> None:
+    """An :class:`InputError` of ``asset`` unless ``data`` is normalised as the asset's training data was."""
     norm = data.normalisation
     same = np.allclose(norm.center, asset.center, rtol=0, atol=1e-6 * asset.scale) and np.isclose(
         float(norm.scale), asset.scale, rtol=1e-6, atol=0
@@ -174,18 +270,12 @@ def _continued_field(asset, data: SceneData, device: str):
             f"{asset.scale}, is not this dataset's, centre {[float(c) for c in norm.center]} and scale "
             f"{float(norm.scale)})"
         )
-    training = asset.meta["training"]
-    curve = training.get("curve") or [{}]
-    minutes = float(curve[-1].get("minutes", 0.0))
-    field_ = load_field(asset, device).train()
-    earlier = {
-        "asset": asset.name,
-        "stage1_steps": training["stage1"]["steps"],
-        "minutes": minutes,
-        "command": training.get("command"),
-        "curve": curve,
-    }
-    return field_, Continuation(training["stage1"]["steps"], 60.0 * minutes), earlier
+
+
+def _asset_minutes(asset) -> float:
+    """The training minutes the asset's curve reached (0 without a curve)."""
+    curve = asset.meta.get("training", {}).get("curve") or [{}]
+    return float(curve[-1].get("minutes", 0.0))
 
 
 def training_curve(stage1: list[dict], extraction_seconds: float, stage2: list[dict]) -> list[dict]:
@@ -257,6 +347,9 @@ def _load_shells(ckpt_dir: Path, config: PipelineConfig) -> tuple[FieldShells, f
     return FieldShells(*meshes, saved["stats"]), float(saved.get("seconds", 0.0))
 
 
-def _rmdir(path: Path) -> None:
-    if path.is_dir() and not any(path.iterdir()):
-        path.rmdir()
+def _remove_checkpoints(out_dir: Path) -> None:
+    for file in (*CHECKPOINT_FILES, *SHELL_FILES):
+        (out_dir / "checkpoints" / file).unlink(missing_ok=True)
+    checkpoints = out_dir / "checkpoints"
+    if checkpoints.is_dir() and not any(checkpoints.iterdir()):
+        checkpoints.rmdir()

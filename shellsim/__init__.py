@@ -9,6 +9,7 @@ Assets, cages and motions:
     load_motion(path) -> Motion (positions (F, V, 3), times (F,), rest_vertices (V, 3), tets (T, 4))
 Jobs (settings -> function -> result):
     TrainSettings -> train -> TrainResult            ExtractSettings -> extract -> ExtractResult
+    FinetuneSettings -> finetune -> FinetuneResult
     PosesSettings -> poses -> PosesResult            CageSettings -> cage_job -> CageResult
     SimulateSettings -> simulate -> SimulateResult   WindJobSettings -> wind -> WindResult
     SceneSettings -> scene_job -> SceneResult
@@ -36,6 +37,9 @@ _EXPORTS = {
     "TrainSettings": ("shellsim.jobs.train", "TrainSettings"),
     "TrainResult": ("shellsim.jobs.train", "TrainResult"),
     "train": ("shellsim.jobs.train", "train"),
+    "FinetuneSettings": ("shellsim.jobs.finetune", "FinetuneSettings"),
+    "FinetuneResult": ("shellsim.jobs.finetune", "FinetuneResult"),
+    "finetune": ("shellsim.jobs.finetune", "finetune"),
     "ExtractSettings": ("shellsim.jobs.extract", "ExtractSettings"),
     "ExtractResult": ("shellsim.jobs.extract", "ExtractResult"),
     "extract": ("shellsim.jobs.extract", "extract"),

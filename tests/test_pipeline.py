@@ -243,3 +243,58 @@ def test_a_continued_training_starts_from_the_assets_field_step_and_minutes(tmp_
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "nowhere" in err
+
+
+def test_finetune_continues_the_assets_field_in_its_shells_with_denser_samples(tmp_path, monkeypatch, capsys):
+    """``shellsim finetune``: stage 2 starts from the asset's own weights, inside its own shells, at the given
+    fraction of its stage-1 rates and with the narrow band asked for; the new asset keeps the old record and
+    goes on with its curve. Thinner single-sample intervals can only add samples on the same shells."""
+    import neural.pipeline as pipeline
+    from neural.asset import load_field, load_mesh
+
+    data = write_sphere_scene(tmp_path / "data", n_views=8, size=16)
+    first = load_asset(train_asset(data, tmp_path / "first", TINY, "cpu"))
+    saved = load_field(first).state_dict()
+    seen = {}
+    stage2 = pipeline.train_stage2
+
+    def watched_stage2(field, data, outer, inner, out_dir, config, narrowband, device):
+        seen.update(weights={k: v.clone() for k, v in field.state_dict().items()}, config=config)
+        seen.update(narrowband=narrowband, outer=outer.vertices.copy())
+        return stage2(field, data, outer, inner, out_dir, config, narrowband, device)
+
+    monkeypatch.setattr(pipeline, "train_stage2", watched_stage2)
+    before = first.meta["narrowband"]
+    out = tmp_path / "tuned"
+    argv = ["finetune", "--asset", str(first.root), "--data", str(data), "--out", str(out), "--steps", "3"]
+    argv += ["--rays", "256", "--rate", "0.5", "--w-s", str(before["w_s"] / 4)]
+    assert main(argv) == 0
+    for key, value in saved.items():
+        assert torch.equal(seen["weights"][key], value), key
+    assert np.array_equal(seen["outer"], load_mesh(first.file("shell_outer")).vertices)
+    assert seen["config"].lr_encoding == pytest.approx(0.5 * TINY.stage1.lr_encoding)
+    assert seen["config"].lr_network == pytest.approx(0.5 * TINY.stage1.lr_network)
+    assert seen["narrowband"].w_s == pytest.approx(before["w_s"] / 4)
+    assert seen["narrowband"].delta_s == before["delta_s"]
+    tuned = load_asset(out)
+    assert tuned.meta["narrowband"]["w_s"] == pytest.approx(before["w_s"] / 4)
+    for key in ("shell_outer", "shell_inner"):
+        assert tuned.file(key).read_bytes() == first.file(key).read_bytes()
+    training, earlier = tuned.meta["training"], first.meta["training"]
+    curve = training["curve"]
+    assert curve[: len(earlier["curve"])] == earlier["curve"]
+    assert [(p["stage"], p["step"]) for p in curve[len(earlier["curve"]) :]] == [(2, 3)]
+    assert curve[-1]["minutes"] >= earlier["curve"][-1]["minutes"]
+    done = training["finetune"][0]
+    old, new = first.meta["metrics"]["stage2_narrow_band"], tuned.meta["metrics"]["stage2_narrow_band"]
+    assert done["narrow_band_before"] == old and done["narrowband_before"] == before
+    assert set(tuned.meta["metrics"]) == {"stage1_full_ray", "stage2_narrow_band"}
+    assert new["step"] == 3 and new["views"] == old["views"]
+    assert new["samples_per_pixel"] >= old["samples_per_pixel"]
+    assert not torch.equal(load_field(tuned).state_dict()["rad.0.weight"], saved["rad.0.weight"])
+
+    capsys.readouterr()  # the progress bars so far
+    for bad, word in (([*argv[:6], str(first.root)], "finished asset"), ([*argv[:-1], "-1"], "w-s")):
+        assert main(bad) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and word in err, err

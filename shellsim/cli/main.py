@@ -27,6 +27,7 @@ from neural.errors import ShellsimError
 COMMANDS = (
     "poses",
     "train",
+    "finetune",
     "extract",
     "cut",
     "render",

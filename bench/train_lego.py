@@ -12,9 +12,10 @@ figures (all 12 views) and the command's whole wall time. Targets on a 2-core CP
 band) within 25 minutes at 200x200; 31 dB within 3 hours at 800x800. Run it on a quiet machine.
 
 OUT is removed first, unless ``--resume``: then the command continues the run OUT holds (a run of hours,
-interrupted with Ctrl-C, goes on across sessions) and the minutes add up over its runs. Where checkpoints do not
-survive between sessions, ``-- --init ASSET --steps N`` continues the stage 1 of an asset this command made
-(to N steps in all), and the curve's minutes go on from the asset's own.
+interrupted with Ctrl-C, goes on across sessions) and the minutes add up over its runs. Where checkpoints do
+not survive between sessions, ``-- --init ASSET --steps N`` continues the stage 1 of an asset this command
+made (to N steps in all), and the curve's minutes go on from the asset's own; ``shellsim finetune`` then
+fine-tunes the narrow band of the asset made with denser samples, and its curve goes on too.
 
     python bench/train_lego.py [--steps N] [--every K] [--downscale D] [--views V] [--data DIR] [--out DIR]
         [--resume] [-- TRAIN_OPTIONS]

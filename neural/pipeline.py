@@ -348,8 +348,8 @@ def _load_shells(ckpt_dir: Path, config: PipelineConfig) -> tuple[FieldShells, f
 
 
 def _remove_checkpoints(out_dir: Path) -> None:
-    for file in (*CHECKPOINT_FILES, *SHELL_FILES):
-        (out_dir / "checkpoints" / file).unlink(missing_ok=True)
     checkpoints = out_dir / "checkpoints"
+    for file in (*CHECKPOINT_FILES, *SHELL_FILES):
+        (checkpoints / file).unlink(missing_ok=True)
     if checkpoints.is_dir() and not any(checkpoints.iterdir()):
         checkpoints.rmdir()

@@ -116,9 +116,9 @@ def finetune(settings: FinetuneSettings) -> FinetuneResult:
     from neural.asset import load_asset
     from neural.pipeline import finetune_asset
 
-    asset = load_asset(settings.asset)
     lock_output(check_writable_dir(settings.out, "out"), "out")  # the asset and its checkpoints
     check_writable_dir(Path(settings.out) / "checkpoints", "out")
+    asset = load_asset(settings.asset)
     config = settings.stage2_config(asset.meta.get("training", {}))
     narrowband = dataclasses.replace(asset.narrowband_config(), **settings.narrowband_overrides())
     root = finetune_asset(

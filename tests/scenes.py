@@ -176,9 +176,9 @@ UNBOUNDED = UnboundedScene()
 SURFACE_OBJECT, SURFACE_TABLE, SURFACE_ROOM = 0, 1, 2
 
 
-def table_color(p: np.ndarray) -> np.ndarray:
-    """(N, 3) albedo of the table at points (N, 3) of z = 0: a smooth two-colour checker."""
-    k = 2 * math.pi / UNBOUNDED.table_period
+def table_color(p: np.ndarray, period: float = UNBOUNDED.table_period) -> np.ndarray:
+    """(N, 3) albedo of the table at points (N, 3) of z = 0: a smooth two-colour checker of ``period``."""
+    k = 2 * math.pi / period
     s = 0.5 + 0.5 * np.sin(k * p[:, 0]) * np.sin(k * p[:, 1])
     a, b = (np.array(c) for c in UNBOUNDED.table_colors)
     return a + s[:, None] * (b - a)
@@ -205,9 +205,12 @@ def _sphere_hits(o: np.ndarray, d: np.ndarray, center, radius: float) -> tuple[n
     return -b - root, -b + root
 
 
-def trace_unbounded(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def trace_unbounded(
+    o: np.ndarray, d: np.ndarray, table_period: float = UNBOUNDED.table_period
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact first hits of rays (origins, unit directions (N, 3)) starting inside the room sphere and
-    outside the object: (rgb (N, 3) albedo, surface (N,) ``SURFACE_*``, distance t (N,))."""
+    outside the object: (rgb (N, 3) albedo, surface (N,) ``SURFACE_*``, distance t (N,)); the table's
+    checker has period ``table_period``."""
     o, d = np.broadcast_arrays(np.asarray(o, dtype=np.float64), np.asarray(d, dtype=np.float64))
     t = _sphere_hits(o, d, (0.0, 0.0, 0.0), UNBOUNDED.room_radius)[1]
     surface = np.full(len(t), SURFACE_ROOM)
@@ -221,7 +224,7 @@ def trace_unbounded(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarra
     t, surface = np.where(obj, t_object, t), np.where(obj, SURFACE_OBJECT, surface)
     p = o + t[:, None] * d
     rgb = room_color(p)
-    rgb[table] = table_color(p[table])
+    rgb[table] = table_color(p[table], table_period)
     rgb[obj] = sphere_color((p[obj] - UNBOUNDED.object_center) / UNBOUNDED.object_radius)
     return rgb, surface, t
 
@@ -249,14 +252,15 @@ def write_unbounded_scene(
     samples: int = 2,
     seed: int = 0,
     jitter: float = 0.05,
+    table_period: float = UNBOUNDED.table_period,
 ) -> Path:
     """A real-capture-like unbounded scene (:data:`UNBOUNDED`) as instant-ngp / nerfstudio data: ``root``/
     ``transforms.json`` (shared ``fl_x fl_y cx cy w h``, zero OPENCV distortion, ``aabb_scale``) and
     ``images/frame_00000.png`` ... RGB PNGs without alpha, ``n_views`` cameras of :func:`unbounded_cameras`.
 
     Each pixel is the mean albedo (:func:`trace_unbounded`) of ``samples`` x ``samples`` stratified rays
-    jittered inside it, seeded by ``seed`` (deterministic). ``focal`` defaults to
-    ``UNBOUNDED.focal_per_width * width`` pixels (both axes). Returns ``root``.
+    jittered inside it, seeded by ``seed`` (deterministic); the table's checker has period ``table_period``.
+    ``focal`` defaults to ``UNBOUNDED.focal_per_width * width`` pixels (both axes). Returns ``root``.
     """
     root = Path(root)
     (root / "images").mkdir(parents=True, exist_ok=True)
@@ -273,7 +277,9 @@ def write_unbounded_scene(
                 px = cols + (b + rng.uniform(size=cols.shape)) / samples
                 py = rows + (a + rng.uniform(size=rows.shape)) / samples
                 o, d = pinhole_rays(c2w, focal, focal, cx, cy, px, py)
-                rgb += trace_unbounded(o.reshape(-1, 3), d.reshape(-1, 3))[0].reshape(height, width, 3)
+                rgb += trace_unbounded(o.reshape(-1, 3), d.reshape(-1, 3), table_period)[0].reshape(
+                    height, width, 3
+                )
         name = f"images/frame_{k:05d}.png"
         _save_png(root / name, rgb / samples**2)
         frames.append({"file_path": name, "transform_matrix": c2w.tolist()})

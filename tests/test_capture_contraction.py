@@ -1,6 +1,6 @@
 """Real captures in contracted space (paper Sec. 4.7) and the object cut out of them (issue 43), on the
-synthetic capture of :func:`scenes.write_unbounded_scene`: a sphere on a table inside a distant textured room,
-photos without alpha.
+synthetic capture of :func:`scenes.write_unbounded_scene`: a sphere on a checkered table inside a distant
+textured room, photos without alpha.
 
 The field's box is deliberately too small (``bound`` 0.35 about the cameras' focus, while the sphere reaches
 0.6 from it): the old bounded field cuts the object off at its box, the contracted one keeps all of it.
@@ -54,14 +54,34 @@ def _config(space: str) -> PipelineConfig:
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
-    """The scene's directory, its dataset and both assets trained on it: contracted and bounded."""
+    """The scene's dataset and the contracted asset trained on it for 500 steps."""
     root = tmp_path_factory.mktemp("capture")
     data_dir = write_unbounded_scene(root / "data", n_views=24, width=40, height=30)
-    assets = {space: train_asset(data_dir, root / space, _config(space), "cpu") for space in SPACES}
-    return data_dir, load_dataset(data_dir, bound=BOUND), {k: load_asset(v) for k, v in assets.items()}
+    asset = load_asset(train_asset(data_dir, root / "contracted", _config("contracted"), "cpu"))
+    return load_dataset(data_dir, bound=BOUND), asset
 
 
-SPACES = ("contracted", "bounded")
+#: The table's checker period of the scene both spaces are compared on: squares of 1, 8-14 px across in a
+#: 40 px view, which the views resolve (the default period's squares, 2-4 px, average to one brown).
+COARSE_TABLE = 2.0
+
+
+@pytest.fixture(scope="module")
+def both_spaces(tmp_path_factory):
+    """The dataset of the scene with the coarse table and assets of both spaces trained on it for 1500
+    steps: ``(data, {"contracted": ..., "bounded": ...})``. The contracted field grows the table out of
+    empty space only after about a thousand steps (outside the object, 500 steps: 18.2 against 17.5 dB;
+    1000: 18.9 against 17.8; 1500: 20.9 against 17.6)."""
+    root = tmp_path_factory.mktemp("spaces")
+    data_dir = write_unbounded_scene(
+        root / "data", n_views=24, width=40, height=30, table_period=COARSE_TABLE
+    )
+    assets = {}
+    for space in ("contracted", "bounded"):
+        config = _config(space)
+        config.stage1 = dataclasses.replace(config.stage1, steps=1500, eval_every=1500)
+        assets[space] = load_asset(train_asset(data_dir, root / space, config, "cpu"))
+    return load_dataset(data_dir, bound=BOUND), assets
 
 
 def _render(asset, data, view: int) -> np.ndarray:
@@ -70,49 +90,53 @@ def _render(asset, data, view: int) -> np.ndarray:
     return render_camera(field, data.cameras, view, asset_sampler(asset), background)[0]
 
 
-def test_the_capture_beyond_the_box_is_learnt_better_than_by_an_environment_map(capture):
-    _, data, assets = capture
+def test_the_room_around_the_object_is_learnt_better_than_by_an_environment_map(both_spaces):
+    data, assets = both_spaces
     scores = {}
     for space, asset in assets.items():
-        room, whole = [], []
+        outside, whole = [], []
         for v in data.test_idx:
             image, photo = _render(asset, data, int(v)), data.images[v]
-            outside = ~unbounded_object_mask(data.cameras, int(v), pad=0.05)
-            room.append(psnr(image[outside], photo[outside]))
+            mask = ~unbounded_object_mask(data.cameras, int(v), pad=0.05)
+            outside.append(psnr(image[mask], photo[mask]))
             whole.append(psnr(image, photo))
-        scores[space] = (float(np.mean(room)), float(np.mean(whole)))
-    assert assets["contracted"].meta["field"]["contract"] and not assets["bounded"].meta["field"]["contract"]
-    (_, whole_c), (_, whole_b) = scores["contracted"], scores["bounded"]
-    # the frame as a whole (measured: 19.1 against 16.7 dB); outside the object it is not yet better after
-    # this short training (18.3 against 18.6 dB): the table is never carved out of empty space once the
-    # kernel has sharpened (issue 43 keeps that open)
-    assert whole_c > whole_b + 2.0, scores
+        scores[space] = (float(np.mean(outside)), float(np.mean(whole)))
+    assert [asset.meta["field"]["contract"] for asset in assets.values()] == [True, False]
+    (outside_c, whole_c), (outside_b, whole_b) = scores["contracted"], scores["bounded"]
+    # the table seen with parallax, which one colour per direction cannot draw (measured: 20.9 against
+    # 17.6 dB outside the object, 21.7 against 17.7 with seed 1; the room sphere lies past the shells'
+    # reach and is drawn by the environment map in both), and the frame as a whole (21.4 against 16.1 dB)
+    assert outside_c > outside_b + 1.5, scores
+    assert whole_c > whole_b + 3.0, scores
 
 
-def _sphere_points(n: int = 4000) -> np.ndarray:
-    """(N, 3) points of the sphere's surface above the table (what the cameras see of it)."""
+#: Half a pixel's footprint on the sphere (focal 34 px, the sphere 1.7-2.2 from the cameras): how far the
+#: learnt surface may sit from the true one in a 40 x 30 capture (measured: up to 0.03 inside).
+HALF_PIXEL = 0.03
+
+
+def _sphere_points(n: int = 4000, depth: float = 0.0) -> np.ndarray:
+    """(N, 3) points ``depth`` under the sphere's surface, above the table (what the cameras see of it)."""
     rng = np.random.default_rng(0)
     d = rng.normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    points = np.asarray(UNBOUNDED.object_center) + UNBOUNDED.object_radius * d
+    points = np.asarray(UNBOUNDED.object_center) + (UNBOUNDED.object_radius - depth) * d
     return points[points[:, 2] > 0.15]
 
 
-def test_no_part_of_an_object_past_the_box_is_cut_off(capture):
-    _, _, assets = capture
-    points = _sphere_points()
+def test_no_part_of_an_object_past_the_box_is_cut_off(both_spaces):
+    points = _sphere_points(depth=HALF_PIXEL)
     far = (np.abs(points - np.asarray(UNBOUNDED.target)) > BOUND).any(axis=1)
     assert far.mean() > 0.3  # most of the surface lies beyond the old box
-    contracted = assets["contracted"].outer_mesh().contains(points)
-    bounded = assets["bounded"].outer_mesh().contains(points)
+    contracted = both_spaces[1]["contracted"].outer_mesh().contains(points)
+    bounded = both_spaces[1]["bounded"].outer_mesh().contains(points)
     assert contracted.mean() > 0.99, contracted.mean()  # the whole object is inside M+
-    assert bounded[far].mean() < 0.05  # the bounded field's shells end at its box
+    assert bounded[far].mean() < 0.05, bounded[far].mean()  # the bounded field's shells end at its box
 
 
 def test_the_proposed_cut_holds_the_object(capture):
     # (after this short training the table is not flat enough for the plane search: no plane is asserted)
-    _, _, assets = capture
-    asset = assets["contracted"]
+    asset = capture[1]
     cut = propose_cut(load_field(asset), asset.up, center=UNBOUNDED.target, radius=0.9)
     centre, radius = np.asarray(UNBOUNDED.object_center), UNBOUNDED.object_radius
     inside = cut.contains(torch.as_tensor(_sphere_points())).numpy()
@@ -121,15 +145,15 @@ def test_the_proposed_cut_holds_the_object(capture):
 
 
 def test_body_and_backdrop_at_rest_render_as_the_uncut_capture(capture, tmp_path):
-    _, data, assets = capture
+    data, asset = capture
     out = tmp_path / "sphere"
-    assert main(["cut", "--asset", str(assets["contracted"].root), "--out", str(out), "--resolution", "96",
+    assert main(["cut", "--asset", str(asset.root), "--out", str(out), "--resolution", "96",
                  "--center", "0,0,0.4", "--radius", "0.9"]) in (0, None)  # fmt: skip
     cut_asset = load_asset(out)
     assert cut_asset.cut is not None
     assert cut_asset.outer_mesh().is_watertight
     field = load_field(cut_asset)
-    whole = DeformedRenderer(assets["contracted"], load_field(assets["contracted"]), None)
+    whole = DeformedRenderer(asset, load_field(asset), None)
     parts = DeformedRenderer(cut_asset, field, None)
     for v in data.test_idx:
         uncut, _ = whole.render(data.cameras, int(v))
@@ -151,8 +175,7 @@ def test_the_body_mask_and_the_backdrop_mask_split_every_sample():
 
 
 def test_cut_shells_of_a_box_stay_inside_it(capture):
-    _, _, assets = capture
-    field = load_field(assets["contracted"])
+    field = load_field(capture[1])
     cut = Cut([-0.3, -0.3, 0.02], [0.3, 0.3, 0.9])  # slices through the sphere: the body is its middle
     shells = cut_shells(field, cut, ShellConfig(resolution=64))
     assert shells.outer.is_watertight

@@ -33,7 +33,7 @@ from neural.shell.cutout import (
     propose_cut,
 )
 from shellsim.cli.main import main
-from shellsim.deform.renderer import DeformedRenderer
+from shellsim.deform.renderer import DeformedRenderer, SceneRenderer
 
 BOUND = 0.35  # the object's box half-size: smaller than the sphere (radius 0.5, 0.6 from the focus)
 GRID = HashGridConfig(n_levels=8, log2_table_size=14, max_resolution=256)
@@ -155,12 +155,16 @@ def test_body_and_backdrop_at_rest_render_as_the_uncut_capture(capture, tmp_path
     field = load_field(cut_asset)
     whole = DeformedRenderer(asset, load_field(asset), None)
     parts = DeformedRenderer(cut_asset, field, None)
+    # in a world with a look, the body stands on its own table (no checkered ground under it) and the sky
+    # is its capture's environment map: the world adds nothing to the capture, alone or in a scene
+    in_world = DeformedRenderer(cut_asset, field, None, look=WorldLook())
+    assert in_world.look.ground is False
+    scenes = [SceneRenderer([parts], look=WorldLook()), SceneRenderer([parts])]
     for v in data.test_idx:
         uncut, _ = whole.render(data.cameras, int(v))
-        together, _ = parts.render(data.cameras, int(v))
-        assert psnr(together, uncut) >= 35.0
-    # in a world with a look, the body stands on its own table: no checkered ground under it
-    assert DeformedRenderer(cut_asset, field, None, look=WorldLook()).look.ground is False
+        for renderer in (parts, in_world, *scenes):
+            together, _ = renderer.render(data.cameras, int(v))
+            assert psnr(together, uncut) >= 35.0, renderer
 
 
 def test_the_body_mask_and_the_backdrop_mask_split_every_sample():

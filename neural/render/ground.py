@@ -205,6 +205,7 @@ def world_backdrop(
     visibility: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
     obstacles: Obstacles | None = None,
     meshes: Meshes | None = None,
+    sky_colors: Callable[[torch.Tensor], torch.Tensor] | None = None,
 ):
     """``backdrop(origins (R, 3), dirs (R, 3)) -> (R, 3)`` of :func:`neural.render.view.render_pixels`: the
     sky, with ``look.ground`` the lit checkered ground and the lit ``obstacles`` (module docstring) behind
@@ -213,7 +214,8 @@ def world_backdrop(
     renderer's frame (the field's transmittance, e.g. :func:`neural.render.view.transmittance`); None: the
     field blocks no light. With ``look.shadows`` False nothing blocks it. ``meshes``: opaque triangle meshes
     (:class:`~neural.render.obstacles.Meshes`), drawn and casting shadows as the obstacles do, in their own
-    albedo."""
+    albedo. ``sky_colors(dirs_w (R, 3)) -> (R, 3)``: what rays that meet nothing see along world directions
+    instead of the look's sky (a capture's environment map)."""
     import torch
 
     obstacles = Obstacles() if obstacles is None else obstacles
@@ -248,7 +250,7 @@ def world_backdrop(
             return value
 
         hit, t, points, dirs_w = ground_hits(frame, origins, dirs)
-        color = sky(look, dirs_w)
+        color = sky(look, dirs_w) if sky_colors is None else sky_colors(dirs_w).to(dirs_w.dtype).clone()
         t_obstacle = None
         if solid:
             o_w = to_world(frame, origins, dirs)[0]

@@ -175,6 +175,19 @@ class DeformedRenderer:
         frame = self.world if framed else WorldFrame()
         return FieldBody(self.field, self._backdrop, RegionMask(self.cut, inside=False), frame)
 
+    def capture_sky(self):
+        """``sky(dirs_w (R, 3)) -> (R, 3)`` of a cut asset whose field has an environment map: what its
+        capture saw beyond the field along world directions (turned into the asset's frame by its
+        placement), the sky of a world it is drawn in; None for any other asset."""
+        if self.cut is None or getattr(self.field, "env", None) is None:
+            return None
+        rotation = torch.as_tensor(self.world.rotation, dtype=torch.float32, device=self.device)
+
+        def sky(dirs_w: torch.Tensor) -> torch.Tensor:
+            return self.field.environment(dirs_w.to(rotation) @ rotation)  # rows of R^T d
+
+        return sky
+
     def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
         """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
         (V, 3) (None: at rest, exactly :func:`neural.render.view.render_camera` with the asset's sampler),
@@ -216,7 +229,7 @@ class DeformedRenderer:
     def _render_cut(self, cameras, index: int, sampler, to_rest, start: float, build: float):
         """:meth:`render` of a cut asset: the body (``sampler``, ``to_rest``) and its backdrop, both in the
         asset's frame, merged by depth (:func:`neural.render.view.render_bodies`) over the field's
-        environment map or the world of the ``look``."""
+        environment map or the world of the ``look`` (under the same environment map, :meth:`capture_sky`)."""
         from neural.data import camera_rays
         from neural.render.bodies import FieldBody
         from neural.render.fullray import ray_background
@@ -236,7 +249,9 @@ class DeformedRenderer:
             def visibility(o, d):
                 return bodies_transmittance(bodies, o, d)
 
-            behind = world_backdrop(self.look, self.world, visibility, self.obstacles)
+            behind = world_backdrop(
+                self.look, self.world, visibility, self.obstacles, sky_colors=self.capture_sky()
+            )
             if self.look.ground or self.obstacles:
                 t_max = surface_t_max(self.look, self.world, self.obstacles, origins, dirs)
         colors, stats = render_bodies(bodies, origins, dirs, self.background, backdrop=behind, t_max=t_max)
@@ -251,12 +266,13 @@ class SceneRenderer:
     and shadows of ``look`` (:class:`neural.render.ground.WorldLook`; shadow rays through every body's
     field, :func:`neural.render.view.bodies_transmittance`). A body cut out of a capture
     (:mod:`neural.shell.cutout`) brings its room, the backdrop of its asset, drawn at rest where the asset is
-    placed, and the world's ground is not drawn: the body stands on its own table.
+    placed, and the world's ground is not drawn: the body stands on its own table; the environment map of
+    its capture is the sky (:meth:`DeformedRenderer.capture_sky`).
 
     bodies : one :class:`DeformedRenderer` per neural body (made with its ``placement``, without a look)
     statics : ``(vertices (N, 3) world, faces (F, 3), albedo (3,))`` of the static meshes
     obstacles : :class:`neural.render.obstacles.Obstacles` (boxes and spheres met in closed form)
-    background : RGB behind everything without a ``look``
+    background : RGB behind everything without a ``look`` (with a cut body: its capture's environment map)
     """
 
     def __init__(
@@ -292,6 +308,7 @@ class SceneRenderer:
         build = time.perf_counter() - start
         origins, dirs = camera_rays(cameras, index, device=self.device)
         backdrop = t_max = None
+        capture_sky = next((sky for sky in (r.capture_sky() for r in self.bodies) if sky), None)
         if self.look is not None:
             world = WorldFrame()
 
@@ -299,10 +316,15 @@ class SceneRenderer:
                 return bodies_transmittance(bodies, o, d)
 
             backdrop = world_backdrop(
-                self.look, world, visibility if bodies else None, self.obstacles, opaque
+                self.look, world, visibility if bodies else None, self.obstacles, opaque, capture_sky
             )
             if self.look.ground or self.obstacles or opaque:
                 t_max = surface_t_max(self.look, world, self.obstacles, origins, dirs, opaque)
+        elif capture_sky is not None:
+
+            def backdrop(o, d):
+                return capture_sky(d)
+
         colors, stats = render_bodies(bodies, origins, dirs, self.background, backdrop=backdrop, t_max=t_max)
         return _camera_image(colors, stats, cameras, index, start, build)
 

@@ -25,7 +25,7 @@ import numpy as np
 from neural.asset import load_asset, load_field
 from neural.device import configure_process, pick_device, processor
 from shellsim.cage.store import load_or_build_cage
-from shellsim.physics.wind import WindSettings, wind_displacement
+from shellsim.physics.wind import WindField, wind_displacement
 from shellsim.render.cameras import orbit_camera, orbit_framing
 
 
@@ -42,7 +42,7 @@ def twist(vertices: np.ndarray, up: np.ndarray, turns: float = 0.15) -> np.ndarr
 
 
 def main() -> None:
-    from shellsim.deform.renderer import STAGES, DeformedRenderer  # loads torch, after configure_process
+    from shellsim.render.renderer import STAGES, DeformedRenderer  # loads torch, after configure_process
 
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -62,7 +62,7 @@ def main() -> None:
     renderer = DeformedRenderer(asset, field, cage, device)
     rest = cage.vertices
     if args.motion == "wind":
-        settings = WindSettings(up=tuple(asset.up), strength=0.1)
+        settings = WindField(up=tuple(asset.up), strength=0.1)
         positions = rest + wind_displacement(rest, 1.5, settings)
     else:
         positions = twist(rest, asset.up)

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from neural.device import configure_process
-from shellsim.jobs.wind import WindJobSettings, wind
+from shellsim.jobs.wind import WindSettings, wind
 
 
 def main() -> None:
@@ -45,7 +45,7 @@ def main() -> None:
     out = Path(args.out or tempfile.mkdtemp(prefix="ray_render_bench_"))
     motion = out / "wind.npz"
     wind(
-        WindJobSettings(asset=args.asset, frames=args.frames, out=str(motion), overwrite=True), progress=False
+        WindSettings(asset=args.asset, frames=args.frames, out=str(motion), overwrite=True), progress=False
     )
     size = (args.size, args.size)
     times = {}

@@ -57,7 +57,7 @@ def renderer_of(scene, bodies, look):
     """A :class:`SceneRenderer` of the neural bodies named ``bodies`` of ``scene`` (``look`` None: no
     world)."""
     from neural.asset import load_field
-    from shellsim.deform.renderer import DeformedRenderer, SceneRenderer
+    from shellsim.render.renderer import DeformedRenderer, SceneRenderer
     from shellsim.render.scene_frames import scene_world
 
     renderers = [
@@ -76,11 +76,11 @@ def frame_cages(scene, positions, bodies):
 
 def cost(out: Path, size: int) -> dict:
     """Median ms per frame of the scene with its world, and of each body alone without one."""
-    from neural.render.ground import WorldLook
     from shellsim.motion.read import read_frames
     from shellsim.render.cameras import scene_shot
     from shellsim.render.scene_frames import scene_camera, scene_tracks
     from shellsim.scene.motion import read_scene_motion
+    from shellsim.world import WorldLook
 
     scene = read_scene_motion(out)
     placements = {b.name: b.placement for b in scene.bodies}
@@ -129,10 +129,10 @@ def shadows(out: Path) -> None:
     """Light received by ground points around a one-body scene's body at its last frame (module docstring)."""
     import torch
 
-    from neural.render.ground import WorldLook
     from neural.render.view import bodies_transmittance
     from shellsim.motion.read import read_frames
     from shellsim.scene.motion import read_scene_motion
+    from shellsim.world import WorldLook
 
     scene = read_scene_motion(out)
     (body,) = scene.bodies
@@ -166,10 +166,11 @@ def no_gap(out: Path, size: int) -> None:
     """Rows of sky between a resting body's visible bottom and the ground, seen from the side at ground
     level (module docstring), at its last frame."""
     from neural.data import camera_rays, look_at
-    from neural.render.ground import WorldLook, sky
     from shellsim.motion.read import read_frames
     from shellsim.render.cameras import Shot
+    from shellsim.render.ground import sky
     from shellsim.scene.motion import read_scene_motion
+    from shellsim.world import WorldLook
 
     scene = read_scene_motion(out)
     (body,) = scene.bodies

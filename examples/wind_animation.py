@@ -21,7 +21,7 @@ from pathlib import Path
 from neural.device import configure_process
 from neural.errors import ShellsimError
 from shellsim.cli.options import options_named
-from shellsim.jobs.wind import WindJobSettings, wind
+from shellsim.jobs.wind import WindSettings, wind
 from shellsim.render.cameras import CameraSettings
 from shellsim.render.result import RenderResult
 from shellsim.settings import pixels
@@ -52,9 +52,9 @@ def main(argv: list[str] | None = None) -> RenderResult:
     out = Path(args.out)
     settings = dict(strength=args.strength, gust=0.4, frequency=0.8, anchor=args.anchor)
     try:
-        with options_named(WindJobSettings):  # setting errors name the options of this script
+        with options_named(WindSettings):  # setting errors name the options of this script
             result = wind(
-                WindJobSettings(
+                WindSettings(
                     asset=args.asset,
                     frames=args.frames,
                     fps=args.fps,

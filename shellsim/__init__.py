@@ -11,7 +11,7 @@ Jobs (settings -> function -> result):
     TrainSettings -> train -> TrainResult            ExtractSettings -> extract -> ExtractResult
     FinetuneSettings -> finetune -> FinetuneResult
     PosesSettings -> poses -> PosesResult            CageSettings -> cage_job -> CageResult
-    SimulateSettings -> simulate -> SimulateResult   WindJobSettings -> wind -> WindResult
+    SimulateSettings -> simulate -> SimulateResult   WindSettings -> wind -> WindResult
     SceneSettings -> scene_job -> SceneResult
     RenderSettings -> render_job -> RenderResult     EvalSettings -> evaluate -> EvalResult (ViewMetrics)
     ExportSettings -> export -> ExportResult         SweepSettings -> sweep -> SweepResult
@@ -55,7 +55,7 @@ _EXPORTS = {
     "SceneSettings": ("shellsim.jobs.scene", "SceneSettings"),
     "SceneResult": ("shellsim.jobs.scene", "SceneResult"),
     "scene_job": ("shellsim.jobs.scene", "scene"),
-    "WindJobSettings": ("shellsim.jobs.wind", "WindJobSettings"),
+    "WindSettings": ("shellsim.jobs.wind", "WindSettings"),
     "WindResult": ("shellsim.jobs.wind", "WindResult"),
     "wind": ("shellsim.jobs.wind", "wind"),
     "RenderSettings": ("shellsim.jobs.render", "RenderSettings"),

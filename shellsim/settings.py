@@ -37,6 +37,21 @@ def overwrite_option():
     return option(False, help="start OUT anew even if it was made with other settings", group="again")
 
 
+def max_stretch_option():
+    """The ``max_stretch`` field of a simulation's settings: the frame check of
+    :class:`shellsim.physics.model.SolverSettings`."""
+    return option(
+        3.0,
+        help="largest principal stretch of a tet (deformed over rest length along its most stretched "
+        "direction) a frame may reach; a frame past it is redone with more substeps, then stops the run",
+    )
+
+
+def allow_stretch_option():
+    """The ``allow_stretch`` field of a simulation's settings."""
+    return option(False, help="only warn, once, when a frame passes --max-stretch, and go on")
+
+
 def parse_frames(spec: str | None, n_frames: int, source="the motion") -> range:
     """The setting ``frames``: ``"a:b"`` or ``"a:b:step"`` (b exclusive; a or b may be left out; step a
     positive integer, ``"::2"`` every second frame), ``"k"`` or None (all) -> the frame indices, checked

@@ -6,7 +6,9 @@ dataset's coordinates, where its field, shells and rest cage are); a :class:`Pla
 uniform scale, rotation, translation) puts it into the world. :func:`place_on_ground` makes the usual one:
 the asset's up axis turned onto +z, its largest extent scaled to a size in metres, its lowest point at a
 given height above the ground and its bounding box centred over the origin. Rendering maps world points back
-through the inverse (:meth:`Placement.to_asset`).
+through the inverse (:meth:`Placement.to_asset`); a :class:`Placement` is also the frame of a field drawn in
+the world (:class:`neural.render.bodies.FieldBody`). :class:`WorldLook` is how the world looks in the frames
+(the ground's checker, the light, the sky, the colliders' colour); :mod:`shellsim.render.ground` draws it.
 """
 
 from __future__ import annotations
@@ -21,6 +23,15 @@ from neural.errors import InputError
 #: Height of the ground plane (metres); the world's up axis.
 GROUND_Z = 0.0
 UP = (0.0, 0.0, 1.0)
+#: Named views of the world: (azimuth, elevation) in degrees of the direction from what is viewed to the
+#: camera, the azimuth about up from +x towards +y; None: the camera's own elevation. The presets of a
+#: motion's camera (:class:`shellsim.render.cameras.CameraSettings`) and of a scene file's ``[[camera]]``.
+CAMERA_PRESETS = {
+    "front": (-90.0, 0.0),
+    "side": (0.0, 0.0),
+    "top": (-90.0, 90.0),
+    "three-quarter": (-45.0, None),
+}
 #: Metres per unit of a mesh file's coordinates (a mesh body's or collider's ``units``).
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 #: Size in metres of a body's largest extent when none is given.
@@ -121,3 +132,62 @@ def describe_placement(name: str, placement: Placement, world_vertices) -> str:
         f"(x, y, z), {placement.scale:.6g} m per asset unit; spans x {lo[0]:.3f}..{hi[0]:.3f}, "
         f"y {lo[1]:.3f}..{hi[1]:.3f}; lowest point at z = {lo[2]:.3f}, top at z = {hi[2]:.3f}"
     )
+
+
+def _colour(name: str, value) -> tuple[float, float, float]:
+    """``value`` as an RGB triple in [0, 1]; else a ValueError naming ``name``."""
+    rgb = tuple(float(v) for v in np.asarray(value, np.float64).reshape(-1))
+    if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
+        raise ValueError(f"{name}: expected 3 numbers in [0, 1], got {value!r}")
+    return rgb
+
+
+@dataclass(frozen=True)
+class WorldLook:
+    """How the world behind a body looks: settings only (recorded with every frame), drawn by
+    :mod:`shellsim.render.ground`.
+
+    ground : draw the ground plane z = 0 (else only the sky)
+    square : side of the checker's squares in metres (the ground's scale)
+    ground_colors : the checker's two RGB colours in [0, 1]
+    light : (3,) direction toward the directional light in world coordinates (any length, z > 0 lights the
+        ground from above)
+    ambient, diffuse : the sky's and the light's share of a lit ground point's brightness
+    shadows : shadow rays through the field (else the light is never blocked)
+    zenith, horizon : RGB of the sky straight up and at the horizon (and below it)
+    obstacle_color : RGB albedo of the static obstacles (boxes, spheres)
+    """
+
+    ground: bool = True
+    square: float = 0.1
+    ground_colors: tuple = ((0.82, 0.82, 0.80), (0.62, 0.63, 0.62))
+    light: tuple = (0.35, 0.5, 1.0)
+    ambient: float = 0.35
+    diffuse: float = 0.65
+    shadows: bool = True
+    zenith: tuple = (0.62, 0.74, 0.90)
+    horizon: tuple = (0.93, 0.94, 0.96)
+    obstacle_color: tuple = (0.78, 0.52, 0.36)
+
+    def __post_init__(self):
+        if not (math.isfinite(self.square) and self.square > 0):
+            raise ValueError(f"square: expected a positive number of metres, got {self.square!r}")
+        colors = np.asarray(self.ground_colors, np.float64)
+        if colors.shape != (2, 3):
+            raise ValueError(f"ground_colors: expected two RGB colours, got {self.ground_colors!r}")
+        object.__setattr__(self, "ground_colors", tuple(_colour("ground_colors", c) for c in colors))
+        light = tuple(float(v) for v in np.asarray(self.light, np.float64).reshape(-1))
+        if len(light) != 3 or not np.isfinite(light).all() or np.linalg.norm(light) == 0:
+            raise ValueError(f"light: expected a non-zero direction x, y, z, got {self.light!r}")
+        object.__setattr__(self, "light", light)
+        for name in ("ambient", "diffuse"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: expected a number >= 0, got {value!r}")
+        for name in ("zenith", "horizon", "obstacle_color"):
+            object.__setattr__(self, name, _colour(name, getattr(self, name)))
+
+    def light_unit(self) -> np.ndarray:
+        """(3,) unit direction toward the light (world)."""
+        light = np.asarray(self.light, np.float64)
+        return light / np.linalg.norm(light)

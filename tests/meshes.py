@@ -108,7 +108,7 @@ def save_collision_surface(asset, cage, mesh):
         surface_key,
         surface_of_mesh,
     )
-    from shellsim.motion.format import cage_digest
+    from shellsim.cage.geometry import cage_digest
 
     surface = surface_of_mesh(mesh.vertices, mesh.faces, cage.vertices, cage.tets)
     key = surface_key(asset.digest(), cage_digest(cage.vertices, cage.tets), MAX_FACES, RESOLUTION)

@@ -198,7 +198,7 @@ def test_export_from_python_writes_the_cli_files(ball, tmp_path, format, out):
 
 def test_wind_from_python_moves_the_cage_as_the_cli_does(ball, tmp_path):
     asset, _, _ = ball
-    result = shellsim.wind(shellsim.WindJobSettings(asset=str(asset), frames=3, out=str(tmp_path / "py.npz")))
+    result = shellsim.wind(shellsim.WindSettings(asset=str(asset), frames=3, out=str(tmp_path / "py.npz")))
     assert main(["wind", "--asset", str(asset), "--frames", "3", "--out", str(tmp_path / "cli.npz")]) == 0
     py, cli = shellsim.load_motion(result.out), shellsim.load_motion(tmp_path / "cli.npz")
     assert result.frames == py.n_frames == 3

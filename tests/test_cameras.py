@@ -17,7 +17,6 @@ from neural.data import camera_rays, load_camera_file
 from shellsim.render.cameras import (
     CAMERAS,
     FOLLOW_SECONDS,
-    PRESETS,
     CameraSettings,
     MotionTrack,
     default_scene_camera,
@@ -27,7 +26,7 @@ from shellsim.render.cameras import (
 )
 from shellsim.render.frames import asset_camera
 from shellsim.scene.spec import CameraKeyframe, CameraSpec, SceneError
-from shellsim.world import Placement, up_rotation
+from shellsim.world import CAMERA_PRESETS, Placement, up_rotation
 
 W, H = 32, 20
 
@@ -82,7 +81,7 @@ def test_every_frame_keeps_the_framed_box_inside_the_image(camera):
         box = (track.lo[k], track.hi[k]) if camera == "follow" else (track.lo.min(0), track.hi.max(0))
         pixels = project(shot.camera_for_frame(k), corners(*box))
         assert (pixels >= 0).all() and (pixels[:, 0] <= W).all() and (pixels[:, 1] <= H).all(), (camera, k)
-        if camera in PRESETS:  # framed tightly: the box reaches an edge of the image within the margin
+        if camera in CAMERA_PRESETS:  # framed tightly: the box reaches an edge of the image within the margin
             room = np.minimum(pixels, [W, H] - pixels).min(axis=0) / [W / 2, H / 2]
             assert room.min() < 0.06
 
@@ -133,8 +132,9 @@ def test_a_fixed_camera_at_rest_renders_the_asset_frame_view(tmp_path):
 
     from neural.asset import load_asset
     from neural.data import look_at
+    from shellsim.cage.geometry import cage_digest
     from shellsim.cage.store import load_cage
-    from shellsim.motion.format import Motion, cage_digest, save_motion
+    from shellsim.motion.format import Motion, save_motion
     from shellsim.render.frames import render_motion
 
     asset_dir = make_asset(tmp_path / "asset")
@@ -270,7 +270,7 @@ def test_a_scene_follow_camera_keeps_its_offset_from_the_smoothed_centre_of_mass
         np.testing.assert_allclose(steady, np.tile(v * dt * (1 - a) / a, (30, 1)), rtol=1e-3, atol=1e-12)
 
 
-@pytest.mark.parametrize("kind", PRESETS)
+@pytest.mark.parametrize("kind", CAMERA_PRESETS)
 def test_a_preset_scene_camera_is_the_presets_shot_over_every_body(kind):
     tracks = scene_tracks()
     spec = CameraSpec(name="p", kind=kind, fov=50.0, elevation=35.0)
@@ -283,7 +283,7 @@ def test_a_preset_scene_camera_is_the_presets_shot_over_every_body(kind):
         pixels = project(shot.camera_for_frame(k), box)
         assert (pixels >= 0).all() and (pixels[:, 0] <= W).all() and (pixels[:, 1] <= H).all(), k
     back = shot.c2w[0, :3, 2]
-    elevation = 35.0 if PRESETS[kind][1] is None else PRESETS[kind][1]
+    elevation = 35.0 if CAMERA_PRESETS[kind][1] is None else CAMERA_PRESETS[kind][1]
     assert math.degrees(math.asin(back[2])) == pytest.approx(elevation, abs=1e-9)
 
 

@@ -21,7 +21,6 @@ from neural.config import HashGridConfig, PipelineConfig, ShellConfig, Stage1Con
 from neural.data import load_dataset
 from neural.metrics import psnr
 from neural.pipeline import train_asset
-from neural.render.ground import WorldLook
 from neural.render.view import asset_sampler, render_camera
 from neural.shell.cutout import (
     FLOOR_VOXELS,
@@ -33,7 +32,8 @@ from neural.shell.cutout import (
     propose_cut,
 )
 from shellsim.cli.main import main
-from shellsim.deform.renderer import DeformedRenderer, SceneRenderer
+from shellsim.render.renderer import DeformedRenderer, SceneRenderer
+from shellsim.world import WorldLook
 
 BOUND = 0.35  # the object's box half-size: smaller than the sphere (radius 0.5, 0.6 from the focus)
 GRID = HashGridConfig(n_levels=8, log2_table_size=14, max_resolution=256)

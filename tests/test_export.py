@@ -377,12 +377,11 @@ def test_usd_of_a_scene_holds_every_body_its_cage_and_the_static_collider(shot, 
     from pxr import Usd, UsdGeom
 
     from neural.asset import load_asset
-    from neural.render.ground import WorldLook
     from shellsim.cage.store import load_or_build_cage
     from shellsim.motion.read import load_motion
-    from shellsim.scene.build import collider_mesh
+    from shellsim.scene.bodies import collider_mesh
     from shellsim.scene.motion import MESH_BODY_COLORS, read_scene_motion
-    from shellsim.world import Placement
+    from shellsim.world import Placement, WorldLook
 
     out, root = shot
     motion = load_motion(out / "motion.npz")
@@ -446,7 +445,7 @@ def test_ply_of_a_scene_is_every_body_per_frame_and_each_collider_once(shot, tmp
     from neural.asset import load_asset
     from shellsim.cage.store import load_or_build_cage
     from shellsim.motion.read import load_motion
-    from shellsim.scene.build import collider_mesh
+    from shellsim.scene.bodies import collider_mesh
     from shellsim.scene.motion import read_scene_motion
 
     out, root = shot

@@ -1,4 +1,4 @@
-"""The world behind a body (neural.render.ground): a checkered ground plane at world z = 0 seen through a
+"""The world behind a body (shellsim.render.ground): a checkered ground plane at world z = 0 seen through a
 placement, lit by ambient + diffuse Lambert light, with shadows attenuated by the field's transmittance.
 
 Truths from outside the code: the pixel -> ground point map of a camera looking straight down (similar
@@ -20,20 +20,19 @@ from test_render_deformed import EYE, camera, make_asset, rotation
 from neural.asset import load_asset, load_field
 from neural.data import Cameras
 from neural.render.fullray import stepped_samples
-from neural.render.ground import WorldFrame, WorldLook, world_backdrop
-from neural.render.obstacles import Obstacles
 from neural.render.view import render_camera, transmittance
 from shellsim.cage.store import load_or_build_cage
-from shellsim.deform.renderer import DeformedRenderer
 from shellsim.errors import SettingError
 from shellsim.io.png import renderer_identity
 from shellsim.render.frames import motion_world, world_record
+from shellsim.render.ground import world_backdrop
+from shellsim.render.obstacles import Obstacles
+from shellsim.render.renderer import DeformedRenderer
 from shellsim.render.world import WorldSettings
-from shellsim.world import Placement, place_on_ground
+from shellsim.world import Placement, WorldLook, place_on_ground
 
 # The renderer's (asset's) frame: world = 0.5 * R x + t, a turned, scaled and shifted frame.
 PLACEMENT = Placement(0.5, rotation((1.0, 2.0, 3.0), 0.7), np.array([0.2, -0.1, 0.05]))
-FRAME = WorldFrame(PLACEMENT.scale, PLACEMENT.rotation, PLACEMENT.translation)
 LOOK = WorldLook(square=0.1, light=(0.3, -0.2, 1.0), ambient=0.3, diffuse=0.7)
 SPHERE_CENTER = np.array([0.05, 0.1, 0.3])  # world metres
 SPHERE_RADIUS = 0.1
@@ -111,7 +110,7 @@ def test_pixels_show_the_checker_where_the_ray_meets_the_ground():
     c2w[:3, 3] = PLACEMENT.to_asset(eye_w)
     cameras = Cameras(c2w[None], [focal], [focal], [16.0], [16.0], [size], [size], np.zeros((1, 4)), ["c"])
     field = sphere_in_asset_frame(1000.0)  # far outside the sampled range: no sample lands on it
-    backdrop = world_backdrop(LOOK, FRAME)
+    backdrop = world_backdrop(LOOK, PLACEMENT)
     empty = stepped_sampler(1.0, far=0.5)  # samples only near the camera, where the field is empty
     image, stats = render_camera(field, cameras, 0, empty, torch.ones(3), backdrop=backdrop)
     u, v = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
@@ -134,7 +133,7 @@ def test_pixels_show_the_checker_where_the_ray_meets_the_ground():
 
 def test_the_sky_is_a_vertical_gradient_and_rays_from_below_see_no_ground():
     look = WorldLook(zenith=(0.2, 0.4, 0.8), horizon=(0.9, 0.9, 0.9))
-    backdrop = world_backdrop(look, FRAME)
+    backdrop = world_backdrop(look, PLACEMENT)
     dirs_w = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 0.6, 0.8], [0.0, 0.0, -1.0]])
     origins_w = np.array([[0.0, 0.0, 1.0]] * 3 + [[0.0, 0.0, -1.0]])  # the last one starts under the ground
     o, d = to_asset_rays(origins_w, dirs_w)
@@ -151,7 +150,7 @@ def test_an_opaque_sphere_leaves_only_the_ambient_light():
     def visibility(o, d):
         return transmittance(field, o, d, sampler)
 
-    backdrop = world_backdrop(LOOK, FRAME, visibility)
+    backdrop = world_backdrop(LOOK, PLACEMENT, visibility)
     points = np.array([shadow_point(), shadow_point((0.02, -0.03)), shadow_point((0.3, 0.0))])
     shade = shade_at(backdrop, points, LOOK)
     np.testing.assert_allclose(shade, [LOOK.ambient, LOOK.ambient, open_shade(LOOK)], atol=1e-5)
@@ -167,7 +166,7 @@ def test_a_soft_field_casts_a_partial_shadow_of_its_transmittance(inv_s):
     def visibility(o, d):
         return transmittance(field, o, d, sampler)
 
-    backdrop = world_backdrop(LOOK, FRAME, visibility)
+    backdrop = world_backdrop(LOOK, PLACEMENT, visibility)
     point = shadow_point((0.01, 0.0))
     shade = shade_at(backdrop, point[None], LOOK)[0]
     origin, direction = to_asset_rays(point[None], np.asarray(LOOK.light, float)[None])
@@ -200,12 +199,11 @@ def test_a_deformed_body_on_the_ground_casts_its_shadow(tmp_path):
     field, cage = load_field(asset, "cpu"), load_or_build_cage(asset)
     renderer = DeformedRenderer(asset, field, cage, "cpu", None, look, placement)
     sampler, to_rest = renderer._frame(renderer.cage.vertices)
-    frame = WorldFrame(placement.scale, placement.rotation, placement.translation)
 
     def visibility(o, d):
         return transmittance(renderer.field, o, d, sampler, to_rest)
 
-    backdrop = world_backdrop(look, frame, visibility)
+    backdrop = world_backdrop(look, placement, visibility)
     points = np.array([[0.005, 0.007, 0.0], [0.53, 0.37, 0.0]])
     eyes = points + np.array([0.0, -1.0, 0.4])
     o = torch.tensor(placement.to_asset(eyes), dtype=torch.float32)

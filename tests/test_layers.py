@@ -15,6 +15,27 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("shellsim", "neural")
 FLAG = re.compile(r"--[a-z]")
 
+#: The layers of ``shellsim``, low to high: each a band of sub-packages or modules of ``shellsim`` (``""``:
+#: ``shellsim/__init__.py``, the public API). A module imports its own layer and the bands below its band;
+#: the members of a band import each other, but for the top band (the faces and the API), whose members
+#: import only themselves. ``distributed`` (Ray tasks; it imports only ``errors``) is in the lowest band,
+#: where its imports put it. ``neural`` imports no layer of ``shellsim``.
+LAYERS = (
+    ("errors", "world", "settings", "memory", "distributed"),
+    ("io",),
+    ("cage",),
+    ("physics",),
+    ("motion",),
+    ("scene",),
+    ("deform",),
+    ("render",),
+    ("viz",),
+    ("jobs",),
+    ("cli", "view", ""),
+)
+BAND = {layer: band for band, members in enumerate(LAYERS) for layer in members}
+TOP = len(LAYERS) - 1
+
 
 def _within(name: str, package: str) -> bool:
     return name == package or name.startswith(package + ".")
@@ -31,7 +52,9 @@ def _modules(root: Path) -> Iterator[tuple[str, Path, ast.Module]]:
 
 def _imported(module: str, path: Path, tree: ast.Module) -> Iterator[tuple[int, str]]:
     """(line, absolute name) of what every import statement of ``tree`` imports, at any depth (inside
-    functions too); ``from a import b`` imports ``a`` and ``a.b``; relative imports are resolved."""
+    functions and ``if TYPE_CHECKING:`` too); ``from a.b import c`` imports ``a.b`` and ``a.b.c``, ``from a
+    import c`` only ``a.c`` (every import of a sub-module loads the package ``a``: what counts is the name
+    taken from it); relative imports are resolved."""
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -42,33 +65,53 @@ def _imported(module: str, path: Path, tree: ast.Module) -> Iterator[tuple[int, 
             if node.level:
                 anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
                 base = ".".join([*anchor, base] if base else anchor)
-            yield node.lineno, base
+            if "." in base:
+                yield node.lineno, base
             for alias in node.names:
                 yield node.lineno, f"{base}.{alias.name}"
 
 
-def _forbidden(module: str) -> tuple[str, ...]:
-    """The packages ``module`` may not import: neural none of shellsim, the library neither the command line
-    nor the jobs, the jobs not the command line."""
+def _layer(name: str) -> str:
+    """The layer of a name under ``shellsim`` (a module, or what an import takes): its sub-package or module
+    (``shellsim.cage.build`` -> ``cage``), else ``""``, the public API (``shellsim`` itself, the names
+    ``shellsim/__init__.py`` exports)."""
+    part = name.split(".")[1] if "." in name else ""
+    return part if part in BAND else ""
+
+
+def _shown(layer: str) -> str:
+    return f"layer {layer}" if layer else "layer shellsim/__init__.py"
+
+
+def _violation(module: str, name: str) -> str | None:
+    """Why ``module`` may not import ``name`` (``"layer A) imports ... (layer B, why"``), or None."""
     if _within(module, "neural"):
-        return ("shellsim",)
-    if _within(module, "shellsim.cli"):
-        return ()
-    if _within(module, "shellsim.jobs"):
-        return ("shellsim.cli",)
-    return ("shellsim.cli", "shellsim.jobs")
+        if _within(name, "shellsim"):
+            return f"package neural) imports {name} ({_shown(_layer(name))}: neural never imports shellsim"
+        return None
+    if not _within(name, "shellsim"):
+        return None
+    mine, theirs = _layer(module), _layer(name)
+    if mine == theirs or BAND[theirs] < BAND[mine] or (BAND[theirs] == BAND[mine] < TOP):
+        return None
+    why = "above it" if BAND[theirs] > BAND[mine] else "beside it in the top band"
+    return f"{_shown(mine)}) imports {name} ({_shown(theirs)}, {why}"
 
 
 def import_violations(root: Path) -> list[str]:
-    """``path:line: module imports name (a layer above it)`` for every import across the layers under
-    ``root``, one per statement and forbidden package."""
+    """``path:line: module (layer A) imports name (layer B, above it)`` for every import across the layers
+    under ``root`` (:data:`LAYERS`), one per statement and layer imported; ``path: module is in no layer``
+    for a module of ``shellsim`` outside :data:`LAYERS`."""
     found = {}
     for module, path, tree in _modules(root):
+        where = path.relative_to(root)
+        if _within(module, "shellsim") and module != "shellsim" and module.split(".")[1] not in BAND:
+            found[(where, None)] = f"{where}: {module} is in no layer (tests/test_layers.py LAYERS)"
         for line, name in _imported(module, path, tree):
-            for package in _forbidden(module):
-                if _within(name, package):
-                    where = f"{path.relative_to(root)}:{line}"
-                    found.setdefault((where, package), f"{where}: {module} imports {name} (layer {package})")
+            why = _violation(module, name)
+            if why is not None:
+                at = f"{where}:{line}"
+                found.setdefault((at, _layer(name)), f"{at}: {module} ({why})")
     return list(found.values())
 
 
@@ -155,35 +198,99 @@ def _copy(tmp_path: Path) -> Path:
     return tmp_path
 
 
-def _plant(root: Path, relative: str, code: str) -> None:
+def _plant(root: Path, relative: str, code: str) -> int:
+    """Append ``code`` to the module ``relative`` under ``root`` (made if missing); the line of its first
+    line there."""
     path = root / relative
     path.parent.mkdir(parents=True, exist_ok=True)
+    first = (len(path.read_text().splitlines()) if path.exists() else 0) + 3
     with path.open("a") as file:
         file.write("\n\n" + textwrap.dedent(code))
+    return first
 
 
 def test_no_module_imports_a_layer_above_it():
+    """Every import of every module keeps the order of :data:`LAYERS`."""
     assert import_violations(ROOT) == []
 
 
 def test_a_planted_import_across_the_layers_is_reported(tmp_path):
-    """Function-level and relative imports count; the jobs may import each other and the command line may
-    import anything."""
+    """Each import of a layer above (function-level, relative, under ``TYPE_CHECKING``, of the public API), of
+    a member of the top band beside one, of shellsim from neural, and a module in no layer is reported with
+    its file and line; imports within a layer, within the lowest band and downward are not."""
     root = _copy(tmp_path)
     before = set(import_violations(root))
-    _plant(root, "neural/losses.py", "def f():\n    from shellsim.settings import option\n")
+    losses = _plant(root, "neural/losses.py", "def f():\n    from shellsim.settings import option\n")
+    _plant(
+        root,
+        "shellsim/cage/planted.py",
+        """\
+        from shellsim.motion.format import Motion
+        from shellsim.cage.geometry import tet_volumes
+        from ..io.npz import save_npz
+        from shellsim import errors, world
+        import shellsim.cage.build
+        """,
+    )
+    npz = _plant(
+        root,
+        "shellsim/io/npz.py",
+        """\
+        def planted():
+            from shellsim.io.outputs import check_writable_file
+            from shellsim.settings import option
+            from shellsim.cage import geometry
+        """,
+    )
+    _plant(
+        root,
+        "shellsim/settings.py",
+        "def planted():\n    from shellsim.world import UP\n    from . import distributed\n",
+    )
     _plant(root, "shellsim/physics/planted.py", "from ..cli import options\n")
-    _plant(root, "shellsim/io/planted.py", "import shellsim.jobs.wind\n")
+    _plant(root, "shellsim/motion/planted.py", "from shellsim import simulate\n")
+    _plant(
+        root,
+        "shellsim/render/planted.py",
+        """\
+        from typing import TYPE_CHECKING
+        if TYPE_CHECKING:
+            from shellsim.viz.inspect import show
+        from shellsim.deform.inverse_map import InverseMap
+        """,
+    )
     _plant(root, "shellsim/jobs/planted.py", "from shellsim.jobs import wind\nfrom shellsim import cli\n")
-    _plant(root, "shellsim/cli/planted.py", "import shellsim.jobs.wind\n")
+    _plant(root, "shellsim/cli/planted.py", "import shellsim.jobs.wind\nfrom shellsim.render import frames\n")
+    _plant(
+        root,
+        "shellsim/view/planted.py",
+        "from shellsim.render.cameras import Shot\nfrom shellsim.jobs import render\nimport shellsim.cli\n",
+    )
+    api = _plant(root, "shellsim/__init__.py", "def planted():\n    from .cli import main\n")
+    _plant(root, "shellsim/extra/planted.py", "from shellsim.world import UP\n")
     planted = [v for v in import_violations(root) if v not in before]
-    assert [v.split(": ", 1)[1] for v in planted] == [
-        "shellsim.io.planted imports shellsim.jobs.wind (layer shellsim.jobs)",
-        "shellsim.jobs.planted imports shellsim.cli (layer shellsim.cli)",
-        "shellsim.physics.planted imports shellsim.cli (layer shellsim.cli)",
-        "neural.losses imports shellsim.settings (layer shellsim)",
-    ]
-    assert planted[-1].startswith("neural/losses.py:")
+    assert len(planted) == len(set(planted))
+    assert set(planted) == {
+        f"neural/losses.py:{losses + 1}: neural.losses (package neural) imports shellsim.settings "
+        "(layer settings: neural never imports shellsim)",
+        "shellsim/cage/planted.py:3: shellsim.cage.planted (layer cage) imports shellsim.motion.format "
+        "(layer motion, above it)",
+        f"shellsim/io/npz.py:{npz + 3}: shellsim.io.npz (layer io) imports shellsim.cage "
+        "(layer cage, above it)",
+        "shellsim/physics/planted.py:3: shellsim.physics.planted (layer physics) imports shellsim.cli "
+        "(layer cli, above it)",
+        "shellsim/motion/planted.py:3: shellsim.motion.planted (layer motion) imports shellsim.simulate "
+        "(layer shellsim/__init__.py, above it)",
+        "shellsim/render/planted.py:5: shellsim.render.planted (layer render) imports shellsim.viz.inspect "
+        "(layer viz, above it)",
+        "shellsim/jobs/planted.py:4: shellsim.jobs.planted (layer jobs) imports shellsim.cli "
+        "(layer cli, above it)",
+        "shellsim/view/planted.py:5: shellsim.view.planted (layer view) imports shellsim.cli "
+        "(layer cli, beside it in the top band)",
+        f"shellsim/__init__.py:{api + 1}: shellsim (layer shellsim/__init__.py) imports shellsim.cli "
+        "(layer cli, beside it in the top band)",
+        "shellsim/extra/planted.py: shellsim.extra.planted is in no layer (tests/test_layers.py LAYERS)",
+    }
 
 
 def test_library_errors_name_no_flag():

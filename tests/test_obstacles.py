@@ -1,4 +1,4 @@
-"""Static obstacles drawn around a body (neural.render.obstacles, neural.render.ground): boxes and spheres
+"""Static obstacles drawn around a body (shellsim.render.obstacles, shellsim.render.ground): boxes and spheres
 in world metres, Lambert-shaded, shadowing the ground and each other, hiding the body behind them.
 
 Truths from outside the code: the pinhole projection of a box's face and of a sphere's silhouette
@@ -14,15 +14,16 @@ import pytest
 import torch
 from scenes import SphereField, look_at
 from scipy.spatial import ConvexHull
-from test_ground import FRAME, PLACEMENT, checker_albedo, open_shade, stepped_sampler, to_asset_rays
+from test_ground import PLACEMENT, checker_albedo, open_shade, stepped_sampler, to_asset_rays
 
 from neural.config import NarrowBandConfig
 from neural.data import Cameras, camera_rays
-from neural.render.ground import WorldLook, surface_t_max, world_backdrop
-from neural.render.obstacles import Obstacles
 from neural.render.view import render_camera
 from shellsim.io.png import renderer_identity
 from shellsim.render.frames import motion_world, world_record
+from shellsim.render.ground import surface_t_max, world_backdrop
+from shellsim.render.obstacles import Obstacles
+from shellsim.world import WorldLook
 
 LOOK = WorldLook(light=(0.3, -0.2, 1.0), ambient=0.3, diffuse=0.7, obstacle_color=(0.9, 0.05, 0.1))
 LIGHT = np.asarray(LOOK.light) / np.linalg.norm(LOOK.light)
@@ -59,8 +60,8 @@ def render(cameras, obstacles, field=None, look=LOOK, sampler=None):
     front of it, through the pipeline with the obstacles' ``t_max``."""
     field = SphereField(0.01, 1000.0, (50.0, 50.0, 50.0)) if field is None else field
     sampler = stepped_sampler(1.0, far=0.5) if sampler is None else sampler
-    t_max = surface_t_max(look, FRAME, obstacles, *camera_rays(cameras, 0))
-    backdrop = world_backdrop(look, FRAME, None, obstacles)
+    t_max = surface_t_max(look, PLACEMENT, obstacles, *camera_rays(cameras, 0))
+    backdrop = world_backdrop(look, PLACEMENT, None, obstacles)
     return render_camera(field, cameras, 0, sampler, torch.ones(3), backdrop=backdrop, t_max=t_max)[0]
 
 
@@ -196,7 +197,7 @@ def test_a_box_shadows_the_ground_and_a_sphere_shadows_the_box():
     box = np.asarray(BOX)
     sphere = (0.15, -0.06, 0.2, 0.03)
     obstacles = Obstacles(boxes=[BOX], spheres=[sphere])
-    backdrop = world_backdrop(LOOK, FRAME, None, obstacles)
+    backdrop = world_backdrop(LOOK, PLACEMENT, None, obstacles)
     signs = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
     corners = box[:3] + signs * box[3:]
     shadow = corners[:, :2] - (corners[:, 2] / LIGHT[2])[:, None] * LIGHT[:2]

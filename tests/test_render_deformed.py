@@ -35,8 +35,8 @@ from shellsim.cage.build import Cage, shell_digest
 from shellsim.cage.embed import embed_points
 from shellsim.cage.store import load_or_build_cage
 from shellsim.deform.inverse_map import InverseMap, deform_points, map_points_reference
-from shellsim.deform.renderer import DeformedRenderer
 from shellsim.render.cameras import orbit_camera
+from shellsim.render.renderer import DeformedRenderer
 from shellsim.settings import parse_frames
 
 CENTER = np.array([0.1, -0.2, 0.3])  # the asset's normalisation centre: the sphere's centre

@@ -1,4 +1,5 @@
-"""Several bodies in one image (neural.render.bodies, view.render_bodies, deform.renderer.SceneRenderer).
+"""Several bodies in one image (neural.render.bodies, view.render_bodies,
+shellsim.render.renderer.SceneRenderer).
 
 Truths from outside the code: a per-ray composite of two analytic spheres marched by brute force (NeuS
 opacities ``max((Phi(s f_k) - Phi(s f_k+1)) / Phi(s f_k), 0)`` of each sphere's exact SDF over 20,000 steps,
@@ -19,8 +20,8 @@ from test_render_deformed import CENTER, camera, make_asset, rotation
 from neural.data import camera_rays
 from neural.metrics import psnr
 from neural.render.bodies import FieldBody
-from neural.render.ground import WorldFrame
 from neural.render.view import bodies_transmittance, render_bodies
+from shellsim.world import Placement
 
 FAR = 3.0
 STEP = 2e-3
@@ -44,12 +45,12 @@ BLUE = (np.array([0.1, 0.25, 0.05]), 0.3, (0.1, 0.2, 0.9))
 EYE = np.array([0.0, -1.6, 0.2])
 INV_S = 60.0  # world units^-1
 FRAMES = (
-    WorldFrame(0.5, rotation((1.0, 2.0, 3.0), 0.7), np.array([0.05, -0.1, 0.02])),
-    WorldFrame(2.0, rotation((0.0, 1.0, -1.0), -1.1), np.array([-0.2, 0.3, 0.1])),
+    Placement(0.5, rotation((1.0, 2.0, 3.0), 0.7), np.array([0.05, -0.1, 0.02])),
+    Placement(2.0, rotation((0.0, 1.0, -1.0), -1.1), np.array([-0.2, 0.3, 0.1])),
 )
 
 
-def body_of(sphere, frame: WorldFrame, field_class=PaintedSphere, box: bool = False) -> FieldBody:
+def body_of(sphere, frame: Placement, field_class=PaintedSphere, box: bool = False) -> FieldBody:
     """The world sphere ``(centre, radius, colour)`` as a field of ``frame`` (inverse-placed), marched in
     fixed steps of its frame's ray parameter; ``box``: its world box (else every ray is cast)."""
     centre, radius, color = sphere
@@ -112,7 +113,7 @@ def test_the_image_does_not_depend_on_the_bodies_frames():
     view = camera(EYE, target=np.array([0.05, 0.0, 0.02]), size=16, fov_deg=45.0)
     rays = camera_rays(view, 0)
     a, _ = render_bodies([body_of(RED, FRAMES[0]), body_of(BLUE, FRAMES[1])], *rays, BACKGROUND)
-    b, _ = render_bodies([body_of(RED, WorldFrame()), body_of(BLUE, FRAMES[0])], *rays, BACKGROUND)
+    b, _ = render_bodies([body_of(RED, Placement()), body_of(BLUE, FRAMES[0])], *rays, BACKGROUND)
     assert torch.allclose(a, b, atol=2e-3)
 
 
@@ -161,7 +162,7 @@ def ball(tmp_path_factory):
 def test_a_rigidly_moved_two_body_scene_equals_its_rest_view(ball):
     """Two bodies placed side by side, both cages moved by one rigid motion (turned and shifted in the
     world): the frame equals the rest frame seen from the camera carried back by that motion (>= 35 dB)."""
-    from shellsim.deform.renderer import DeformedRenderer, SceneRenderer
+    from shellsim.render.renderer import DeformedRenderer, SceneRenderer
     from shellsim.world import Placement
 
     asset, field, cage = ball
@@ -283,10 +284,10 @@ def test_a_mesh_body_is_lit_and_shadows_the_ground_as_lambert_says(shot, tmp_pat
     from PIL import Image
 
     from neural.data import camera_rays
-    from neural.render.ground import WorldLook
     from shellsim.render.cameras import scene_shot
     from shellsim.render.scene_frames import render_scene, scene_camera, scene_tracks
     from shellsim.scene.motion import MESH_BODY_COLORS, read_scene_motion
+    from shellsim.world import WorldLook
 
     size = 96
     render_scene(shot, tmp_path, "top", frames="0:1", size=(size, size), antialias=1, progress=False)

@@ -7,7 +7,7 @@ from meshes import kuhn_grid
 
 from neural.errors import InputError
 from shellsim.physics.selection import parse_selection, select_vertices
-from shellsim.physics.wind import WindSettings, heights, wind_displacement
+from shellsim.physics.wind import WindField, heights, wind_displacement
 
 
 @pytest.mark.parametrize(
@@ -79,8 +79,8 @@ def test_wind_anchor_takes_the_pin_grammar():
     """``z<5%`` anchors the lowest 5 % of the cage: the same as the default anchor (base_fraction 0.05
     along up = z), so the displacements agree exactly; ``<=`` and ``>=`` are accepted too."""
     verts = kuhn_grid(0.0, (0.2, 0.2, 1.0), (2, 2, 10))[0]
-    default = WindSettings(strength=0.2, turbulence=0.5)
-    percent = WindSettings(strength=0.2, turbulence=0.5, anchor="z<5%")
+    default = WindField(strength=0.2, turbulence=0.5)
+    percent = WindField(strength=0.2, turbulence=0.5, anchor="z<5%")
     np.testing.assert_array_equal(heights(verts, percent), heights(verts, default))
     for t in (0.0, 0.7, 2.3):
         np.testing.assert_array_equal(
@@ -88,10 +88,10 @@ def test_wind_anchor_takes_the_pin_grammar():
         )
     # '<=' fixes the same vertices as '<': those on the threshold have height 0 and never move
     for a, b in (("z<=0.3", "z<0.3"), ("z>=0.7", "z>0.7")):
-        u, w = (wind_displacement(verts, 1.3, WindSettings(strength=0.2, anchor=s)) for s in (a, b))
+        u, w = (wind_displacement(verts, 1.3, WindField(strength=0.2, anchor=s)) for s in (a, b))
         np.testing.assert_array_equal(u, w)
         assert np.abs(u).max() > 0
-    hanging = WindSettings(strength=0.2, anchor="z>=90%")  # hangs from its top 10 %
+    hanging = WindField(strength=0.2, anchor="z>=90%")  # hangs from its top 10 %
     fixed = verts[:, 2] >= 0.9
     u = wind_displacement(verts, 1.3, hanging)
     assert fixed.any() and np.array_equal(u[fixed], np.zeros_like(u[fixed])) and np.abs(u[~fixed]).max() > 0

@@ -14,7 +14,7 @@ from shellsim.cage.geometry import MIN_VOLUME_RATIO
 from shellsim.motion.read import load_motion
 from shellsim.motion.writer import MotionWriter
 from shellsim.physics.selection import parse_selection
-from shellsim.physics.wind import WindSettings, animate_wind, beam_profile, heights, wind_displacement
+from shellsim.physics.wind import WindField, animate_wind, beam_profile, heights, wind_displacement
 from shellsim.world import Placement
 
 
@@ -33,20 +33,20 @@ def rod(rng, radius, n: int = 6000):
 
 def test_zero_strength_moves_nothing_exactly(rng):
     verts, _ = column()
-    settings = WindSettings(strength=0.0, gust=0.0, turbulence=0.7)
+    settings = WindField(strength=0.0, gust=0.0, turbulence=0.7)
     for t in (0.0, 0.3, 7.1):
         assert np.array_equal(wind_displacement(verts, t, settings), np.zeros_like(verts))
 
 
 def test_frame_zero_is_rest():
     verts, _ = column()
-    assert np.array_equal(wind_displacement(verts, 0.0, WindSettings(strength=0.3)), np.zeros_like(verts))
+    assert np.array_equal(wind_displacement(verts, 0.0, WindField(strength=0.3)), np.zeros_like(verts))
 
 
 @pytest.mark.parametrize("anchor", [None, "z<0.26", "z>0.74", "x<0.05"])
 def test_anchored_vertices_never_move(anchor):
     verts, _ = column()
-    settings = WindSettings(strength=0.2, gust=0.8, turbulence=0.5, anchor=anchor, direction=(0.3, 1.0, 0.0))
+    settings = WindField(strength=0.2, gust=0.8, turbulence=0.5, anchor=anchor, direction=(0.3, 1.0, 0.0))
     fixed = heights(verts, settings) <= 0
     if anchor is not None:
         a = parse_selection(anchor)
@@ -63,7 +63,7 @@ def test_anchored_vertices_never_move(anchor):
 )
 def test_displacement_grows_with_height(rng, radius):
     verts = rod(rng, radius)
-    settings = WindSettings(strength=0.1, gust=0.4, turbulence=0.0, anchor="z<0.05")
+    settings = WindField(strength=0.1, gust=0.4, turbulence=0.0, anchor="z<0.05")
     h = heights(verts, settings)
     order = np.argsort(h)
     for t in (0.7, 1.9):
@@ -73,7 +73,7 @@ def test_displacement_grows_with_height(rng, radius):
 
 def test_uniform_rod_follows_the_cantilever_closed_form(rng):
     """EI constant, uniform load: w(h) = (h^4 - 4 L h^3 + 6 L^2 h^2) / (3 L^4) with w(L) = 1."""
-    grid, w, drop, length = beam_profile(rod(rng, lambda z: 0.1 + 0 * z), WindSettings(anchor="z<0"))
+    grid, w, drop, length = beam_profile(rod(rng, lambda z: 0.1 + 0 * z), WindField(anchor="z<0"))
     xi = grid / length
     np.testing.assert_allclose(w, (xi**4 - 4 * xi**3 + 6 * xi**2) / 3, atol=2e-3)
     # drop(L) = int_0^L w'^2 / 2 dh with w' = 4 xi (xi^2 - 3 xi + 3) / (3 L): 4 / (7 L)
@@ -85,7 +85,7 @@ def test_thin_sections_bend_more(rng):
     w'' = M / EI integrated finely by scipy; it carries more of its deflection low than a uniform rod."""
     from scipy.integrate import cumulative_trapezoid
 
-    settings = WindSettings(anchor="z<0", thinness=4.0)
+    settings = WindField(anchor="z<0", thinness=4.0)
     grid, w_thin, _, length = beam_profile(rod(rng, lambda z: np.where(z < 0.5, 0.05, 0.1)), settings)
     h = np.linspace(0.0, length, 4001)
     curvature = 0.5 * (length - h) ** 2 / np.where(h < 0.5, 1 / 16, 1.0)
@@ -99,7 +99,7 @@ def test_bending_keeps_the_axis_length(rng):
     """The vertical drop makes a bent rod inextensible to second order in the deflection."""
     line = np.stack([np.zeros(201), np.zeros(201), np.linspace(0.0, 1.0, 201)], 1)
     verts = np.concatenate([rod(rng, lambda z: 0.1 + 0 * z), line])
-    settings = WindSettings(strength=0.15, gust=0.0, turbulence=0.0, anchor="z<0", direction=(1.0, 0.0, 0.5))
+    settings = WindField(strength=0.15, gust=0.0, turbulence=0.0, anchor="z<0", direction=(1.0, 0.0, 0.5))
     u = wind_displacement(verts, 10.0, settings)
     bent = line + u[-201:]
     no_drop = line + u[-201:] * [1.0, 1.0, 0.0]
@@ -114,7 +114,7 @@ def test_bending_keeps_the_axis_length(rng):
 def test_turbulence_is_frozen_and_travels_with_the_wind(rng):
     """Taylor's hypothesis: without gusts, u(x, t + tau) = u(x - c tau w_hat, t), c = wavelength L f."""
     probes = rng.uniform([-0.1, -0.1, 0.1], [0.1, 0.1, 1.0], (50, 3))
-    settings = WindSettings(
+    settings = WindField(
         gust=0.0,
         turbulence=0.6,
         ramp_seconds=0.0,
@@ -137,29 +137,29 @@ def test_turbulence_is_frozen_and_travels_with_the_wind(rng):
 
 def test_settings_are_validated():
     with pytest.raises(InputError, match=r"strength: expected 0 <= strength <= 1, got -1$"):
-        WindSettings(strength=-1.0)
+        WindField(strength=-1.0)
     with pytest.raises(InputError, match=r"strength: expected 0 <= strength <= 1, got 5$"):
-        WindSettings(strength=5.0)
+        WindField(strength=5.0)
     with pytest.raises(InputError, match=r"gust: expected 0 <= gust <= 1, got nan$"):
-        WindSettings(gust=float("nan"))
+        WindField(gust=float("nan"))
     with pytest.raises(InputError, match="seed"):
-        WindSettings(seed=-1)
+        WindField(seed=-1)
     with pytest.raises(InputError, match="direction"):
-        WindSettings(direction=(0.0, 0.0, 0.0))
+        WindField(direction=(0.0, 0.0, 0.0))
     with pytest.raises(InputError, match=r"direction 0, 0, 1 is along the object's bending axis 0, 0, 1:"):
-        WindSettings(direction=np.array([0.0, 0.0, 2.0]))
+        WindField(direction=np.array([0.0, 0.0, 2.0]))
     with pytest.raises(InputError, match=r"^anchor 'z<<1': expected AXIS OP VALUE"):
-        WindSettings(anchor="z<<1")
+        WindField(anchor="z<<1")
     verts, _ = column()
     with pytest.raises(InputError, match=r"^anchor: 'z<-1' selects no cage vertex \(z spans 0 .. 1\)$"):
-        heights(verts, WindSettings(anchor="z<-1"))
+        heights(verts, WindField(anchor="z<-1"))
     with pytest.raises(InputError, match="selects every cage vertex"):
-        heights(verts, WindSettings(anchor="z<5"))
+        heights(verts, WindField(anchor="z<5"))
 
 
 def test_animate_wind_writes_a_motion_file(tmp_path):
     verts, tets = column()
-    settings = WindSettings(strength=0.1)
+    settings = WindField(strength=0.1)
     path = tmp_path / "wind.npz"
     with MotionWriter(path, verts, tets) as writer:
         animate_wind(verts, tets, settings, 10, 24.0, writer, progress=False)
@@ -186,7 +186,7 @@ def test_animate_wind_writes_a_motion_file(tmp_path):
     np.testing.assert_array_equal(resumed.positions, motion.positions)
     np.testing.assert_array_equal(resumed.times, motion.times)
     with MotionWriter.resume(short) as writer, pytest.raises(InputError, match="other wind settings"):
-        animate_wind(verts, tets, WindSettings(strength=0.2), 12, 24.0, writer, progress=False)
+        animate_wind(verts, tets, WindField(strength=0.2), 12, 24.0, writer, progress=False)
     assert load_motion(short).n_frames == 10
 
 
@@ -204,7 +204,7 @@ def test_a_wind_too_strong_for_the_cage_is_limited_never_folds_it(tmp_path):
     top); every written frame keeps them above the floor, the frames that fit are the analytic wind, and
     a limited frame is the analytic wind of a lower strength: the same bent shape, scaled."""
     verts, tets = column(n_xy=2, n_z=6, width=0.2, height=1.0)
-    settings = WindSettings(strength=1.0, gust=1.0, turbulence=1.0, frequency=1.0, direction=(1.0, 0.3, 0.0))
+    settings = WindField(strength=1.0, gust=1.0, turbulence=1.0, frequency=1.0, direction=(1.0, 0.3, 0.0))
     fps, frames = 10.0, 24
     path = tmp_path / "wind.npz"
     with MotionWriter(path, verts, tets) as writer:
@@ -239,7 +239,7 @@ def test_a_wind_too_strong_for_the_cage_is_limited_never_folds_it(tmp_path):
 
 def test_gusts_faster_than_the_frames_can_show_are_refused(tmp_path):
     verts, tets = column()
-    settings = WindSettings(frequency=2.0)
+    settings = WindField(frequency=2.0)
     with MotionWriter(tmp_path / "w.npz", verts, tets) as writer:
         with pytest.raises(InputError, match=r"frequency 2 Hz: frames at 10 fps show at most 1.66667 Hz"):
             animate_wind(verts, tets, settings, 5, 10.0, writer, progress=False)

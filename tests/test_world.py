@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 from neural.errors import InputError
-from neural.render.ground import WorldLook
 from shellsim.render.world import WorldSettings, look_of
 from shellsim.scene.spec import LookSpec
-from shellsim.world import Placement, describe_placement, place_on_ground, up_rotation
+from shellsim.world import Placement, WorldLook, describe_placement, place_on_ground, up_rotation
 
 LOOK = LookSpec(
     ground_colors=((0.9, 0.9, 0.9), (0.1, 0.2, 0.3)),

@@ -2,11 +2,12 @@
 every body it enters are merged by depth and composited once, over one background.
 
 A :class:`FieldBody` is a field with its sampler (the narrow band of its shells, at rest or deformed), its
-optional map to rest space and the similarity ``x_world = s R x + T`` (:class:`~neural.render.ground.
-WorldFrame`) that places its frame in the world. The world ray ``o + t d`` is, in the body's frame, the ray
-``o_b + t d_b`` with ``o_b = R^T (o - T) / s`` and ``d_b = R^T d / s``: the same parameter ``t``, so the
-samples of different bodies on one ray are ordered by ``t`` alone. Only the rays that cross a body's world
-``box`` are cast against its shells, so a ray costs what the bodies it enters cost, not the number of bodies.
+optional map to rest space and the similarity ``x_world = s R x + T`` (any :class:`Similarity`, e.g.
+``shellsim.world.Placement``) that places its frame in the world. The world ray ``o + t d`` is, in the body's
+frame, the ray ``o_b + t d_b`` with ``o_b = R^T (o - T) / s`` and ``d_b = R^T d / s``: the same parameter
+``t``, so the samples of different bodies on one ray are ordered by ``t`` alone. Only the rays that cross a
+body's world ``box`` are cast against its shells, so a ray costs what the bodies it enters cost, not the
+number of bodies.
 
 Each sample is located (:func:`locate_samples`: mapped to its own body's rest space, its section measured in
 its field's units, ``|d_b|`` times the map's stretch) and shaded by its own field
@@ -17,15 +18,23 @@ identity and no box, the samples, their places and so the image are exactly thos
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 import torch
 
 from .fullray import ray_aabb
-from .ground import WorldFrame
 from .samples import RaySamples
+
+
+class Similarity(Protocol):
+    """What places a body's frame in the world: ``x_world = scale * rotation @ x + translation``, scale > 0,
+    rotation (3, 3) orthonormal, translation (3,) (the world's class is ``shellsim.world.Placement``)."""
+
+    scale: float
+    rotation: np.ndarray
+    translation: np.ndarray
 
 
 @dataclass
@@ -36,7 +45,7 @@ class FieldBody:
     sampler : ``sampler(origins (R, 3), dirs (R, 3)) -> RaySamples`` in its frame (e.g.
         :func:`neural.render.view.narrow_band_sampler`)
     to_rest : map of its samples to rest space (:class:`neural.render.view.RestMap`); None: none
-    frame : :class:`WorldFrame` placing its frame in the world (default: the identity)
+    frame : the :class:`Similarity` placing its frame in the world; None: the identity
     box : (2, 3) world corners of a box holding everything it shows (its deformed shells); None: every ray
         is cast against its shells
     """
@@ -44,7 +53,7 @@ class FieldBody:
     field: Any
     sampler: Any
     to_rest: Any = None
-    frame: WorldFrame = field(default_factory=WorldFrame)
+    frame: Similarity | None = None
     box: np.ndarray | None = None
 
     @property
@@ -60,6 +69,8 @@ class FieldBody:
     def identity(self) -> bool:
         """Whether the body's frame is the world's."""
         f = self.frame
+        if f is None:
+            return True
         return f.scale == 1.0 and np.array_equal(f.rotation, np.eye(3)) and not np.any(f.translation)
 
 

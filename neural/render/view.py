@@ -10,7 +10,7 @@ sampler's ``rays_per_chunk`` rays, else :data:`RAY_CHUNK`):
    rendering, paper Sec. 5: ``shellsim.deform.InverseMap``); samples outside are dropped and every section
    length is multiplied by ``stretch``; without it the samples are already there;
 3. **shade**: the field at the samples, composited along the rays (Eq. 2-3) over the background (or a
-   ``backdrop``: a lit ground with shadows and a sky, :mod:`neural.render.ground`) by
+   ``backdrop``: any function of the rays, e.g. shellsim's lit ground with shadows and a sky) by
    :func:`~neural.render.fullray.shade_samples`, front to back: rays that light no longer reaches stop
    (their remaining samples are neither mapped nor evaluated) and the radiance network runs only where a
    sample's weight can change its pixel, each channel within ``WEIGHT_TOLERANCE`` (1e-3) of the full
@@ -228,9 +228,9 @@ def render_bodies(
     ``background`` (3,) (one body: its field's environment map when it has one), ``chunk`` rays at a time
     (None: the smallest of the samplers' ``rays_per_chunk``, else :data:`RAY_CHUNK`). ``backdrop(origins (r,
     3), dirs (r, 3)) -> (r, 3)``: what each ray sees behind the fields instead of ``background`` (a lit
-    ground and a sky, :mod:`neural.render.ground`); ``color = sum_i w_i c_i + T backdrop`` (Eq. 2). ``t_max``
+    ground and a sky, drawn by shellsim); ``color = sum_i w_i c_i + T backdrop`` (Eq. 2). ``t_max``
     (R,): the ray parameter of a surface in front of the backdrop that hides the fields beyond it (an
-    obstacle, :func:`neural.render.ground.surface_t_max`): samples with ``t > t_max`` are dropped. Stats:
+    obstacle or the ground): samples with ``t > t_max`` are dropped. Stats:
     ``ms``, per stage ``<stage>_ms`` (:data:`STAGES`), ``samples_per_pixel``, ``dropped_samples`` (outside a
     map to rest space) and ``counts`` (R,) int64 samples per ray that were mapped and evaluated (dropped ones
     included, those after a ray's termination or beyond ``t_max`` not)."""

@@ -1,4 +1,4 @@
-"""The tetrahedral cage of an asset (paper Sec. 5, DESIGN.md step 5).
+"""The tetrahedral cage of an asset (paper Sec. 5; docs/architecture.md, "cages and where they are kept").
 
 "We first dilate and tetrahedralize the outer mesh M+ with Fast-TetWild to produce a tetrahedral mesh that
 encapsulates the scene [...] any deformation is transferred to M+ and M- via barycentric interpolation,
@@ -42,9 +42,8 @@ import numpy as np
 
 from neural.errors import InputError
 from shellsim.cage.embed import embed_points
-from shellsim.cage.geometry import connected_parts, tet_quality
+from shellsim.cage.geometry import cage_digest, connected_parts, tet_quality
 from shellsim.cage.tetwild import tetrahedralize
-from shellsim.motion.format import cage_digest
 
 logger = logging.getLogger(__name__)
 
@@ -141,7 +140,7 @@ class Cage:
 
     @property
     def digest(self) -> str:
-        """:func:`shellsim.motion.format.cage_digest` of the rest cage: the identity a motion records."""
+        """:func:`shellsim.cage.geometry.cage_digest` of the rest cage: the identity a motion records."""
         return cage_digest(self.vertices, self.tets)
 
 

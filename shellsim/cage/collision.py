@@ -271,7 +271,7 @@ def cached_surface_path(key: str) -> Path:
 
 def surface_key(asset_digest: str, cage_digest: str, max_faces: int, resolution: int) -> str:
     """sha256 (hex) of what a cached collision surface depends on: the asset's content
-    (:meth:`neural.asset.Asset.digest`), the cage (:func:`shellsim.motion.format.cage_digest`), the
+    (:meth:`neural.asset.Asset.digest`), the cage (:func:`shellsim.cage.geometry.cage_digest`), the
     settings and :data:`FORMAT_VERSION`."""
     parts = [FORMAT, FORMAT_VERSION, asset_digest, cage_digest, int(max_faces), int(resolution)]
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()
@@ -315,7 +315,7 @@ def surface_of_asset(
     decimated to about ``max_faces`` faces (module docstring). Read from the cache when it holds it, else
     built and cached; an :class:`InputError` naming the asset when no usable surface comes out."""
     from neural.asset import load_field
-    from shellsim.motion.format import cage_digest
+    from shellsim.cage.geometry import cage_digest
 
     _check_max_faces(max_faces)
     if resolution < 8:

@@ -1,5 +1,6 @@
 """Tetrahedral-mesh geometry shared by the cage, the simulator, the wind and the renderer: array checks,
-signed tet volumes and volume ratios, shape quality, boundary faces and connected parts. Plain numpy.
+signed tet volumes and volume ratios, shape quality, boundary faces and connected parts, and the digest that
+names a rest cage (:func:`cage_digest`: what a motion and a collision surface record). Plain numpy.
 
 A tet ``(a, b, c, d)`` is positively oriented when ``det[b - a, c - a, d - a] > 0``. A deformed tet's volume
 ratio is ``det F`` = deformed volume / rest volume: at or below 0 the tet is inverted and the shells
@@ -11,6 +12,7 @@ jelly cube dropped 0.1 m onto the ground: 0.75 at worst; rubber, foam, plastic: 
 
 from __future__ import annotations
 
+import hashlib
 import math
 
 import numpy as np
@@ -19,6 +21,15 @@ MIN_VOLUME_RATIO = 0.2  # smallest det F a written frame may have
 
 #: Outward-oriented faces of a positively oriented tet ``(a, b, c, d)``: face ``k`` is opposite vertex ``k``.
 TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
+
+
+def cage_digest(vertices: np.ndarray, tets: np.ndarray) -> str:
+    """sha256 (hex) of a rest cage: its vertices (V, 3) as float64 and tets (T, 4) as int64, with shapes."""
+    h = hashlib.sha256()
+    for array in (np.asarray(vertices, np.float64), np.asarray(tets, np.int64)):
+        h.update(str(array.shape).encode())
+        h.update(np.ascontiguousarray(array).tobytes())
+    return h.hexdigest()
 
 
 def check_points(name: str, x) -> np.ndarray:

@@ -212,7 +212,7 @@ def asset_cages(asset, digest: str) -> list[Path]:
 
 
 def find_cage(asset, digest: str) -> tuple[Cage | None, Cage | None]:
-    """The asset's cage (its own or a cached one) whose :func:`shellsim.motion.format.cage_digest` is
+    """The asset's cage (its own or a cached one) whose :func:`shellsim.cage.geometry.cage_digest` is
     ``digest``, or None; and the first readable cage of the asset (None when it has none)."""
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     shells = shell_digest(outer, inner)
@@ -228,7 +228,7 @@ def find_cage(asset, digest: str) -> tuple[Cage | None, Cage | None]:
 def cage_for_motion(asset, motion, source: str | None = None) -> Cage:
     """The asset's cage (its own or a cached one) that ``motion`` (a :class:`shellsim.motion.format.Motion` or
     :class:`~shellsim.motion.format.MotionInfo`) moves, found by the cage digest its header records
-    (:func:`shellsim.motion.format.cage_digest`); an :class:`InputError` (``source: ...``, default the
+    (:func:`shellsim.cage.geometry.cage_digest`); an :class:`InputError` (``source: ...``, default the
     motion's file) saying how they differ when there is none. A motion recording another digest of the
     asset (:meth:`neural.asset.Asset.digest`: a retrained field) is logged, and rendered all the same. A scene
     motion moves several cages, not one asset's: an :class:`InputError` naming its bodies."""

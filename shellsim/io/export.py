@@ -153,14 +153,14 @@ def write_vtu_series(
     frames: Sequence[int],
     times: Sequence[float],
     progress: Callable[[], None] | None = None,
+    cell_data: Callable[[np.ndarray], dict[str, np.ndarray]] | None = None,
 ) -> list[Path]:
     """A ParaView series: ``path`` (``.pvd``) indexing one ``.vtu`` per frame in ``<stem>_vtu/``; each holds
-    the tet cage at ``positions(frame)`` (V, 3) with point data ``displacement`` (V, 3) from
-    ``rest_vertices`` (V, 3) and cell data ``volume_ratio`` (T,) = deformed / rest tet volume (det F).
-    Returns the files written, the ``.pvd`` last."""
+    the tet mesh ``tets`` (T, 4) at ``positions(frame)`` (V, 3) with point data ``displacement`` (V, 3) from
+    ``rest_vertices`` (V, 3) and the cell data ``cell_data(points)`` gives (name -> (T,) or (T, k); e.g.
+    ``volume_ratio``, det F, from :mod:`shellsim.jobs.export`). Returns the files written, the ``.pvd``
+    last."""
     import pyvista as pv
-
-    from shellsim.cage.geometry import volume_ratios
 
     path = Path(path)
     tets = np.asarray(tets, np.int64)
@@ -172,7 +172,8 @@ def write_vtu_series(
         x = np.asarray(positions(frame), np.float64)
         grid = pv.UnstructuredGrid({pv.CellType.TETRA: tets}, x)
         grid.point_data["displacement"] = x - rest
-        grid.cell_data["volume_ratio"] = volume_ratios(rest, x, tets)
+        for name, values in (cell_data(x) if cell_data else {}).items():
+            grid.cell_data[name] = values
         name = f"frame_{frame:05d}.vtu"
         written.append(write_atomically(folder / name, lambda tmp, g=grid: g.save(str(tmp), binary=True)))
         ET.SubElement(

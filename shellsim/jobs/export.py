@@ -107,16 +107,16 @@ def _meshes(settings: ExportSettings, motion):
 def _scene_meshes(path: Path, motion) -> list:
     """The meshes of the scene motion ``motion`` (its file ``path``; list of AnimatedMesh), in world metres:
     each body's visible surface (:func:`_body_meshes`) under its name, each collider (static, in the
-    obstacles' colour, :class:`neural.render.ground.WorldLook`) under its name, then each body's cage
+    obstacles' colour, :class:`shellsim.world.WorldLook`) under its name, then each body's cage
     boundary ``<body>_cage`` (a guide). An :class:`InputError` naming ``path`` when two names would clash."""
     from collections import Counter
 
     from neural.errors import InputError
-    from neural.render.ground import WorldLook
     from shellsim.cage.geometry import boundary_faces
     from shellsim.io.export import AnimatedMesh, safe_name
-    from shellsim.scene.build import collider_mesh
+    from shellsim.scene.bodies import collider_mesh
     from shellsim.scene.motion import read_scene_motion
+    from shellsim.world import WorldLook
 
     scene = read_scene_motion(path)
     boundary, colors = boundary_faces(motion.tets), {}
@@ -179,6 +179,7 @@ def export(settings: ExportSettings, progress: bool = True) -> ExportResult:
     is exported whole (:func:`_scene_meshes`), in world metres, z up."""
     from tqdm import tqdm
 
+    from shellsim.cage.geometry import volume_ratios
     from shellsim.io.export import require_usd, write_ply_sequence, write_usd, write_vtu_series
     from shellsim.io.outputs import check_writable_dir, check_writable_file, lock_output
     from shellsim.motion.read import load_motion, read_motion_info
@@ -219,6 +220,7 @@ def export(settings: ExportSettings, progress: bool = True) -> ExportResult:
                 frames,
                 [float(motion.times[k]) for k in frames],
                 bar.update,
+                lambda x: {"volume_ratio": volume_ratios(motion.rest_vertices, x, motion.tets)},
             )
         elif settings.format == "ply":
             surfaces = [m for m in meshes if m.purpose == "default"] if scene else meshes[:1]

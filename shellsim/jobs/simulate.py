@@ -1,59 +1,69 @@
-"""The simulate job: drop an asset's cage (or a closed mesh, tetrahedralised) as an elastic body.
+"""The simulate job: drop an asset's cage (or a closed mesh, tetrahedralised) as an elastic body: the
+one-body shot of :mod:`shellsim.jobs.scene`.
 
-Everything is in the world of :mod:`shellsim.world`: metres, z up, the ground at z = 0. The body is placed by
-:func:`shellsim.world.place_on_ground`: an asset's up axis turned onto +z and its largest extent scaled to
-``size`` metres (default :data:`~shellsim.world.BODY_SIZE`); a ``mesh`` is the body itself, in metres (or
-``units``), scaled only when ``size`` asks; either way its lowest visible point ``drop_height`` above the
-ground and its bounding box centred over the origin. Contact with the ground and the obstacles acts on the
-visible surface (the asset's collision surface, a mesh's own; :mod:`shellsim.cage.collision`), by the
-incremental potential contact of :mod:`shellsim.physics.ipc`: the one-body case of the scene solver
-(:class:`shellsim.physics.multibody.OneBodyDriver`). Obstacles, absolute pin rules and velocities are world
-metres; a pin rule in percent is relative to the body's bounding box. An obstacle that overlaps the body at
-frame 0 or a pin rule that selects nothing is refused before anything runs. The motion
-(:mod:`shellsim.motion.format`) stores world positions and the placement; its settings are
-:func:`motion_settings`, its asset and cage identified by content digest. An existing ``out`` made with the
-same settings is continued from its last frame and stored velocities; one made with other settings is refused
-unless ``overwrite``.
+:func:`scene_of` translates the settings into a :class:`~shellsim.scene.spec.SceneSpec`: one body, the
+ground, its obstacles as box and sphere colliders, each ``pin`` rule a pin action for the whole shot, every
+friction the one ``friction``; :class:`shellsim.scene.simulation.SceneSimulation` moves it and
+:mod:`shellsim.jobs.recording` records it. ``save_scene`` writes that spec as a scene file, which
+``shellsim scene`` runs to the same positions.
+
+Everything is in the world of :mod:`shellsim.world`: metres, z up, the ground at z = 0. An asset's up axis is
+turned onto +z and its visible surface's largest extent scaled to ``size`` metres (default
+:data:`~shellsim.world.BODY_SIZE`); a ``mesh`` is the body itself, in metres (or ``units``), scaled only when
+``size`` asks; either way its lowest visible point ``drop_height`` above the ground and its bounding box
+centred over the origin. Contact with the ground and the obstacles acts on the visible surface, by
+incremental potential contact (:mod:`shellsim.physics.ipc`). The motion (:mod:`shellsim.motion.format`)
+stores world positions and the placement; its settings are :func:`motion_settings`, its asset and cage
+identified by content digest. An existing ``out`` made with the same settings is continued from its last
+frame and stored velocities; one made with other settings is refused unless ``overwrite``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from neural.errors import InputError
 from shellsim.errors import SettingError
 from shellsim.io.outputs import holds_outputs
+from shellsim.jobs.recording import REPLACE
 from shellsim.motion.format import MAX_FPS, MAX_FRAMES
-from shellsim.physics.selection import parse_selection, select_vertices, selection_text
+from shellsim.physics.selection import selection_text
 from shellsim.render.cameras import OPTIONS, CameraSettings, camera_option
 from shellsim.render.result import RenderResult
 from shellsim.render.world import OPTIONS as WORLD_OPTIONS
 from shellsim.render.world import WorldSettings, world_option
 from shellsim.settings import (
+    allow_stretch_option,
     check_range,
     device_setting,
     floats,
+    max_stretch_option,
     option,
     overwrite_option,
     pixels,
     resume_option,
 )
-from shellsim.world import BODY_SIZE, UNITS, UP, Placement, describe_placement, place_on_ground
+from shellsim.world import BODY_SIZE, UNITS, UP, describe_placement
+
+if TYPE_CHECKING:
+    from shellsim.scene.spec import SceneSpec
 
 log = logging.getLogger(__name__)
 
+PRODUCER = "shellsim simulate"
 MAX_SUBSTEPS = 1000  # per frame; a retried frame runs up to 4 times as many
 #: The settings that do not change the motion (not compared when a file is continued).
 NOT_MOTION = (
     "frames",
     "out",
+    "save_scene",
     "resume",
     "overwrite",
     "video",
@@ -144,14 +154,15 @@ class SimulateSettings:
     )
     friction: float = option(0.5, help="Coulomb coefficient")
     damping: float = option(0.0, help="Kelvin-Voigt damping in seconds")
-    max_stretch: float = option(
-        3.0,
-        help="largest principal stretch of a tet (deformed over rest length along its most stretched "
-        "direction) a frame may reach; a frame past it stops the run",
-    )
-    allow_stretch: bool = option(False, help="only warn, once, when a frame passes --max-stretch, and go on")
+    max_stretch: float = max_stretch_option()
+    allow_stretch: bool = allow_stretch_option()
     tets: int | None = option(help="target cage tet count when the cage is built")
     out: str | None = option(help="motion file", shown_default="NAME_sim.npz")
+    save_scene: str | None = option(
+        help="also write this run as a scene file (one body, the ground, the obstacles, the pins): "
+        "'shellsim scene FILE' makes the same motion, and a shot grows from it",
+        metavar="FILE",
+    )
     resume: bool = resume_option()
     overwrite: bool = overwrite_option()
     video: str | None = option(
@@ -173,7 +184,7 @@ class SimulateSettings:
 
     def __post_init__(self):
         from shellsim.physics.materials import RANGES, get_material
-        from shellsim.physics.model import SimSettings
+        from shellsim.physics.model import SolverSettings
 
         if (self.asset is None) == (self.mesh is None):
             raise SettingError("asset", "give exactly one of an asset and a mesh")
@@ -212,7 +223,7 @@ class SimulateSettings:
             get_material(self.material)
         except InputError as err:
             raise SettingError("material", str(err)) from None
-        max_speed = SimSettings.max_speed  # [m/s]: a faster vertex stops the simulation
+        max_speed = SolverSettings.max_speed  # [m/s]: a faster vertex stops the simulation
         speed = float(np.linalg.norm(self.velocity))
         check_range("velocity", speed, 0, max_speed, "a speed in m/s (the simulator's limit)", "[)")
         size = self.scale_size
@@ -282,17 +293,13 @@ class SimulateResult:
 @holds_outputs
 def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResult:
     """Run the simulation ``settings`` describe into ``settings.out_path`` (module docstring)."""
+    from neural.files import write_atomically
     from shellsim.io.outputs import check_writable_dir, check_writable_file, lock_output
+    from shellsim.jobs.recording import record_frames, resume_or_refuse
     from shellsim.memory import cage_bytes, check_memory, render_bytes
-    from shellsim.motion.changes import describe_changes
-    from shellsim.motion.format import cage_digest
-    from shellsim.motion.writer import MotionWriter, motion_exists
-    from shellsim.physics.control import Control
-    from shellsim.physics.driver import SimulationError, restore_state
-    from shellsim.physics.driver import simulate as run_frames
-    from shellsim.physics.materials import get_material
-    from shellsim.physics.model import Model
-    from shellsim.physics.multibody import OneBodyDriver, SceneSolver
+    from shellsim.motion.writer import MotionWriter
+    from shellsim.scene.save import scene_toml
+    from shellsim.scene.simulation import SceneSimulation
 
     s = settings
     out = lock_output(check_writable_file(s.out_path, "out"), "out")
@@ -300,8 +307,6 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         video = lock_output(check_writable_file(s.video, "video"), "video")
         frames_dir = check_writable_dir(video.with_name(video.stem + "_frames"), "video")
         lock_output(frames_dir, "video")
-    material = get_material(s.material, s.youngs, s.poisson, s.density)
-    rules = [parse_selection(text) for text in s.pin]
     device = device_setting(s.device, warp=True)  # the simulator runs in Warp
     if s.tets:
         what = f"a cage of {s.tets:,} tets"
@@ -310,118 +315,157 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         width, height = s.video_size
         frame = f"a frame of {width}x{height} pixels"
         check_memory("video_size", render_bytes(width, height), frame, "to render", device)
+    spec = scene_of(s)
+    if s.save_scene:
+        path = lock_output(check_writable_file(s.save_scene, "save_scene"), "save_scene")
+        text = scene_toml(spec)
+        write_atomically(path, lambda tmp: Path(tmp).write_text(text))
+        log.info("the scene file of this run: %s ('shellsim scene %s' makes the same motion)", path, path)
+
     record = motion_settings(s)
-
-    if motion_exists(out) and not s.overwrite:  # same settings: continue the file; other settings: refuse
-        replace = "give {overwrite} to start it anew, or another {out}"
-        writer = MotionWriter.resume(out)  # not a motion file: refused as it is, never replaced
-        if writer.motion.producer != "shellsim simulate":
-            raise SettingError("out", f"not a 'shellsim simulate' motion file; {replace}", out)
-        if not writer.motion.placement:
-            raise SettingError(
-                "out", f"was made by an earlier shellsim in the asset's own units, not metres; {replace}", out
-            )
-        changes = describe_changes(writer.motion.settings, record, _OPTIONS)
-        if changes:
-            raise SettingError("out", f"made with other settings ({'; '.join(changes)}); {replace}", out)
-        contact_surface = _check_source(s, writer.motion)
-        rest, tets = writer.motion.rest_vertices, writer.motion.tets
-        log.info("resuming %s after frame %d", out, writer.n_frames - 1)
-    else:
-        writer = None
-        vertices, tets, up, surface, asset, contact_surface = _load_cage(s)
-        visible = _interpolate(vertices, tets, contact_surface)
-        placement = _placement(s, vertices, s.up if s.up is not None else up, visible)
-        rest = placement.to_world(vertices)
-        log.info("%s", describe_placement(s.name, placement, placement.to_world(visible)))
-        _check_obstacles(s, rest, tets)
-
-    pinned = select_vertices(rules, rest, "pin")
-    sim_settings = _sim_settings(s)
-    model = Model(rest, tets, material, sim_settings, device=device)
-    contact = _contact(s, contact_surface, tets, rest)
-    driver = OneBodyDriver(SceneSolver([model], contact, sim_settings))
-    control = Control(model, pinned=pinned)
-    state = model.state(s.velocity, s.spin)
+    writer = resume_or_refuse(out, PRODUCER, record, s.overwrite, s.resume, _OPTIONS)
+    if writer is not None and not writer.motion.placement:
+        raise SettingError(
+            "out", f"was made by an earlier shellsim in the asset's own units, not metres; {REPLACE}", out
+        )
+    sim = SceneSimulation(spec, device, s.max_stretch, s.allow_stretch)
+    body = sim.bodies[0]
+    material = body.material
     if writer is None:
-        if s.resume:
-            log.info("%s does not exist: nothing to resume, starting it", out)
+        log.info("%s", describe_placement(s.name, body.placement, body.surface_world))
         meta = {
             "fps": s.fps,
             "up": list(UP),
             "material": material.as_dict(),
             "units": "metres: positions and rest_vertices in the world (z up, ground at z = 0), "
             "state velocities in m/s; the header's placement maps the asset's frame to the world",
-            "sim_settings": sim_settings.as_dict(),
+            "solver_settings": sim.settings.as_dict(),
             "contact": {
                 "model": "incremental potential contact (ipctk) on the visible surface",
-                "gap": contact.dhat,
+                "gap": sim.contact.dhat,
                 "friction": s.friction,
-                "friction_velocity": contact.friction_velocity,
+                "friction_velocity": sim.contact.friction_velocity,
             },
         }
-        if out.exists():
-            log.info("--overwrite: replacing %s", out)
         writer = MotionWriter(
             out,
-            rest,
-            tets,
+            body.rest,
+            body.tets,
             meta,
-            surface=surface,
-            producer="shellsim simulate",
+            surface=sim.surface() if s.mesh else None,
+            producer=PRODUCER,
             settings=record,
-            asset=asset,
-            placement=placement.as_dict(),
-            cage_digest=cage_digest(vertices, tets),
+            asset=body.source,
+            placement=body.placement.as_dict(),
+            cage_digest=body.cage_digest,
         )
     else:
-        restore_state(state, writer)
-
-    # a new file starts with frame 0, the initial state
-    remaining = max(s.frames - max(writer.n_frames, 1), 0)
+        _check_source(s, writer.motion, sim)
+        sim.restore(writer.last_positions, writer.last_time, writer.motion.state, str(out))
     log.info(
         "%s: %d cage vertices, %d tets, %s (E=%.3g Pa, nu=%.3g, rho=%.4g kg/m^3), %d frames to go on %s",
         s.name,
-        len(rest),
-        len(tets),
+        len(body.rest),
+        len(body.tets),
         material.name,
         material.youngs,
         material.poisson,
         material.density,
-        remaining,
+        max(s.frames - max(writer.n_frames, 1), 0),
         device,
     )
     with writer:
-        try:
-            history = run_frames(driver, state, control, remaining, writer, progress=progress)
-        except SimulationError as err:
-            raise _failure(err, out, material) from None
+        history = record_frames(
+            writer,
+            s.frames,
+            sim.advance,
+            sim.snapshot,
+            advice=lambda err: _advice(err, material),
+            desc="simulate",
+            progress=progress,
+        )
     result = SimulateResult(out, writer.n_frames, history)
     if s.video:
         result.video = _render(s, out, frames_dir, video, s.device)
     return result
 
 
-def _check_source(s: SimulateSettings, motion) -> None:
-    """An :class:`InputError` unless the motion being continued moves the asset's cage
-    (:meth:`shellsim.motion.format.Motion.check_against`) or was made from this content of the mesh file;
-    returns the surface contact acts on (:func:`_load_cage`)."""
-    if s.asset:
-        asset, cage = _asset_cage(s)
-        motion.check_against(cage)
-        return _collision_surface(asset, cage)
-    if motion.asset.get("digest") != _file_digest(Path(s.mesh)) or motion.surface is None:
+def scene_of(settings: SimulateSettings) -> SceneSpec:
+    """The one-body shot the settings describe (module docstring): what :func:`simulate` runs and
+    ``save_scene`` writes."""
+    from shellsim.scene import spec as specs
+    from shellsim.scene.spec import ActionSpec, BodySpec, CageSpec, ColliderSpec, WorldSpec
+
+    def point(values) -> tuple[float, float, float]:
+        return tuple(float(c) for c in values)
+
+    s = settings
+    name = s.name
+    world = WorldSpec(
+        fps=float(s.fps),
+        frames=s.frames,
+        substeps=s.substeps,
+        ground=s.ground,
+        ground_friction=s.friction,
+        damping=s.damping,
+    )
+    if s.asset is not None:
+        asset = str(Path(s.asset).resolve()) if Path(s.asset).is_dir() else s.asset
+        source = {"asset": asset, "up": None if s.up is None else point(s.up)}
+    else:
+        source = {"mesh": str(Path(s.mesh).resolve()), "units": s.units or "m"}
+    body = BodySpec(
+        name=name,
+        **source,
+        size=s.size,
+        position=(0.0, 0.0, float(s.drop_height)),
+        material=s.material,
+        youngs=s.youngs,
+        poisson=s.poisson,
+        density=s.density,
+        friction=s.friction,
+        velocity=point(s.velocity),
+        spin=point(s.spin),
+        cage=CageSpec(target_tets=s.tets, margin=s.margin),
+        where=name,
+    )
+    colliders = [
+        ColliderSpec(f"sphere{k}", "sphere", point(p[:3]), radius=float(p[3]), friction=s.friction)
+        for k, p in enumerate(s.sphere, 1)
+    ]
+    colliders += [
+        ColliderSpec(f"box{k}", "box", point(b[:3]), half_extents=point(b[3:]), friction=s.friction)
+        for k, b in enumerate(s.box, 1)
+    ]
+    colliders = [dataclasses.replace(c, where=c.name) for c in colliders]
+    pins = [
+        ActionSpec("pin", 0.0, world.duration, body=name, region=(rule,), where=f"pin {rule!r}")
+        for rule in s.pin
+    ]
+    return specs.SceneSpec(name, world, (body,), tuple(colliders), tuple(pins))
+
+
+def _check_source(s: SimulateSettings, motion, sim) -> None:
+    """A :class:`SettingError` unless the motion being continued moves this cage, placed as now, or was made
+    from this content of the mesh file."""
+    body = sim.bodies[0]
+    if s.mesh and motion.asset.get("digest") != body.source["digest"]:
+        raise SettingError(
+            "out", f"made from another content of {s.mesh} (changed since); {REPLACE}", motion.path
+        )
+    if motion.cage_digest != body.cage_digest:
+        raise SettingError(
+            "out", f"made for another cage of {s.name} (rebuilt since?); {REPLACE}", motion.path
+        )
+    rest = motion.rest_vertices
+    if rest.shape != sim.rest.shape or not np.allclose(
+        rest, sim.rest, rtol=0, atol=1e-9 * body.placement.scale
+    ):
         raise SettingError(
             "out",
-            f"made from another content of {s.mesh} (changed since); give {{overwrite}} to start it anew, or "
-            "another {out}",
+            f"was made by an earlier shellsim that placed the body otherwise (by its cage); {REPLACE}",
             motion.path,
         )
-    return motion.surface
-
-
-def _file_digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, device: str) -> RenderResult:
@@ -446,162 +490,11 @@ def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, devic
     return render_surface_motion(out, frames_dir, size=s.video_size, video=video, camera=camera)
 
 
-def _sim_settings(s: SimulateSettings):
-    """The :class:`shellsim.physics.model.SimSettings` of the run, in world metres (z up): the body's own
-    terms; the ground and the obstacles are :func:`_contact`'s."""
-    from shellsim.physics.model import SimSettings
-
-    return SimSettings(
-        dt=1.0 / s.fps,
-        substeps=s.substeps,
-        up=UP,
-        ground=None,
-        friction=s.friction,
-        damping=s.damping,
-        max_stretch=s.max_stretch,
-        allow_stretch=s.allow_stretch,
-    )
-
-
-def _obstacle_distances(s: SimulateSettings, points: np.ndarray):
-    """(name, signed distances (N,) of ``points`` (N, 3) to the obstacle, negative inside) of every
-    obstacle of ``s``, named as the user gave it."""
-    for k, p in enumerate(s.sphere):
-        name = f"sphere {k + 1} ({','.join(f'{c:g}' for c in p)})"
-        yield name, np.linalg.norm(points - p[:3], axis=1) - p[3]
-    for k, b in enumerate(s.box):
-        q = np.abs(points - b[:3]) - b[3:]
-        name = f"box {k + 1} ({','.join(f'{c:g}' for c in b)})"
-        yield name, np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
-
-
-def _check_obstacles(s: SimulateSettings, rest: np.ndarray, tets: np.ndarray) -> None:
-    """A :class:`SettingError` naming the first obstacle that overlaps the body at frame 0: a cage vertex
-    (V, 3, world metres) inside it, or the obstacle's centre inside a cage tet (T, 4)."""
-    from shellsim.cage.embed import outside_distance
-
-    centres = np.array([p[:3] for p in (*s.sphere, *s.box)], np.float64).reshape(-1, 3)
-    held = outside_distance(rest, tets, centres) == 0
-    lo, hi = rest.min(0), rest.max(0)
-    span = ", ".join(f"{a} {lo[i]:.3f}..{hi[i]:.3f}" for i, a in enumerate("xyz"))
-    for k, (name, distance) in enumerate(_obstacle_distances(s, rest)):
-        inside = int((distance < 0).sum())
-        if inside or held[k]:
-            what = "its centre lies inside the body"
-            if inside:
-                what = (
-                    f"{inside} cage vertices lie inside it" if inside > 1 else "a cage vertex lies inside it"
-                )
-            field = "sphere" if name.startswith("sphere") else "box"
-            raise SettingError(
-                field,
-                f"{name} overlaps the body at frame 0 ({what}); the body spans {span} m (world metres, "
-                "ground at z = 0)",
-            )
-
-
-def _asset_cage(s: SimulateSettings):
-    """(asset, cage): the asset's stored cage when it fits ``tets``/``margin``, else one built and cached."""
-    from neural.asset import load_asset
-    from shellsim.cage.build import CageConfig
-    from shellsim.cage.store import load_or_build_cage
-
-    config = {k: v for k, v in (("target_tets", s.tets), ("margin", s.margin)) if v is not None}
-    asset = load_asset(s.asset)
-    return asset, load_or_build_cage(asset, CageConfig(**config) if config else None)
-
-
-def _collision_surface(asset, cage):
-    """The asset's visible surface embedded in ``cage`` (:func:`shellsim.cage.collision.surface_of_asset`,
-    cached) as a :class:`shellsim.motion.format.Surface`."""
-    from shellsim.cage.collision import surface_of_asset
-    from shellsim.motion.format import Surface
-
-    found = surface_of_asset(asset, cage)
-    return Surface(np.asarray(found.tet, np.int64), np.asarray(found.bary), np.asarray(found.faces, np.int64))
-
-
-def _interpolate(vertices: np.ndarray, tets: np.ndarray, surface) -> np.ndarray:
-    """(S, 3) the points of ``surface`` (a :class:`shellsim.motion.format.Surface`) in the cage
-    ``vertices``."""
-    from shellsim.cage.embed import interpolate
-
-    return interpolate(vertices, tets, surface.tet, surface.bary)
-
-
-def _contact(s: SimulateSettings, surface, tets: np.ndarray, rest: np.ndarray):
-    """The :class:`shellsim.physics.ipc.Contact` of the body's visible ``surface`` (embedded in the cage of
-    ``tets``, at rest ``rest`` (V, 3)) with the ground and the obstacles (the triangle meshes of a scene's
-    box and sphere colliders), every pair with the Coulomb coefficient ``friction``."""
-    from shellsim.cage.collision import embedding_weights
-    from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY, BodySurface, Contact, StaticSurface
-    from shellsim.scene.build import collider_mesh
-    from shellsim.scene.spec import ColliderSpec
-
-    obstacles = [ColliderSpec("sphere", "sphere", tuple(p[:3]), radius=p[3]) for p in s.sphere]
-    obstacles += [ColliderSpec("box", "box", tuple(b[:3]), half_extents=tuple(b[3:])) for b in s.box]
-    statics = [StaticSurface(*collider_mesh(o), s.friction) for o in obstacles]
-    weights = embedding_weights(np.asarray(tets, np.int64)[surface.tet], surface.bary, len(rest))
-    body = BodySurface(weights, surface.faces, s.friction)
-    ground = s.friction if s.ground else None
-    return Contact([body], [0], rest, statics, CONTACT_GAP, FRICTION_VELOCITY, ground)
-
-
-def _load_cage(s: SimulateSettings):
-    """(vertices, tets, up, surface, asset, contact) of the rest cage, world frame: an asset's cage
-    (:func:`_asset_cage`, surface None), or a mesh tetrahedralised undilated and its surface embedded;
-    ``asset`` is the motion's record of what it moves (name or path, and content digest); ``contact`` the
-    surface contact acts on, embedded in the cage (:class:`shellsim.motion.format.Surface`): the asset's
-    visible surface (:func:`_collision_surface`), the mesh itself."""
-    from neural.asset import load_mesh
-    from shellsim.cage.build import CageConfig, build_cage
-    from shellsim.memory import check_memory, mesh_bytes
-
-    if s.asset:
-        asset, cage = _asset_cage(s)
-        record = {"name": asset.name, "digest": asset.digest()}
-        return cage.vertices, cage.tets, asset.up, None, record, _collision_surface(asset, cage)
-    mesh = load_mesh(Path(s.mesh))
-    config = CageConfig(margin=0.0, **({"target_tets": s.tets} if s.tets else {}))
-    needed, faces = mesh_bytes(len(mesh.faces), config.target_tets), f"a mesh of {len(mesh.faces):,} faces"
-    check_memory("mesh", needed, faces, "to tetrahedralise and simulate")
-    cage = build_cage(mesh, mesh, config, what=str(s.mesh))
-    record = {"mesh": str(Path(s.mesh).resolve()), "digest": _file_digest(Path(s.mesh))}
-    surface = _mesh_surface(mesh, cage)
-    return cage.vertices, cage.tets, np.array([0.0, 0.0, 1.0]), surface, record, surface
-
-
-def _mesh_surface(mesh, cage):
-    """The surface of the trimesh ``mesh`` embedded in its cage: a :class:`shellsim.motion.format.Surface`."""
-    from shellsim.cage.embed import embed_points
-    from shellsim.motion.format import Surface
-
-    tet, bary = embed_points(cage.vertices, cage.tets, np.asarray(mesh.vertices, np.float64))
-    return Surface(tet, bary, np.asarray(mesh.faces, np.int64))
-
-
-def _placement(s: SimulateSettings, vertices: np.ndarray, up, visible: np.ndarray):
-    """The :class:`shellsim.world.Placement` of the body whose rest cage is ``vertices`` (V, 3, its own
-    frame; ``up`` (3,) its up axis) and visible surface ``visible`` (S, 3): an asset scaled to ``size``
-    (default :data:`BODY_SIZE`) metres, a mesh by its ``units`` or to ``size``; centred over the origin, its
-    lowest visible point at ``drop_height`` (with a ground at least half the contact gap: contact needs
-    one)."""
-    from shellsim.physics.ipc import CONTACT_GAP
-
-    up = np.asarray(up, np.float64)
-    if s.asset or s.size is not None:
-        base = place_on_ground(vertices, up, s.scale_size)
-    else:
-        base = place_on_ground(vertices, up, None, scale=UNITS[s.units or "m"])
-    height = max(s.drop_height, 0.5 * CONTACT_GAP) if s.ground else s.drop_height
-    lift = height - base.to_world(visible)[:, 2].min()
-    return Placement(base.scale, base.rotation, base.translation + np.array([0.0, 0.0, lift]))
-
-
-def _failure(err, out: Path, material) -> SettingError:
-    """The one line for a :class:`shellsim.physics.driver.SimulationError`: the frame, the value, what to
-    change (the settings named as placeholders, which the command line shows as its options)."""
-    advice = {
+def _advice(err, material) -> str:
+    """What to change when a frame leaves the valid regime (a
+    :class:`shellsim.physics.driver.SimulationError`), the settings named as placeholders, which the
+    command line shows as its options."""
+    return {
         "collapse": f"use a stiffer material ({{material}}, {{youngs}}; now {material.youngs:g} Pa), a "
         "smaller {size} or {drop_height}, or more {damping}",
         "speed": "lower {drop_height}, {velocity} or {spin}",
@@ -609,4 +502,3 @@ def _failure(err, out: Path, material) -> SettingError:
         "{drop_height}, {velocity} or {spin}, raise {max_stretch}, or give {allow_stretch} to only warn",
         "nonfinite": "use more {substeps} or a lower {drop_height}",
     }[err.kind]
-    return SettingError(None, f"{err}; frames 0-{err.frame - 1} are kept in {out}; {advice}")

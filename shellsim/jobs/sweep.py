@@ -112,7 +112,7 @@ def simulate_combination(settings: SweepSettings, combo: dict, progress: bool = 
     """Simulate (or animate) one combination into ``settings.out / combo["name"] / "motion.npz"`` (continued
     when it exists with the same settings); returns the (2, 3) corners of the box its cage moves in."""
     from shellsim.jobs.simulate import SimulateSettings, simulate
-    from shellsim.jobs.wind import WindJobSettings, wind
+    from shellsim.jobs.wind import WindSettings, wind
     from shellsim.motion.read import frame_bounds
 
     folder = Path(settings.out) / combo["name"]
@@ -129,7 +129,7 @@ def simulate_combination(settings: SweepSettings, combo: dict, progress: bool = 
         )
         simulate(drop, progress=progress)
     else:
-        gusts = WindJobSettings(
+        gusts = WindSettings(
             asset=settings.asset, strength=combo["strength"], frames=settings.frames, out=str(motion)
         )
         wind(gusts, progress=progress)

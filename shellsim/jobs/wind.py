@@ -1,11 +1,13 @@
 """The wind job: animate an asset's cage with the analytic wind of :mod:`shellsim.physics.wind` into a motion.
 
-The body stands in the world of :mod:`shellsim.world` (metres, z up, ground at z = 0): its up axis turned
-onto +z, its largest extent ``size`` metres, its lowest point on the ground, centred over the origin; an
-absolute ``anchor`` rule is in those metres. :func:`wind` writes ``out`` (:mod:`shellsim.motion.format`:
-world positions, the placement, settings :func:`shellsim.physics.wind.wind_settings`, the asset and its cage
-by content digest). An existing ``out`` made with the same settings and cage is continued; one made
-otherwise is refused (naming what changed) unless ``overwrite``.
+No simulation: every frame is the closed-form displacement of a cantilever in the wind, as far as it keeps
+every tet valid. The body stands in the world of :mod:`shellsim.world` (metres, z up, ground at z = 0): its
+up axis turned onto +z, its largest extent ``size`` metres, its lowest point on the ground, centred over the
+origin; an absolute ``anchor`` rule is in those metres. :func:`wind` records ``out``
+(:mod:`shellsim.jobs.recording`; :mod:`shellsim.motion.format`: world positions, the placement, settings
+:func:`shellsim.physics.wind.wind_record`, the asset and its cage by content digest). An existing ``out``
+made with the same settings and cage is continued; one made otherwise is refused (naming what changed)
+unless ``overwrite``.
 """
 
 from __future__ import annotations
@@ -19,20 +21,22 @@ from shellsim.errors import SettingError
 from shellsim.io.outputs import holds_outputs
 from shellsim.motion.format import MAX_FPS, MAX_FRAMES
 from shellsim.physics.selection import selection_text
-from shellsim.physics.wind import RANGES, WindSettings, max_frequency
+from shellsim.physics.wind import RANGES, WindField, max_frequency
 from shellsim.settings import check_range, check_required, floats, option, overwrite_option, resume_option
 from shellsim.world import BODY_SIZE
 
 log = logging.getLogger(__name__)
 
+PRODUCER = "shellsim wind"
 
-_W = WindSettings
+
+_W = WindField
 
 
 @dataclass(frozen=True)
-class WindJobSettings:
+class WindSettings:
     """What :func:`wind` does. The wind's own settings (None: the default of
-    :class:`~shellsim.physics.wind.WindSettings`) are its fields; ``margin`` picks a cage other than the
+    :class:`~shellsim.physics.wind.WindField`) are its fields; ``margin`` picks a cage other than the
     stored one; ``size`` and an absolute ``anchor`` are world metres."""
 
     asset: str = option(help="asset directory or shipped asset name", required=True)
@@ -94,11 +98,11 @@ class WindJobSettings:
         if self.direction is not None and not math.hypot(*self.direction) > 0:
             raise SettingError("direction", "expected a non-zero vector")
 
-    def wind_settings(self, up) -> WindSettings:
-        """The :class:`shellsim.physics.wind.WindSettings` for an asset whose up axis is ``up`` (3,)."""
+    def field(self, up) -> WindField:
+        """The :class:`shellsim.physics.wind.WindField` for an asset whose up axis is ``up`` (3,)."""
         names = ("strength", "direction", "gust", "frequency", "turbulence", "anchor", "seed")
         given = {k: getattr(self, k) for k in names if getattr(self, k) is not None}
-        return WindSettings(up=tuple(float(c) for c in up), **given)
+        return WindField(up=tuple(float(c) for c in up), **given)
 
 
 @dataclass
@@ -110,53 +114,60 @@ class WindResult:
     stats: dict
 
 
+@dataclass
+class WindFrame:
+    """One wind frame: ``scale`` of its bending (below 1 where the full bend would fold the cage) and its
+    smallest tet volume ratio."""
+
+    scale: float
+    volume_ratio: float
+
+    def figures(self) -> dict[str, float]:
+        return {
+            "limited_frames": int(self.scale < 1),
+            "min_bend_scale": self.scale,
+            "min_volume_ratio": self.volume_ratio,
+        }
+
+
 @holds_outputs
-def wind(settings: WindJobSettings, progress: bool = True) -> WindResult:
+def wind(settings: WindSettings, progress: bool = True) -> WindResult:
     """Animate the asset of ``settings`` into its motion file (module docstring)."""
+    import numpy as np
+
     from neural.asset import load_asset
     from shellsim.cage.build import CageConfig
+    from shellsim.cage.geometry import MIN_VOLUME_RATIO, cage_digest
     from shellsim.cage.store import load_or_build_cage
     from shellsim.io.outputs import check_writable_file, lock_output
-    from shellsim.motion.format import cage_digest
-    from shellsim.motion.writer import MotionWriter, motion_exists
-    from shellsim.physics.wind import animate_wind, motion_changes, wind_settings
+    from shellsim.jobs.recording import REPLACE, record_frames, resume_or_refuse
+    from shellsim.motion.writer import MotionWriter
+    from shellsim.physics.wind import SETTING_NAMES, limited_wind_displacement, wind_record
     from shellsim.world import UP, Placement, describe_placement, place_on_ground
 
     s = settings
     asset = load_asset(s.asset)
-    wind_ = s.wind_settings(UP)
+    field = s.field(UP)
     out = check_writable_file(Path(s.out) if s.out else Path(f"{asset.name}_wind.npz"), "out")
     lock_output(out, "out")
     # the stored cage whatever its settings (unless margin asks for another), else a default one
     cage = load_or_build_cage(asset, None if s.margin is None else CageConfig(margin=s.margin))
-    if motion_exists(out) and not s.overwrite:
-        replace = "give {overwrite} to start it anew, or another {out}"
-        writer = MotionWriter.resume(out)  # not a motion file: refused as it is, never replaced
-        if writer.motion.producer != "shellsim wind":
-            raise SettingError("out", f"not a 'shellsim wind' motion file; {replace}", out)
+    placement = place_on_ground(cage.vertices, asset.up, s.size)
+    rest = placement.to_world(cage.vertices)
+    record = wind_record(field, s.fps)
+    writer = resume_or_refuse(out, PRODUCER, record, s.overwrite, s.resume, SETTING_NAMES)
+    if writer is not None:
         writer.motion.check_against(cage)
         if not writer.motion.placement:
             raise SettingError(
-                "out", f"was made by an earlier shellsim in the asset's own units, not metres; {replace}", out
+                "out", f"was made by an earlier shellsim in the asset's own units, not metres; {REPLACE}", out
             )
-        changes = motion_changes(writer.motion, wind_settings(wind_, s.fps))
         made = Placement.from_dict(writer.motion.placement, str(out)).scale
-        placement = place_on_ground(cage.vertices, asset.up, s.size)
         if not math.isclose(made, placement.scale, rel_tol=1e-9):
-            changes.append(f"{{size}}: {s.size * made / placement.scale:g} -> {s.size:g}")
-        if changes:
-            raise SettingError("out", f"made with other settings ({'; '.join(changes)}); {replace}", out)
-        rest = writer.motion.rest_vertices
-        log.info("continuing %s after frame %d", out, writer.n_frames - 1)
+            change = f"{{size}}: {s.size * made / placement.scale:g} -> {s.size:g}"
+            raise SettingError("out", f"made with other settings ({change}); {REPLACE}", out)
     else:
-        if out.exists():
-            log.info("--overwrite: replacing %s", out)
-        elif s.resume:
-            log.info("%s does not exist: nothing to resume, starting it", out)
-        placement = place_on_ground(cage.vertices, asset.up, s.size)
-        rest = placement.to_world(cage.vertices)
         log.info("%s", describe_placement(asset.name, placement, rest))
-        record = {"name": asset.name, "digest": asset.digest()}
         writer = MotionWriter(
             out,
             rest,
@@ -165,11 +176,39 @@ def wind(settings: WindJobSettings, progress: bool = True) -> WindResult:
                 "up": list(UP),
                 "units": "metres: positions and rest_vertices in the world (z up, ground z = 0)",
             },
-            producer="shellsim wind",
-            asset=record,
+            producer=PRODUCER,
+            settings=record,
+            asset={"name": asset.name, "digest": asset.digest()},
             placement=placement.as_dict(),
             cage_digest=cage_digest(cage.vertices, cage.tets),
         )
+    made = {}
+
+    def advance() -> WindFrame:
+        t = writer.n_frames / s.fps
+        u, scale, ratio = limited_wind_displacement(rest, cage.tets, t, field)
+        made["frame"] = (rest + u, t, None)
+        return WindFrame(scale, ratio)
+
     with writer:
-        animate_wind(rest, cage.tets, wind_, s.frames, s.fps, writer, progress=progress)
-    return WindResult(out, writer.n_frames, dict(writer.motion.meta.get("stats", {})))
+        history = record_frames(
+            writer,
+            s.frames,
+            advance,
+            lambda: made["frame"],
+            advice=str,
+            desc="wind",
+            progress=progress,
+            initial=False,
+        )
+    stats = dict(writer.motion.meta.get("stats", {}))
+    limited = [f.scale for f in history if f.scale < 1]
+    if limited:
+        log.warning(
+            "the wind would fold the cage in %d frames: their bending was scaled down (to %.0f%% at worst) "
+            "to keep every tet's volume ratio >= %g; a lower strength, gust or turbulence avoids it",
+            len(limited),
+            100 * float(np.min(limited)),
+            MIN_VOLUME_RATIO,
+        )
+    return WindResult(out, writer.n_frames, stats)

@@ -7,10 +7,10 @@ plain, uncompressed ``.npz`` (``np.savez``'s layout: :func:`numpy.load` opens it
   int64, ``positions`` (F, V, 3) float32 and ``times`` (F,) float64 (seconds);
 - ``header``: a 0-d string of JSON: ``format`` ("shellsim-motion"), ``format_version`` (3), ``producer``
   (what made it: "shellsim simulate", ...), ``settings`` (the producer's), ``asset`` (``name`` and content
-  ``digest`` of the asset, or the mesh simulated), ``cage`` (the :func:`cage_digest` of the cage in the
-  asset's own frame: the identity :meth:`Motion.check_against` compares), ``placement`` (the similarity
-  from the asset's frame to the world, :class:`shellsim.world.Placement`; ``{}`` for none), ``meta`` (facts:
-  statistics, wall time) and ``units`` ("m");
+  ``digest`` of the asset, or the mesh simulated), ``cage`` (the :func:`~shellsim.cage.geometry.cage_digest`
+  of the cage in the asset's own frame: the identity :meth:`Motion.check_against` compares), ``placement``
+  (the similarity from the asset's frame to the world, :class:`shellsim.world.Placement`; ``{}`` for none),
+  ``meta`` (facts: statistics, wall time) and ``units`` ("m");
 - optionally the surface of what moves (``simulate --mesh``), embedded in the cage: ``surface_tet`` (S,)
   int64, ``surface_bary`` (S, 4) float64, ``surface_faces`` (F, 3) int64;
 - the producer's state after the last frame as arrays ``state_NAME`` (the simulator's velocities).
@@ -33,7 +33,6 @@ the format-3 archive: written by :func:`write_motion_npz`, read by :func:`npz_in
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from dataclasses import dataclass, field, fields
@@ -43,7 +42,7 @@ import numpy as np
 
 from neural.errors import InputError
 from neural.files import write_atomically
-from shellsim.cage.geometry import check_tets
+from shellsim.cage.geometry import cage_digest, check_tets
 from shellsim.io.npz import Blocks, NpzReader, write_npz
 
 FORMAT = "shellsim-motion"
@@ -75,15 +74,6 @@ MAX_FRAMES = 10_000  # frames of one motion (about 1 GB of positions for a 10,00
 
 
 MAX_FPS = 1000.0
-
-
-def cage_digest(vertices: np.ndarray, tets: np.ndarray) -> str:
-    """sha256 (hex) of a rest cage: its vertices (V, 3) as float64 and tets (T, 4) as int64, with shapes."""
-    h = hashlib.sha256()
-    for array in (np.asarray(vertices, np.float64), np.asarray(tets, np.int64)):
-        h.update(str(array.shape).encode())
-        h.update(np.ascontiguousarray(array).tobytes())
-    return h.hexdigest()
 
 
 @dataclass

@@ -32,6 +32,7 @@ import numpy as np
 
 from neural.errors import InputError
 from neural.files import write_atomically
+from shellsim.cage.geometry import cage_digest
 from shellsim.io.npz import Member, NpzReader, damaged_as
 from shellsim.motion.format import (
     FORMAT,
@@ -39,7 +40,6 @@ from shellsim.motion.format import (
     SURFACE_KEYS,
     Motion,
     MotionInfo,
-    cage_digest,
     check_cage,
     check_finite,
     check_frames,

@@ -1,5 +1,6 @@
-"""Frames of a simulation: substeps of :class:`shellsim.physics.solver.ImplicitSolver`, the checks that stop
-a run, the retry policy, and writing the frames to a motion writer with a progress bar.
+"""Frames of a simulation: substeps of :class:`shellsim.physics.solver.Solver` over every body, the timed
+inputs of a schedule, the checks that stop a run and the retry policy. Arrays in, arrays out: no files, no
+progress bars (the jobs record frames: :mod:`shellsim.jobs.recording`).
 
 A frame of ``dt`` runs ``substeps`` solver steps. It is invalid when a step leaves a tet's det F below
 ``min_volume_ratio`` (:data:`shellsim.cage.geometry.MIN_VOLUME_RATIO`: inverted or near-degenerate), a
@@ -15,16 +16,17 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
-import numpy as np
 import warp as wp
 
-from neural.errors import InputError, ShellsimError
+from neural.errors import ShellsimError
 from shellsim.physics.control import Control
 from shellsim.physics.elastic import f64, max_principal_stretch
 from shellsim.physics.model import Model
-from shellsim.physics.solver import ImplicitSolver, SolveStats
+from shellsim.physics.solver import Solver, SolveStats
 from shellsim.physics.state import State
 
 log = logging.getLogger(__name__)
@@ -33,10 +35,10 @@ log = logging.getLogger(__name__)
 class SimulationError(ShellsimError):
     """A frame left the valid regime with every substep count tried.
 
-    kind : "collapse" (min det F below ``SimSettings.min_volume_ratio``), "speed" (above ``max_speed``),
+    kind : "collapse" (min det F below ``SolverSettings.min_volume_ratio``), "speed" (above ``max_speed``),
     "stretch" (the largest principal stretch above ``max_stretch``) or "nonfinite"; value : that min det F,
     speed [m/s] or stretch (nan for "nonfinite"); time : the frame's start [s]; substeps : the counts tried;
-    frame : its index in the motion, set by :func:`simulate`.
+    frame : its index in the motion, set by whoever records the frames.
     """
 
     def __init__(self, kind: str, value: float, limit: float, time: float, substeps: tuple[int, ...]):
@@ -67,8 +69,7 @@ class FrameStats:
     newton_iterations: int = 0  # over all substeps of the successful attempt
     max_newton_iterations: int = 0  # in one substep
     unconverged_substeps: int = 0  # substeps that hit newton_iterations or stalled in the line search
-    cg_iterations: int = 0
-    hessians: int = 0  # Newton iterations that evaluated the tets' Hessian blocks (the rest reused them)
+    hessians: int = 0  # Hessians assembled
     min_volume_ratio: float = 1.0  # min det F at the end of the frame
     max_speed: float = 0.0  # [m/s] at the end of the frame
     max_stretch: float = 1.0  # largest principal stretch of a tet at the end of the frame
@@ -81,77 +82,21 @@ class FrameStats:
         self.newton_iterations += step.newton_iterations
         self.max_newton_iterations = max(self.max_newton_iterations, step.newton_iterations)
         self.unconverged_substeps += not step.converged
-        self.cg_iterations += step.cg_iterations
         self.hessians += step.hessians
         self.energy = step.energy
         self.min_volume_ratio = step.min_volume_ratio
         self.max_speed = step.max_speed
 
-
-class FrameDriver:
-    """Advances a :class:`State` of ``model`` by frames of ``model.settings.dt`` (module docstring) with
-    ``solver`` (None: an :class:`ImplicitSolver` of the model). With ``allow_stretch`` the first frame past
-    ``max_stretch`` is logged as a warning, once per driver."""
-
-    def __init__(self, model: Model, solver: ImplicitSolver | None = None):
-        self.model = model
-        self.solver = solver or ImplicitSolver(model)
-        self._start, self._other = model.state(), model.state()  # the frame's start; the solver's output
-        self._scalars = wp.zeros(1, dtype=f64, device=model.device)
-        self._stretch_warned = False
-
-    def step(self, state: State, control: Control) -> FrameStats:
-        """Advance ``state`` one frame under ``control``; redo it with more substeps while it is invalid, and
-        raise :class:`SimulationError` with ``state`` back at the frame's start if every count fails."""
-        s = self.model.settings
-        start = time.perf_counter()
-        self._start.assign(state)
-        failures = []
-        for attempt, factor in enumerate((1, *s.retry_factors)):
-            if attempt:
-                state.assign(self._start)
-            stats = FrameStats(substeps=s.substeps * factor, retries=attempt)
-            problem = self._run_frame(state, control, stats)
-            if problem is None:
-                stats.seconds = time.perf_counter() - start
-                stats.notes = [f"{n} substeps: {kind} {value:.3g}" for n, (kind, value, _) in failures]
-                if stats.max_stretch > s.max_stretch and not self._stretch_warned:
-                    self._stretch_warned = True
-                    warn_stretched(state.time, stats.max_stretch, s.max_stretch)
-                return stats
-            failures.append((stats.substeps, problem))
-            log.debug(
-                "frame at t=%.4f s failed with %d substeps: %s", self._start.time, stats.substeps, problem
-            )
-        state.assign(self._start)
-        kind, value, limit = failures[-1][1]
-        raise SimulationError(kind, value, limit, self._start.time, tuple(n for n, _ in failures))
-
-    def max_stretch(self, state: State) -> float:
-        """The largest principal stretch over the tets of ``state`` (1 at rest)."""
-        return largest_stretch(self.model, state, self._scalars)
-
-    def _run_frame(
-        self, state: State, control: Control, stats: FrameStats
-    ) -> tuple[str, float, float] | None:
-        """Run ``stats.substeps`` substeps on ``state``; return why the frame is invalid, as (kind, value,
-        limit) of :class:`SimulationError`, or None."""
-        s = self.model.settings
-        h = s.dt / stats.substeps
-        current, other = state, self._other
-        for _ in range(stats.substeps):
-            step = self.solver.step(self.model, current, other, control, h)
-            current, other = other, current
-            stats.add(step)
-            problem = substep_problem(step, s)
-            if problem is not None:
-                return problem
-        if current is not state:
-            state.assign(current)
-        stats.max_stretch = self.max_stretch(state)
-        if stats.max_stretch > s.max_stretch and not s.allow_stretch:
-            return ("stretch", stats.max_stretch, s.max_stretch)
-        return None
+    def figures(self) -> dict[str, float]:
+        """The frame's figures a motion's statistics add up (``max_`` and ``min_`` ones: the extremes)."""
+        return {
+            "substeps": self.substeps,
+            "newton_iterations": self.newton_iterations,
+            "retries": self.retries,
+            "unconverged_substeps": self.unconverged_substeps,
+            "min_volume_ratio": self.min_volume_ratio,
+            "max_stretch": self.max_stretch,
+        }
 
 
 def largest_stretch(model: Model, state: State, scratch: wp.array) -> float:
@@ -169,7 +114,7 @@ def largest_stretch(model: Model, state: State, scratch: wp.array) -> float:
 
 def substep_problem(step: SolveStats, s) -> tuple[str, float, float] | None:
     """Why a substep's solve ``step`` leaves the valid regime of the settings ``s``
-    (:class:`shellsim.physics.model.SimSettings`), as (kind, value, limit) of :class:`SimulationError`, or
+    (:class:`shellsim.physics.model.SolverSettings`), as (kind, value, limit) of :class:`SimulationError`, or
     None."""
     if not (math.isfinite(step.energy) and math.isfinite(step.max_speed)):
         return ("nonfinite", math.nan, math.nan)
@@ -201,74 +146,95 @@ def warn_stretched(t: float, stretch: float, limit: float) -> None:
     )
 
 
-def restore_state(state: State, writer) -> None:
-    """Set ``state`` to the last frame of ``writer``'s motion, written by :func:`simulate`: its positions,
-    time and the velocities of its state (``state["velocities"]`` (V, 3)), as they are, so that
-    :func:`simulate` continues the trajectory exactly. A missing or malformed state is an
-    :class:`InputError`."""
-    velocities = writer.motion.state.get("velocities")
-    shape = writer.motion.rest_vertices.shape
-    if velocities is None or velocities.shape != shape or not np.isfinite(velocities).all():
-        raise InputError(
-            f"{writer.path}: no simulation state ({shape[0]} finite velocities) after its last frame; cannot "
-            "resume it"
+class Schedule(Protocol):
+    """The timed inputs of a scene (e.g. :class:`shellsim.scene.actions.Actions`)."""
+
+    def inputs(self, t: float, h: float, positions: list, velocities: list) -> list:
+        """Per body, (pinned (V,) bool, targets (V, 3), forces (V, 3)) for the substep [t, t + h]."""
+
+    def state(self) -> dict: ...
+
+    def restore(self, state: dict) -> None: ...
+
+
+class FrameDriver:
+    """Advances the bodies of ``solver`` by frames of ``settings.dt`` (``settings.substeps`` each), with
+    ``schedule``'s pins and forces (None: none), checking every frame (module docstring) and retrying a
+    failed one with more substeps (and warning once of a stretch it allows)."""
+
+    def __init__(self, solver: Solver, schedule: Schedule | None = None):
+        self.solver = solver
+        self.schedule = schedule
+        models = solver.models
+        self.controls = [Control(m) for m in models]
+        self._other = [m.state() for m in models]
+        self._start = [m.state() for m in models]
+        self._scalars = [wp.zeros(1, dtype=f64, device=m.device) for m in models]
+        self._stretch_warned = False
+
+    def step(self, states: Sequence[State]) -> FrameStats:
+        """Advance ``states`` one frame; redo it with more substeps while it is invalid, and raise
+        :class:`SimulationError` with the states back at the frame's start if every count fails."""
+        s = self.solver.settings
+        start = time.perf_counter()
+        for saved, state in zip(self._start, states, strict=True):
+            saved.assign(state)
+        schedule_state = self.schedule.state() if self.schedule else None
+        failures = []
+        for attempt, factor in enumerate((1, *s.retry_factors)):
+            if attempt:
+                for saved, state in zip(self._start, states, strict=True):
+                    state.assign(saved)
+                if self.schedule:
+                    self.schedule.restore(schedule_state)
+            stats = FrameStats(substeps=s.substeps * factor, retries=attempt)
+            problem = self._run_frame(states, stats)
+            if problem is None:
+                stats.seconds = time.perf_counter() - start
+                stats.notes = [f"{n} substeps: {kind} {value:.3g}" for n, (kind, value, _) in failures]
+                if stats.max_stretch > s.max_stretch and not self._stretch_warned:
+                    self._stretch_warned = True
+                    warn_stretched(states[0].time, stats.max_stretch, s.max_stretch)
+                return stats
+            failures.append((stats.substeps, problem))
+        for saved, state in zip(self._start, states, strict=True):
+            state.assign(saved)
+        if self.schedule:
+            self.schedule.restore(schedule_state)
+        kind, value, limit = failures[-1][1]
+        raise SimulationError(kind, value, limit, self._start[0].time, tuple(n for n, _ in failures))
+
+    def _set_inputs(self, t: float, h: float, states: Sequence[State]) -> None:
+        if self.schedule is None:
+            return
+        positions = [st.positions.numpy() for st in states]
+        velocities = [st.velocities.numpy() for st in states]
+        for control, (pinned, targets, forces) in zip(
+            self.controls, self.schedule.inputs(t, h, positions, velocities), strict=True
+        ):
+            if pinned.any() or control.pinned.any():
+                control.set_pins(pinned, targets)
+            control.set_forces(forces)
+
+    def _run_frame(self, states: Sequence[State], stats: FrameStats):
+        s = self.solver.settings
+        h = s.dt / stats.substeps
+        current, other = list(states), self._other
+        for _ in range(stats.substeps):
+            self._set_inputs(current[0].time, h, current)
+            step = self.solver.step(current, other, self.controls, h)
+            current, other = other, current
+            stats.add(step)
+            problem = substep_problem(step, s)
+            if problem is not None:
+                return problem
+        if current[0] is not states[0]:
+            for state, result in zip(states, current, strict=True):
+                state.assign(result)
+        stats.max_stretch = max(
+            largest_stretch(m, st, scratch)
+            for m, st, scratch in zip(self.solver.models, states, self._scalars, strict=True)
         )
-    state.set(writer.last_positions, velocities, writer.last_time)
-
-
-def simulate(
-    driver: FrameDriver, state: State, control: Control, frames: int, writer, progress: bool = True
-) -> list[FrameStats]:
-    """Step ``state`` ``frames`` times with ``driver`` under ``control``, appending each frame to ``writer``.
-
-    An empty ``writer`` first gets the current state as frame 0. Each frame is appended with its positions
-    (V, 3) and the state ``velocities`` (V, 3) float64, as they are (so :func:`restore_state` continues
-    exactly), after ``writer.motion.meta["stats"]`` is updated. A frame that :meth:`FrameDriver.step` finds
-    invalid (e.g. a tet squeezed below ``min_volume_ratio``) is not written: the :class:`SimulationError`
-    gets its index as ``frame``. The writer is flushed on every exit, so an error or an interrupt keeps every
-    frame made before. Returns the list of :class:`FrameStats`.
-    """
-    from tqdm.auto import tqdm
-
-    meta = writer.motion.meta
-
-    def record(stats: FrameStats | None):
-        if stats is not None:
-            total = meta.setdefault(
-                "stats",
-                {
-                    "frames": 0,
-                    "substeps": 0,
-                    "newton_iterations": 0,
-                    "cg_iterations": 0,
-                    "retries": 0,
-                    "seconds": 0.0,
-                },
-            )
-            total["frames"] += 1
-            total["substeps"] += stats.substeps
-            total["newton_iterations"] += stats.newton_iterations
-            total["cg_iterations"] += stats.cg_iterations
-            total["retries"] += stats.retries
-            total["seconds"] += stats.seconds
-        positions, velocities = state.positions.numpy().copy(), state.velocities.numpy().copy()
-        writer.append(positions, state.time, {"velocities": velocities})
-
-    history = []
-    try:
-        if writer.n_frames == 0:
-            record(None)
-        with tqdm(total=frames, disable=not progress, unit="frame", desc="simulate") as bar:
-            for _ in range(frames):
-                try:
-                    stats = driver.step(state, control)
-                except SimulationError as err:
-                    err.frame = writer.n_frames
-                    raise
-                history.append(stats)
-                record(stats)
-                bar.set_postfix(newton=stats.newton_iterations, cg=stats.cg_iterations, retries=stats.retries)
-                bar.update()
-    finally:
-        writer.flush()
-    return history
+        if stats.max_stretch > s.max_stretch and not s.allow_stretch:
+            return ("stretch", stats.max_stretch, s.max_stretch)
+        return None

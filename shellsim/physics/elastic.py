@@ -1,10 +1,10 @@
 """The stable Neo-Hookean tetrahedral element in Warp: energy density, stress, the analytic PSD Hessian
 (closed-form eigenvalues; shift or SVD eigen-projection) and :func:`tet_terms`, the kernel that accumulates
 each tet's energy, forces and 3x3 Hessian blocks (with Kelvin-Voigt damping) for
-:mod:`shellsim.physics.solver`; :func:`max_principal_stretch` for the frame driver's check; plus NumPy/host
-helpers (:func:`snh_energy_reference`, :func:`elastic_energy`) used by tests and benchmarks. The model (with
-its volume barrier below det F = ``BARRIER_J``) and its definiteness fix are described in
-:mod:`shellsim.physics.solver`.
+:mod:`shellsim.physics.body`, and the blocks' sparsity (:func:`block_topology`); :func:`max_principal_stretch`
+for the frame driver's check; plus NumPy/host helpers (:func:`snh_energy_reference`, :func:`elastic_energy`)
+used by tests and benchmarks. The model (with its volume barrier below det F = ``BARRIER_J``) and its
+definiteness fix are described in :mod:`shellsim.physics.body`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ import numpy as np
 import warp as wp
 
 from shellsim.cage.geometry import tet_volumes
-from shellsim.physics.linsolve import block_topology
 from shellsim.physics.materials import Material
 
 wp.set_module_options({"enable_backward": False})  # no autodiff here; halves compile time
@@ -362,6 +361,25 @@ def tet_terms(
         ia = tets[t, a]
         if pinned[ia] == 0:
             wp.atomic_sub(force, ia, P * G[a])
+
+
+def block_topology(tets: np.ndarray, n_vertices: int):
+    """Sparsity of the stiffness matrix: CSR ``offsets`` (V+1,), block ``columns`` (nnz,), the block slot of
+    every (tet, a, b) pair ``block_index`` (T, 16) and of every diagonal block ``diag_index`` (V,)."""
+    rows = np.repeat(tets, 4, axis=1)  # (T, 16): a repeated
+    cols = np.tile(tets, (1, 4))  # (T, 16): b cycling
+    keys = rows.astype(np.int64) * n_vertices + cols
+    unique, inverse = np.unique(keys.ravel(), return_inverse=True)
+    urows, ucols = np.divmod(unique, n_vertices)
+    offsets = np.zeros(n_vertices + 1, np.int64)
+    np.cumsum(np.bincount(urows, minlength=n_vertices), out=offsets[1:])
+    diag_index = np.searchsorted(unique, np.arange(n_vertices, dtype=np.int64) * (n_vertices + 1))
+    return (
+        offsets.astype(np.int32),
+        ucols.astype(np.int32),
+        inverse.reshape(-1, 16).astype(np.int32),
+        diag_index.astype(np.int32),
+    )
 
 
 @wp.kernel

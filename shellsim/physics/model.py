@@ -1,10 +1,10 @@
 """What a simulation is about, fixed for a run (newton's ``Model``): one elastic body of linear tets (rest
-shape, material, lumped masses) in a world of gravity and static colliders, and :class:`SimSettings`.
+shape, material, lumped masses) under gravity, and the :class:`SolverSettings` of the run.
 
 The running state (positions, velocities, time) is a :class:`shellsim.physics.state.State`; the scripted
-inputs (pinned vertices, external forces) a :class:`shellsim.physics.control.Control`; the implicit step is
-:class:`shellsim.physics.solver.ImplicitSolver`, frames and their checks
-:class:`shellsim.physics.driver.FrameDriver`.
+inputs (pinned vertices, external forces) a :class:`shellsim.physics.control.Control`; a body's terms of the
+incremental potential :class:`shellsim.physics.body.BodyTerms`; the implicit step of every body with contact
+:class:`shellsim.physics.solver.Solver`, frames and their checks :class:`shellsim.physics.driver.FrameDriver`.
 """
 
 from __future__ import annotations
@@ -16,36 +16,26 @@ import numpy as np
 import warp as wp
 
 from shellsim.cage.geometry import MIN_VOLUME_RATIO, check_tets, tet_volumes
-from shellsim.physics.contact import Box, Sphere, collider_arrays, make_colliders
 from shellsim.physics.elastic import f64, mat33
 from shellsim.physics.materials import Material
 from shellsim.physics.state import State
 
 
 @dataclass(frozen=True)
-class SimSettings:
-    """Settings of a simulation, SI units: the world (read by :class:`Model`), the Newton solver
-    (:class:`shellsim.physics.solver.ImplicitSolver`) and the frames with the checks that stop a run
-    (:class:`shellsim.physics.driver.FrameDriver`). A frame lasts ``dt`` and is split into ``substeps``."""
+class SolverSettings:
+    """Settings of a simulation, SI units: the world the bodies share (gravity, damping, drag), Newton's
+    method (:class:`shellsim.physics.solver.Solver`) and the frames with the checks that stop a run
+    (:class:`shellsim.physics.driver.FrameDriver`). A frame lasts ``dt`` and is split into ``substeps``;
+    contact (the ground, colliders, other bodies) is :class:`shellsim.physics.ipc.Contact`'s."""
 
     # the world
     gravity: float = 9.81  # [m/s^2], along -up
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    ground: float | None = 0.0  # height of the ground plane along ``up`` [m]; None: no ground
-    spheres: tuple[Sphere, ...] = ()
-    boxes: tuple[Box, ...] = ()
-    contact_stiffness: float = 1.0e6  # penalty kappa per unit mass [1/s^2]
-    friction: float = 0.5  # Coulomb coefficient
-    friction_velocity: float = 1.0e-2  # sliding speed below which friction is smoothed [m/s]
     damping: float = 0.0  # Kelvin-Voigt beta [s]
     drag: float = 0.0  # velocity drag alpha [1/s]
-    # the solver
-    newton_iterations: int = 10
-    newton_tol: float = 1.0e-2  # stop when max |dx| / h < newton_tol * (rest bounding-box diagonal) per s
-    cg_tol: float = 1.0e-3  # relative residual of the Newton system (of the last solves: see Forcing)
-    cg_forcing: float = 0.05  # loosest relative residual of a Newton step's solve (Forcing); 0: cg_tol always
-    cg_iterations: int = 500
-    linear_solver: str = "auto"  # "serial" (one-kernel SGS-PCG), "cg" (warp.optim.linear.cg), "auto"
+    # Newton's method
+    newton_iterations: int = 40  # at most, per substep
+    newton_tol: float = 1.0e-2  # stop when max |dx| / h < newton_tol * (smallest body's diagonal) per s
     # the frames
     dt: float = 1.0 / 30.0  # frame duration [s]
     substeps: int = 8  # backward-Euler steps per frame
@@ -56,35 +46,28 @@ class SimSettings:
     allow_stretch: bool = False  # a frame past max_stretch is only warned about (once), not refused
 
     def __post_init__(self):
-        positive = ("dt", "contact_stiffness", "friction_velocity", "newton_tol", "cg_tol", "max_speed")
-        for name in positive:
+        for name in ("dt", "newton_tol", "max_speed"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"SimSettings.{name} must be > 0, got {value}")
-        if not 0 <= self.cg_forcing < 1:
-            raise ValueError(f"SimSettings.cg_forcing must lie in [0, 1), got {self.cg_forcing}")
-        for name in ("gravity", "friction", "damping", "drag"):
+                raise ValueError(f"SolverSettings.{name} must be > 0, got {value}")
+        for name in ("gravity", "damping", "drag"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"SimSettings.{name} must be >= 0, got {value}")
-        for name in ("substeps", "newton_iterations", "cg_iterations"):
+                raise ValueError(f"SolverSettings.{name} must be >= 0, got {value}")
+        for name in ("substeps", "newton_iterations"):
             if int(getattr(self, name)) < 1:
-                raise ValueError(f"SimSettings.{name} must be >= 1, got {getattr(self, name)}")
+                raise ValueError(f"SolverSettings.{name} must be >= 1, got {getattr(self, name)}")
         up = np.asarray(self.up, dtype=np.float64)
         if up.shape != (3,) or not np.isfinite(up).all() or np.linalg.norm(up) == 0:
-            raise ValueError(f"SimSettings.up must be a non-zero 3-vector, got {self.up!r}")
-        if self.ground is not None and not math.isfinite(self.ground):
-            raise ValueError(f"SimSettings.ground must be finite or None, got {self.ground}")
+            raise ValueError(f"SolverSettings.up must be a non-zero 3-vector, got {self.up!r}")
         if not 0 <= self.min_volume_ratio < 1:
-            raise ValueError(f"SimSettings.min_volume_ratio must lie in [0, 1), got {self.min_volume_ratio}")
-        if not self.max_stretch > 1:
-            raise ValueError(f"SimSettings.max_stretch must be > 1, got {self.max_stretch}")
-        if any(int(f) < 2 for f in self.retry_factors):
-            raise ValueError(f"SimSettings.retry_factors must be integers >= 2, got {self.retry_factors}")
-        if self.linear_solver not in ("auto", "serial", "cg"):
             raise ValueError(
-                f"SimSettings.linear_solver must be auto, serial or cg, got {self.linear_solver!r}"
+                f"SolverSettings.min_volume_ratio must lie in [0, 1), got {self.min_volume_ratio}"
             )
+        if not self.max_stretch > 1:
+            raise ValueError(f"SolverSettings.max_stretch must be > 1, got {self.max_stretch}")
+        if any(int(f) < 2 for f in self.retry_factors):
+            raise ValueError(f"SolverSettings.retry_factors must be integers >= 2, got {self.retry_factors}")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -94,7 +77,7 @@ class Model:
     """One elastic body of linear tets and its world; nothing in it changes after construction.
 
     vertices : (V, 3) rest positions [m]; tets : (T, 4) positively oriented, every vertex in one;
-    material : :class:`Material`; settings : :class:`SimSettings` (None: the defaults); device : Warp
+    material : :class:`Material`; settings : :class:`SolverSettings` (None: the defaults); device : Warp
     device (None: Warp's default).
 
     Attributes: ``settings``, ``material``, ``device``, ``n_vertices`` V, ``n_tets`` T, ``size`` the rest
@@ -104,10 +87,12 @@ class Model:
     x3 - x0]``), ``masses`` (V,) lumped masses [kg] (a quarter of each tet's), ``up`` (3,) unit,
     ``gravity`` (3,) [m/s^2].
     Device arrays (Warp, on ``device``): ``masses_wp`` (V,) float64, ``tets_wp`` (T, 4) int32, ``dm_inv_wp``
-    (T,) mat33d; ``colliders`` the ground, spheres and boxes (:class:`shellsim.physics.contact.Colliders`).
+    (T,) mat33d.
     """
 
-    def __init__(self, vertices, tets, material: Material, settings: SimSettings | None = None, device=None):
+    def __init__(
+        self, vertices, tets, material: Material, settings: SolverSettings | None = None, device=None
+    ):
         rest = np.array(vertices, dtype=np.float64)  # a copy: it is made read-only
         if rest.ndim != 2 or rest.shape[1] != 3 or len(rest) < 4 or not np.isfinite(rest).all():
             raise ValueError(f"vertices: expected finite (V >= 4, 3), got {rest.shape}")
@@ -121,7 +106,7 @@ class Model:
         used[tets.ravel()] = True
         if not used.all():
             raise ValueError(f"vertices: {(~used).sum()} vertices belong to no tet")
-        settings = settings or SimSettings()
+        settings = settings or SolverSettings()
         x = rest[tets]
         dm = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)
         masses = np.bincount(
@@ -148,9 +133,6 @@ class Model:
             masses_wp=wp.array(masses, dtype=f64, device=dev),
             tets_wp=wp.array(tets.astype(np.int32), dtype=wp.int32, device=dev),
             dm_inv_wp=wp.array(self.dm_inv, dtype=mat33, device=dev),
-            colliders=make_colliders(
-                up, settings.ground, collider_arrays(settings.spheres, settings.boxes, dev)
-            ),
         )
 
     def _set(self, **values) -> None:

@@ -7,7 +7,7 @@ No simulation: the object is treated as a cantilever anchored at its base and lo
   ``w''(h) = M(h) / EI(h)`` with ``M(h) = (L - h)^2 / 2`` and ``w(0) = w'(0) = 0`` (clamped base), so it
   grows monotonically with height, like ``(h^4 - 4 L h^3 + 6 L^2 h^2) / (3 L^4)`` for a uniform rod. Thin
   parts bend more: ``EI(h) ~ r(h)^k`` with ``r(h)`` the RMS radius of the cage's cross-section
-  perpendicular to ``a`` at that height and ``k = WindSettings.thinness`` (``k = 4`` for a solid rod).
+  perpendicular to ``a`` at that height and ``k = WindField.thinness`` (``k = 4`` for a solid rod).
   ``w`` is normalised to 1 at the tip.
 - **Amplitude.** The tip deflects by ``strength * L * m(x, t)`` along the horizontal wind direction
   ``w_hat``, where ``m = ramp(t) (1 + gust sin(2 pi f t) + turbulence n(x, t))``. ``n`` is a sum of three
@@ -24,20 +24,19 @@ No simulation: the object is treated as a cantilever anchored at its base and lo
 
 - **Limit.** The second-order drop leaves a tet the volume ratio ``1 - slope^2 / 2``, and turbulence
   compresses the cage along the wind: where a frame would squeeze a tet below
-  :data:`~shellsim.cage.geometry.MIN_VOLUME_RATIO`, :func:`animate_wind` scales that frame's tip deflection
-  down until none does (:func:`limited_wind_displacement`): a gust too strong for the cage bends it as far
+  :data:`~shellsim.cage.geometry.MIN_VOLUME_RATIO`, :func:`limited_wind_displacement` scales that frame's
+  tip deflection down until none does: a gust too strong for the cage bends it as far
   as it can go. ``strength`` itself is at most 1 (:data:`RANGES`).
 
-Frame 0 of :func:`animate_wind` is the rest cage when ``ramp_seconds > 0``. Plain numpy; no torch.
+Frame 0 (``t = 0``) is the rest cage when ``ramp_seconds > 0``. Plain numpy; no torch; the wind job
+(:mod:`shellsim.jobs.wind`) records the frames.
 """
 
 from __future__ import annotations
 
 import json
-import logging
 import math
 import numbers
-import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -45,8 +44,6 @@ import numpy as np
 from neural.errors import InputError
 from shellsim.cage.geometry import MIN_VOLUME_RATIO, tet_volumes
 from shellsim.physics.selection import parse_selection
-
-log = logging.getLogger(__name__)
 
 _BINS = 64  # resolution of the beam profile along the bending axis
 _MODES = 3  # turbulence modes
@@ -95,7 +92,7 @@ def max_frequency(fps: float) -> float:
 
 
 @dataclass
-class WindSettings:
+class WindField:
     """Wind parameters; lengths are relative to the object's height ``L`` above the anchor."""
 
     direction: tuple[float, float, float] = (1.0, 0.0, 0.0)  # normalised; its component along a is dropped
@@ -136,7 +133,7 @@ class WindSettings:
         return anchor.sign * np.eye(3)[anchor.axis]
 
 
-def heights(rest_vertices: np.ndarray, settings: WindSettings) -> np.ndarray:
+def heights(rest_vertices: np.ndarray, settings: WindField) -> np.ndarray:
     """(V,) height of each rest vertex above the anchor along the bending axis (<= 0: anchored)."""
     rest = _as_vertices(rest_vertices)
     if settings.anchor is None:
@@ -151,7 +148,7 @@ def heights(rest_vertices: np.ndarray, settings: WindSettings) -> np.ndarray:
     return h
 
 
-def beam_profile(rest_vertices: np.ndarray, settings: WindSettings):
+def beam_profile(rest_vertices: np.ndarray, settings: WindField):
     """The normalised cantilever profile on a grid of heights.
 
     returns : grid (B+1,) heights 0..L; w (B+1,) deflection with w[0] = 0, w[-1] = 1; drop (B+1,)
@@ -194,7 +191,7 @@ def _as_vertices(v) -> np.ndarray:
     return v
 
 
-def wind_displacement(rest_vertices, t: float, settings: WindSettings) -> np.ndarray:
+def wind_displacement(rest_vertices, t: float, settings: WindField) -> np.ndarray:
     """Displacement of every cage vertex at time ``t`` (seconds).
 
     rest_vertices : (V, 3) float
@@ -204,7 +201,7 @@ def wind_displacement(rest_vertices, t: float, settings: WindSettings) -> np.nda
     return bend - sink
 
 
-def _bend_and_sink(rest: np.ndarray, t: float, settings: WindSettings) -> tuple[np.ndarray, np.ndarray]:
+def _bend_and_sink(rest: np.ndarray, t: float, settings: WindField) -> tuple[np.ndarray, np.ndarray]:
     """The two parts of the displacement at ``t``, (V, 3) each: the lateral bending, linear in the tip
     deflection ``A``, and the inextensibility drop along ``-a``, quadratic in it. The displacement with
     ``A`` scaled by ``s`` is ``s bend - s^2 sink``."""
@@ -236,7 +233,7 @@ def _bend_and_sink(rest: np.ndarray, t: float, settings: WindSettings) -> tuple[
 
 
 def limited_wind_displacement(
-    rest_vertices, tets, t: float, settings: WindSettings, floor: float = MIN_VOLUME_RATIO
+    rest_vertices, tets, t: float, settings: WindField, floor: float = MIN_VOLUME_RATIO
 ) -> tuple[np.ndarray, float, float]:
     """:func:`wind_displacement` with the tip deflection scaled down where it would fold the cage.
 
@@ -269,7 +266,7 @@ def limited_wind_displacement(
     return scale * bend - scale * scale * sink, scale, ratio
 
 
-def _turbulence(rest: np.ndarray, t: float, wind: np.ndarray, length: float, settings: WindSettings):
+def _turbulence(rest: np.ndarray, t: float, wind: np.ndarray, length: float, settings: WindField):
     """(2, V) frozen turbulence in [-1, 1]: modes k = 1.._MODES of wavelength ``wavelength * L / k`` and
     amplitude ~1/k travelling along ``wind`` at ``wavelength * L * frequency``; row 0 drives the bending,
     row 1 the sideways flutter. Phases and a lean of each mode's fronts (up to 27 degrees) come from
@@ -286,88 +283,11 @@ def _turbulence(rest: np.ndarray, t: float, wind: np.ndarray, length: float, set
     return (np.sin(phase) / k).sum(-1) / (1.0 / k).sum()
 
 
-def wind_settings(settings: WindSettings, fps: float) -> dict:
-    """The motion's ``settings`` for a wind animation: the model, ``fps`` and the fields of ``settings``."""
-    fields = json.loads(json.dumps(asdict(settings)))
+def wind_record(field: WindField, fps: float) -> dict:
+    """The settings a wind motion records: the model, ``fps`` and the fields of ``field``."""
+    fields = json.loads(json.dumps(asdict(field)))
     return {"model": "analytic cantilever wind", "fps": float(fps), **fields}
 
 
-def motion_changes(motion, wanted: dict) -> list[str]:
-    """What keeps the wind motion ``motion`` (a :class:`~shellsim.motion.format.Motion`) from being continued
-    with the ``wanted`` settings (:func:`wind_settings`): ``"name: old -> new"`` lines
-    (:func:`shellsim.motion.changes.describe_changes`), empty when nothing differs."""
-    from shellsim.motion.changes import describe_changes
-
-    return describe_changes(motion.settings, wanted, _SETTING_NAMES)
-
-
 #: Names of the wind settings whose option is not ``--key-with-dashes``.
-_SETTING_NAMES = {"up": "the asset's up axis", "base_fraction": "base fraction"}
-
-
-def animate_wind(
-    rest_vertices, tets, settings: WindSettings, frames: int, fps: float, writer, progress: bool = True
-) -> None:
-    """Append wind frames ``writer.n_frames .. frames - 1`` (times ``i / fps``) to a
-    :class:`~shellsim.motion.writer.MotionWriter`, fresh (its ``settings`` become :func:`wind_settings`) or
-    resumed from a motion made with the same settings and cage.
-
-    rest_vertices : (V, 3) float; tets : (T, 4) int, positively oriented. Every frame is
-    :func:`limited_wind_displacement`: no tet's volume ratio goes below ``MIN_VOLUME_RATIO``. Records in
-    ``meta["stats"]`` the smallest volume ratio, the frames whose bending was scaled down
-    (``limited_frames``) and the smallest scale (``min_bend_scale``), and the wall time. A ``frequency``
-    above :func:`max_frequency` of ``fps``, or resuming a file made with other settings or for another cage
-    (:meth:`shellsim.motion.format.Motion.check_against`), is an :class:`InputError`.
-    """
-    from tqdm import tqdm
-
-    rest = _as_vertices(rest_vertices)
-    tets = np.asarray(tets, dtype=np.int64)
-    if not (isinstance(frames, int) and frames >= 1) or not (fps > 0 and math.isfinite(fps)):
-        raise ValueError(f"frames >= 1 and fps > 0 expected, got frames={frames!r} fps={fps!r}")
-    if settings.frequency > max_frequency(fps):
-        raise InputError(
-            f"wind frequency {settings.frequency:g} Hz: frames at {fps:g} fps show at most "
-            f"{max_frequency(fps):g} Hz (the fastest turbulence mode, {_MODES} x the frequency, must stay "
-            "below half the frame rate)"
-        )
-    wanted = wind_settings(settings, fps)
-    if writer.n_frames:
-        made = writer.motion
-        if made.rest_vertices.shape != rest.shape or not np.array_equal(made.tets, tets):
-            raise InputError(f"{writer.path}: was made for another cage ({len(made.rest_vertices)} vertices)")
-        if not np.allclose(made.rest_vertices, rest, rtol=0, atol=1e-9 * float(np.ptp(rest, 0).max())):
-            raise InputError(f"{writer.path}: was made for the same cage placed elsewhere in the world")
-        changes = motion_changes(writer.motion, wanted)
-        if changes:
-            from shellsim.errors import SettingError
-
-            raise SettingError(
-                "out", f"was made with other wind settings ({'; '.join(changes)})", writer.path
-            )
-    writer.motion.settings = wanted
-    meta = writer.motion.meta
-    meta["fps"] = float(fps)
-    stats = meta.setdefault("stats", {})
-    start, wall = time.perf_counter(), float(stats.get("wall_seconds", 0.0))
-    limited = 0
-    todo = range(writer.n_frames, frames)
-    with tqdm(total=len(todo), desc="wind", unit="frame", disable=not progress) as bar:  # closed on Ctrl-C
-        for i in todo:
-            u, scale, ratio = limited_wind_displacement(rest, tets, i / fps, settings)
-            if scale < 1:
-                limited += 1
-                stats["limited_frames"] = stats.get("limited_frames", 0) + 1
-                stats["min_bend_scale"] = min(stats.get("min_bend_scale", 1.0), scale)
-            stats["min_volume_ratio"] = min(stats.get("min_volume_ratio", 1.0), ratio)
-            stats["wall_seconds"] = wall + time.perf_counter() - start
-            writer.append(rest + u, i / fps)
-            bar.update()
-    if limited:
-        log.warning(
-            "the wind would fold the cage in %d frames: their bending was scaled down (to %.0f%% at worst) "
-            "to keep every tet's volume ratio >= %g; a lower strength, gust or turbulence avoids it",
-            limited,
-            100 * stats["min_bend_scale"],
-            MIN_VOLUME_RATIO,
-        )
+SETTING_NAMES = {"up": "the asset's up axis", "base_fraction": "base fraction"}

@@ -23,10 +23,9 @@ import numpy as np
 from neural.errors import InputError
 from shellsim.errors import SettingError
 from shellsim.settings import check_choice, check_range, floats, option
-from shellsim.world import UP
+from shellsim.world import CAMERA_PRESETS, UP
 
 if TYPE_CHECKING:
-    from neural.data import Cameras
     from shellsim.scene.spec import CameraSpec
     from shellsim.world import Placement
 
@@ -53,10 +52,9 @@ ORBIT_DEGREES = 30.0
 FOLLOW_SECONDS = 0.5
 #: Room around the framed box: each half field of view is used up to 1 / MARGIN of its tangent.
 MARGIN = 1.05
-#: Presets: (azimuth, elevation) in degrees of the direction from the box's centre to the camera, the
-#: azimuth about up from +x towards +y; None: the settings' elevation.
-PRESETS = {"front": (-90.0, 0.0), "side": (0.0, 0.0), "top": (-90.0, 90.0), "three-quarter": (-45.0, None)}
-CAMERAS = ("orbit", "fixed", "follow", *PRESETS)
+#: Presets (:data:`shellsim.world.CAMERA_PRESETS`) look at the centre of the framed box; an elevation None is
+#: the settings' elevation.
+CAMERAS = ("orbit", "fixed", "follow", *CAMERA_PRESETS)
 #: The fields of :class:`CameraSettings` that are command-line options of the jobs that render motions.
 OPTIONS = ("camera", "orbit_degrees", "camera_position", "look_at")
 
@@ -138,13 +136,13 @@ class CameraSettings:
         if self.kind == "orbit":
             degrees = ORBIT_DEGREES if self.orbit_degrees is None else self.orbit_degrees
             steps = np.arange(n) / (n - 1) if n > 1 else np.full(1, 0.5)
-            azimuth = PRESETS["three-quarter"][0] + degrees * (steps - 0.5)
+            azimuth = CAMERA_PRESETS["three-quarter"][0] + degrees * (steps - 0.5)
         elif self.kind == "follow":
-            azimuth = np.full(n, PRESETS["three-quarter"][0])
+            azimuth = np.full(n, CAMERA_PRESETS["three-quarter"][0])
             centre = smoothed(track.centre, track.times, self.follow_seconds)
             corners = np.stack([_corners(b) for b in np.stack([track.lo, track.hi], 1)])
         else:
-            azimuth, preset_elevation = PRESETS[self.kind]
+            azimuth, preset_elevation = CAMERA_PRESETS[self.kind]
             azimuth = np.full(n, azimuth)
             elevation = self.elevation if preset_elevation is None else preset_elevation
         rotation = _rotations(up, np.radians(azimuth), math.radians(elevation))  # (n, 3, 3)
@@ -176,11 +174,12 @@ def scene_shot(
     - follow: at the :func:`smoothed` (:data:`FOLLOW_SECONDS`) centre of mass of ``body`` plus the offset
       ``position - target`` (None: the body's centre of mass at frame 0), looking at that smoothed centre;
     - path: position and target of :func:`_spline` through the keyframes at each frame's time;
-    - a preset of :data:`PRESETS`: the shot of ``CameraSettings(camera=kind, fov=spec.fov,
-      elevation=spec.elevation)`` over ``tracks[""]``, keeping every body over the whole motion in view;
-    - capture: along the cameras of the file ``spec.path`` (:func:`capture_cameras`, in the asset's frame of
-      ``spec.body``) once over the shot, :func:`capture_path` with ``spec.smooth``, each camera-to-world
-      moved into the world by ``placements[spec.body]`` (rotation ``R c2w``, position
+    - a preset of :data:`~shellsim.world.CAMERA_PRESETS`: the shot of ``CameraSettings(camera=kind,
+      fov=spec.fov, elevation=spec.elevation)`` over ``tracks[""]``, keeping every body over the whole motion
+      in view;
+    - capture: along the cameras of the file ``spec.path`` (:func:`shellsim.scene.file.capture_cameras`, in
+      the asset's frame of ``spec.body``) once over the shot, :func:`capture_path` with ``spec.smooth``,
+      each camera-to-world moved into the world by ``placements[spec.body]`` (rotation ``R c2w``, position
       :meth:`~shellsim.world.Placement.to_world`): the inverse of
       :func:`shellsim.render.frames.asset_camera`, so that a frame on a camera of the file casts that
       camera's rays; ``spec.fov`` None: the median of the cameras' own horizontal fields of view. The
@@ -188,10 +187,10 @@ def scene_shot(
 
     A camera that stands where it looks at some frame, or a capture's camera file that cannot be read, is a
     :class:`~shellsim.scene.spec.SceneError` naming the spec's ``where``."""
-    from shellsim.scene.file import problem
+    from shellsim.scene.file import capture_cameras, problem
 
     up, every = _unit(UP), tracks[""]
-    if spec.kind in PRESETS:
+    if spec.kind in CAMERA_PRESETS:
         preset = CameraSettings(camera=spec.kind, fov=spec.fov, elevation=spec.elevation)
         return dataclasses.replace(preset.shot(every, width, height), name=spec.name)
     n = len(every.times)
@@ -247,18 +246,6 @@ def scene_shot(
         )
     c2w = np.stack([_look_at(eye, at, up) for eye, at in zip(eyes, targets, strict=True)])
     return Shot(c2w, focal, width, height, spec.name)
-
-
-def capture_cameras(path, width: int, height: int) -> Cameras:
-    """The cameras of the camera file or dataset directory ``path`` (:func:`neural.data.load_camera_file`:
-    their order, the asset's frame), imaging ``width`` x ``height`` pixels (each keeps its horizontal field
-    of view); an :class:`InputError` naming ``path`` when it cannot be read or lists fewer than 2."""
-    from neural.data import load_camera_file
-
-    cameras = load_camera_file(path, width, height)
-    if len(cameras) < 2:
-        raise InputError(f"{path}: lists {len(cameras)} camera; a capture camera moves along at least 2")
-    return cameras
 
 
 def capture_path(c2w, frames: int, smooth: float) -> np.ndarray:

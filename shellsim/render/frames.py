@@ -197,7 +197,7 @@ def _view_frames(asset, cage, device: str, antialias: int, frame=None, world=Non
     ``world``: (look, placement, obstacles) of :func:`motion_world` around the body (None: the asset's
     background)."""
     device, field = _field(asset, device)
-    from shellsim.deform.renderer import DeformedRenderer
+    from shellsim.render.renderer import DeformedRenderer
 
     renderer = DeformedRenderer(asset, field, cage, device, None, *(world or (None, None, None)))
     if frame is None:
@@ -233,12 +233,11 @@ def motion_recipe(asset_path: str, motion_path: str, device: str, antialias: int
 def motion_world(motion, look=None):
     """(look, placement, obstacles) of the world around a motion's body, or None for motions made before the
     world was in metres (no placement: the asset's background). ``look``: a
-    :class:`neural.render.ground.WorldLook` (None: the default one); its ground is drawn only for motions
+    :class:`shellsim.world.WorldLook` (None: the default one); its ground is drawn only for motions
     that have one (not simulated without a ground), the others have the sky alone. ``obstacles``: the
-    :class:`neural.render.obstacles.Obstacles` of the motion's settings (``box``, ``sphere``)."""
-    from neural.render.ground import WorldLook
-    from neural.render.obstacles import Obstacles
-    from shellsim.world import Placement, has_ground
+    :class:`shellsim.render.obstacles.Obstacles` of the motion's settings (``box``, ``sphere``)."""
+    from shellsim.render.obstacles import Obstacles
+    from shellsim.world import Placement, WorldLook, has_ground
 
     if not motion.placement:
         return None
@@ -253,7 +252,7 @@ def world_record(world) -> dict | None:
     None)."""
     if world is None:
         return None
-    from neural.render.ground import WORLD_RENDERER
+    from shellsim.render.ground import WORLD_RENDERER
 
     look, placement, obstacles = world
     return {
@@ -340,7 +339,7 @@ def render_motion(
         every frame), so that several motions can be seen by the same camera
     antialias : jittered rays per pixel, averaged (:func:`antialiased`; 1: one ray through each pixel's
         centre)
-    look : :class:`neural.render.ground.WorldLook` of the world behind the body (ground, light, shadows,
+    look : :class:`shellsim.world.WorldLook` of the world behind the body (ground, light, shadows,
         sky); None: :func:`motion_world`'s default (the ground for a motion that has one)
     The motion, ``frames`` and the camera file are checked before the asset and its field load.
     Returns the :class:`RenderResult` (counts, mean ms per frame and per stage, ``video``).

@@ -1,7 +1,7 @@
 """The frames of a scene motion (``shellsim scene``): every body in one image, in the world, seen by a camera
 of the scene file (or any world camera), ``DIR/<k:05d>.png`` for motion frame ``k`` and optionally an MP4.
 
-Each frame is drawn by :class:`shellsim.deform.renderer.SceneRenderer`: the neural bodies through their
+Each frame is drawn by :class:`shellsim.render.renderer.SceneRenderer`: the neural bodies through their
 deformed shells (samples merged by depth, each shaded by its own field), the mesh bodies' surfaces and the
 colliders as opaque meshes (a box without rotation and a sphere met in closed form), on the world's lit
 ground under its sky, with the shadows of every body. Frames run serially or as Ray tasks, and a PNG on disk
@@ -55,11 +55,12 @@ def scene_tracks(scene) -> dict[str, MotionTrack]:
 
 
 def scene_world(scene, look):
-    """(look, obstacles, statics) of a scene's world: ``look`` (:class:`neural.render.ground.WorldLook`) with
-    its ground drawn only where the scene has one; its colliders as :class:`neural.render.obstacles.Obstacles`
-    (boxes without rotation, spheres) and as static meshes ``(vertices, faces, albedo)`` (the others)."""
-    from neural.render.obstacles import Obstacles
-    from shellsim.scene.build import collider_mesh
+    """(look, obstacles, statics) of a scene's world: ``look`` (:class:`shellsim.world.WorldLook`) with
+    its ground drawn only where the scene has one; its colliders as
+    :class:`shellsim.render.obstacles.Obstacles` (boxes without rotation, spheres) and as static meshes
+    ``(vertices, faces, albedo)`` (the others)."""
+    from shellsim.render.obstacles import Obstacles
+    from shellsim.scene.bodies import collider_mesh
 
     boxes, spheres, statics = [], [], []
     for c in scene.colliders:
@@ -78,11 +79,11 @@ def scene_look(scene, look):
 
 
 def scene_renderer(scene, device: str, look):
-    """The :class:`~shellsim.deform.renderer.SceneRenderer` of ``scene``'s neural bodies (each asset's field
+    """The :class:`~shellsim.render.renderer.SceneRenderer` of ``scene``'s neural bodies (each asset's field
     loaded once on the device picked for ``device``) in the world of ``look`` (:func:`scene_world`)."""
     from neural.asset import load_field
     from neural.device import pick_device
-    from shellsim.deform.renderer import DeformedRenderer, SceneRenderer
+    from shellsim.render.renderer import DeformedRenderer, SceneRenderer
 
     device = pick_device(device)
     fields, renderers = {}, []
@@ -141,7 +142,7 @@ def scene_identity(scene) -> str:
 def scene_renderer_identity(scene, antialias: int, look) -> str:
     """Digest of the renderer's settings for ``scene``: each neural body's narrow band, the jittered rays
     per pixel, the world's look and renderer version."""
-    from neural.render.ground import WORLD_RENDERER
+    from shellsim.render.ground import WORLD_RENDERER
 
     settings = {
         "narrowband": [dataclasses.asdict(b.asset.narrowband_config()) for b in scene.bodies if b.asset],
@@ -193,7 +194,7 @@ def render_scene(
     frames : ``"a:b[:step]"`` of :func:`shellsim.settings.parse_frames` (None: all)
     size : (W, H) (default :data:`VIDEO_SIZE`); video, fps : MP4 of the frames (default fps: the motion's
         divided by the step)
-    look : :class:`neural.render.ground.WorldLook`, or a :class:`~shellsim.render.world.WorldSettings` whose
+    look : :class:`shellsim.world.WorldLook`, or a :class:`~shellsim.render.world.WorldSettings` whose
         options set to other than their defaults replace those of the scene's ``[look]``
         (:meth:`WorldSettings.over`); None: the scene's look
     ground : draw the ground where the scene has one (False: nowhere)
@@ -201,13 +202,13 @@ def render_scene(
         look replace those the motion recorded (they do not change the motion)
     Other arguments as :func:`shellsim.render.frames.render_motion`'s. Returns its :class:`RenderResult`.
     """
-    from neural.render.ground import WorldLook
     from shellsim.motion.read import iter_frames
     from shellsim.render.cameras import scene_shot
     from shellsim.render.frames import motion_frame_ids
     from shellsim.render.world import look_of
     from shellsim.scene.motion import read_scene_motion
     from shellsim.settings import parse_frames
+    from shellsim.world import WorldLook
 
     pixel_offsets(antialias)
     scene = read_scene_motion(scene_path, load_assets=False)

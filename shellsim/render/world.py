@@ -1,5 +1,5 @@
 """The world behind a motion's frames as job options (``render``, ``simulate --video``): the ground's
-colours, the light and the sky of a :class:`neural.render.ground.WorldLook`, declared alike by every job
+colours, the light and the sky of a :class:`shellsim.world.WorldLook`, declared alike by every job
 through :func:`world_option`; :func:`look_of` is the look a scene file's ``[look]`` table sets, on which
 :meth:`WorldSettings.over` lays the options a user changed."""
 
@@ -9,9 +9,9 @@ import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from neural.render.ground import WorldLook
 from shellsim.errors import SettingError
 from shellsim.settings import float_list, floats, option
+from shellsim.world import WorldLook
 
 if TYPE_CHECKING:
     from shellsim.scene.spec import LookSpec

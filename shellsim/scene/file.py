@@ -15,13 +15,12 @@ import os
 import re
 import tomllib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from neural.asset import resolve_asset, shipped_assets_dir
 from neural.errors import InputError
 from shellsim.physics.materials import PRESETS, RANGES
 from shellsim.physics.selection import parse_selection
-from shellsim.render.cameras import PRESETS as CAMERA_PRESETS
-from shellsim.render.cameras import VIDEO_SIZE, capture_cameras
 from shellsim.scene.spec import (
     RGB,
     ActionSpec,
@@ -37,7 +36,10 @@ from shellsim.scene.spec import (
     Vec3,
     WorldSpec,
 )
-from shellsim.world import UNITS
+from shellsim.world import CAMERA_PRESETS, UNITS
+
+if TYPE_CHECKING:
+    from neural.data import Cameras
 
 _Bounds = tuple[float, float, str]  # (low, high, ends): ends "[]", "(]", "[)" or "()" include or exclude each
 _ANY: _Bounds = (-math.inf, math.inf, "()")
@@ -77,7 +79,7 @@ _BODY_KEYS = (
     "spin",
     "cage",
 )
-_BODY_KINDS = {"asset": ("asset",), "mesh": ("mesh", "units")}
+_BODY_KINDS = {"asset": ("asset", "up"), "mesh": ("mesh", "units")}
 _COLLIDER_KEYS = ("name", "shape", "position", "rotation", "friction")
 _COLLIDER_KINDS = {"box": ("half_extents",), "sphere": ("radius",), "mesh": ("mesh", "units", "scale")}
 _ACTION_KEYS = ("kind", "start", "end", "body")
@@ -371,12 +373,22 @@ def _body(t: _Table, world: WorldSpec, base: Path) -> BodySpec:
         friction=t.number("friction", d.friction, _FRICTION),
         velocity=t.vector("velocity", d.velocity),
         spin=t.vector("spin", d.spin),
+        up=_up(t),
         cage=CageSpec(
             target_tets=c.integer("target_tets", None, (MIN_TARGET_TETS, math.inf, "[)")),
             margin=c.number("margin", None, _NON_NEGATIVE),
         ),
         where=t.where,
     )
+
+
+def _up(t: _Table) -> Vec3 | None:
+    """``up``: an asset's up axis in its own frame (turned onto the world's +z), not zero; None: the
+    asset's."""
+    up = t.vector("up", None)
+    if up is not None and not math.hypot(*up) > 0:
+        raise t.error("up", "must be a non-zero vector [x, y, z]")
+    return up
 
 
 def _asset(t: _Table, base: Path) -> str:
@@ -562,15 +574,28 @@ def _capture_body(t: _Table, name: str | None, bodies: tuple[BodySpec, ...]) -> 
 
 def _capture_file(t: _Table, base: Path) -> str:
     """A capture camera's ``path``: a camera file or dataset directory, relative to the scene file's
-    directory, that :func:`~shellsim.render.cameras.capture_cameras` reads; its resolved path."""
+    directory, that :func:`capture_cameras` reads; its resolved path."""
     path = (base / t.text("path", _REQUIRED)).resolve()
     if not path.exists():
         raise t.error("path", f"no such file or directory {path}")
     try:
-        capture_cameras(path, *VIDEO_SIZE)  # any size: the file is only read and its cameras counted
+        capture_cameras(path, 2, 2)  # any size: the file is only read and its cameras counted
     except InputError as err:
         raise t.error("path", str(err)) from None
     return str(path)
+
+
+def capture_cameras(path, width: int, height: int) -> Cameras:
+    """The cameras of the camera file or dataset directory ``path`` (:func:`neural.data.load_camera_file`:
+    their order, the asset's frame), imaging ``width`` x ``height`` pixels (each keeps its horizontal field
+    of view); an :class:`InputError` naming ``path`` when it cannot be read or lists fewer than 2. A capture
+    camera's file, checked here and followed by :func:`shellsim.render.cameras.scene_shot`."""
+    from neural.data import load_camera_file
+
+    cameras = load_camera_file(path, width, height)
+    if len(cameras) < 2:
+        raise InputError(f"{path}: lists {len(cameras)} camera; a capture camera moves along at least 2")
+    return cameras
 
 
 def _camera_keyframes(t: _Table) -> tuple[CameraKeyframe, ...]:

@@ -5,7 +5,7 @@ the concatenated cages, their collision surfaces, ``asset.bodies`` and the scene
 A neural body is drawn by its asset's field through the cage its record names (found by digest among the
 asset's own and cached cages); a mesh body by its collision surface, which is the mesh itself, carried by its
 cage. Colliders are rebuilt from the scene's record as the solver saw them
-(:func:`shellsim.scene.build.collider_mesh`).
+(:func:`shellsim.scene.bodies.collider_mesh`).
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from neural.errors import InputError
-from neural.render.ground import WorldLook
 from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY
+from shellsim.world import WorldLook
 
 Vec3 = tuple[float, float, float]
 RGB = tuple[float, float, float]  # each in [0, 1]
@@ -56,8 +56,9 @@ class BodySpec:
     """One ``[[body]]``: an asset (a shipped name or a directory) or a closed triangle mesh, placed in the
     world.
 
-    The body is turned so the asset's up axis is +z (a mesh is taken as z up), scaled so its largest extent
-    is ``size`` metres (a mesh without ``size`` keeps its own size in ``units``), rotated by ``rotation``
+    The body is turned so the asset's up axis (``up``, else the asset's own) is +z (a mesh is taken as z
+    up), scaled so its largest extent is ``size`` metres (a mesh without ``size`` keeps its own size in
+    ``units``), rotated by ``rotation``
     (degrees about the world x, y, then z axes, through its bounding-box centre), and moved so the bottom
     centre of its bounding box is at ``position``. ``material`` is a preset of
     :mod:`shellsim.physics.materials`; ``youngs`` [Pa], ``poisson``, ``density`` [kg/m^3] override it.
@@ -79,6 +80,7 @@ class BodySpec:
     friction: float = 0.5  # Coulomb coefficient of this body's surface
     velocity: Vec3 = (0.0, 0.0, 0.0)
     spin: Vec3 = (0.0, 0.0, 0.0)
+    up: Vec3 | None = None  # an asset's up axis in its own frame; None: the asset's
     cage: CageSpec = field(default_factory=CageSpec)
     where: str = ""  # "FILE: [[body]] #k (NAME)"
 
@@ -174,7 +176,7 @@ class CameraSpec:
       t = 0) from the smoothed centre of mass of the body ``body``, looking at it;
     - ``path``: along ``keyframes`` (at least 2, times increasing), its position and target interpolated
       by a Catmull-Rom spline through them, held before the first and after the last;
-    - ``front``, ``side``, ``top``, ``three-quarter``: the presets of :data:`shellsim.render.cameras.PRESETS`,
+    - ``front``, ``side``, ``top``, ``three-quarter``: the presets of :data:`shellsim.world.CAMERA_PRESETS`,
       still, keeping every body over the whole shot in view (three-quarter at ``elevation``);
     - ``capture``: along the cameras of the camera file ``path`` (a ``transforms*.json`` or a dataset
       directory, in the asset's frame of the asset body ``body``) once over the shot, in the file's order,
@@ -204,7 +206,7 @@ class CameraSpec:
 @dataclass(frozen=True)
 class LookSpec:
     """``[look]``: how the shot's frames look (:func:`shellsim.render.world.look_of`); the defaults are those
-    of :class:`neural.render.ground.WorldLook`."""
+    of :class:`shellsim.world.WorldLook`."""
 
     ground_colors: tuple[RGB, RGB] = _LOOK.ground_colors  # the ground checker's two colours
     square: float = _LOOK.square  # [m] side of the checker's squares

@@ -1,4 +1,5 @@
-"""Inspection views of an asset (DESIGN.md step 8): the shells, the cage and a motion's frames with pyvista.
+"""Inspection views of an asset (the ``inspect`` job of docs/architecture.md): the shells, the cage and a
+motion's frames with pyvista.
 
 The scene is three meshes in the asset's own frame at rest, in the world (metres, z up, the ground at z = 0)
 with a motion, which also draws the ground and the obstacles it was simulated with (:func:`world_scene`):

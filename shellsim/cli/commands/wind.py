@@ -10,7 +10,7 @@ log = logging.getLogger(__name__)
 
 def register(sub: argparse._SubParsersAction) -> None:
     from shellsim.cli.options import add_options
-    from shellsim.jobs.wind import WindJobSettings  # numpy only: cheap to import
+    from shellsim.jobs.wind import WindSettings  # numpy only: cheap to import
 
     p = sub.add_parser(
         "wind",
@@ -20,16 +20,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "'shellsim render'). Interrupt at any time: run again, and an OUT made with the same settings is "
         "continued; one made with other settings is refused unless --overwrite.",
     )
-    add_options(p, WindJobSettings)
+    add_options(p, WindSettings)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> None:
     from shellsim.cli.options import from_args, options_named
-    from shellsim.jobs.wind import WindJobSettings, wind
+    from shellsim.jobs.wind import WindSettings, wind
 
-    with options_named(WindJobSettings):
-        result = wind(from_args(WindJobSettings, args))
+    with options_named(WindSettings):
+        result = wind(from_args(WindSettings, args))
     log.info(
         "wrote %d frames to %s (smallest tet volume ratio %.3g)",
         result.frames,

@@ -1,4 +1,5 @@
-"""One frame of an asset at rest or deformed by its cage (paper Sec. 5, DESIGN.md step 7).
+"""One frame of an asset at rest or deformed by its cage (paper Sec. 5; docs/architecture.md, "one rendering
+pipeline").
 
 Images are made by the one pipeline of :mod:`neural.render.view` (sample, optional map to rest space,
 shade); this module supplies, for one frame with cage vertices ``p`` (V, 3), the deformed sampler and the map
@@ -17,14 +18,14 @@ to rest space. :class:`DeformedRenderer`
    rest-space one of length ``stretch * delta`` (:meth:`InverseMap.map_rays`). Samples outside the deformed
    cage (``inside = False``) are dropped: the cage contains everything the field shows;
 4. **shades** the rest-space samples with the field and composites them along the deformed rays (Eq. 2-3),
-   over the asset's background, or, given a :class:`~neural.render.ground.WorldLook` and the body's
+   over the asset's background, or, given a :class:`~shellsim.world.WorldLook` and the body's
    :class:`~shellsim.world.Placement`, over the world's lit ground and sky
-   (:func:`~neural.render.ground.world_backdrop`), its shadow rays cast through the same deformed shells,
+   (:func:`~shellsim.render.ground.world_backdrop`), its shadow rays cast through the same deformed shells,
    mapped to rest space alike and attenuated by the field's transmittance
    (:func:`~neural.render.view.transmittance`); the world's static obstacles
-   (:class:`~neural.render.obstacles.Obstacles`) are drawn there too, and hide the body's samples behind
+   (:class:`~shellsim.render.obstacles.Obstacles`) are drawn there too, and hide the body's samples behind
    them, and the ground hides the shells below z = 0 (each ray's ``t_max``,
-   :func:`~neural.render.ground.surface_t_max`).
+   :func:`~shellsim.render.ground.surface_t_max`).
 
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
 pipeline without a map, with the asset's rest sampler, exactly what ``shellsim eval`` measures.
@@ -53,12 +54,12 @@ class DeformedRenderer:
     cage : :class:`shellsim.cage.build.Cage` embedding the asset's shells; None renders at rest only
     device : torch device of the field ("cpu", "cuda"); the inverse map runs on the matching Warp device
     config : narrow-band settings; None takes the asset's ``meta["narrowband"]`` (or the defaults)
-    look : :class:`neural.render.ground.WorldLook` of the world behind the body (ground, light, shadows,
+    look : :class:`shellsim.world.WorldLook` of the world behind the body (ground, light, shadows,
         sky; a body cut out of a capture has no ground: it stands on its own table); None: the asset's
         background colour
     placement : :class:`shellsim.world.Placement` of the asset's frame in the world (with ``look``; None: the
         identity)
-    obstacles : :class:`neural.render.obstacles.Obstacles` of the world, drawn with ``look`` (None: none)
+    obstacles : :class:`shellsim.render.obstacles.Obstacles` of the world, drawn with ``look`` (None: none)
 
     State: the rest sampler (:func:`neural.render.view.asset_sampler`, Embree scenes built once), the field,
     the cage, Warp meshes of the shells refitted to each deformed frame and the inverse map updated to it
@@ -69,9 +70,8 @@ class DeformedRenderer:
         self, asset, field, cage, device: str = "cpu", config=None, look=None, placement=None, obstacles=None
     ):
         from neural.device import warp_device
-        from neural.render.ground import WorldFrame
-        from neural.render.obstacles import Obstacles
         from neural.render.view import asset_sampler
+        from shellsim.render.obstacles import Obstacles
         from shellsim.world import Placement
 
         self.outer, self.inner = asset.outer_mesh(), asset.inner_mesh()
@@ -96,8 +96,7 @@ class DeformedRenderer:
             look = _without_ground(look)  # it stands on its own room's table
         self.look = look
         self.obstacles = Obstacles() if obstacles is None else obstacles
-        placement = Placement() if placement is None else placement
-        self.world = WorldFrame(placement.scale, placement.rotation, placement.translation)
+        self.world = Placement() if placement is None else placement  # the asset's frame in the world
         self._deformed = None  # WarpCaster, built for the first deformed frame
         self._inverse = None  # the InverseMap, built for the first deformed frame and updated for the next
 
@@ -142,14 +141,12 @@ class DeformedRenderer:
         in the asset's frame (None: at rest): its sampler, map to rest space, placement in the world and the
         world box of its (deformed) cage, or of its rest outer shell."""
         from neural.render.bodies import FieldBody
-        from shellsim.world import Placement
 
         sampler, to_rest = self._frame(positions)
         points = self.outer.vertices if positions is None else positions
-        w = self.world
-        placed = Placement(w.scale, w.rotation, w.translation).to_world(np.asarray(points, np.float64))
+        placed = self.world.to_world(points)
         box = np.stack([placed.min(0), placed.max(0)])
-        return FieldBody(self.field, sampler, self._cut_away(to_rest), w, box)
+        return FieldBody(self.field, sampler, self._cut_away(to_rest), self.world, box)
 
     def _cut_away(self, to_rest):
         """``to_rest`` followed, for a cut asset, by keeping only the samples inside the cut (the field's
@@ -167,12 +164,11 @@ class DeformedRenderer:
         rest, through the backdrop's shells, without the cut's samples; placed in the world (``framed``) or in
         the asset's frame. None for an asset that is not a cut."""
         from neural.render.bodies import FieldBody
-        from neural.render.ground import WorldFrame
         from neural.shell.cutout import RegionMask
 
         if self.cut is None:
             return None
-        frame = self.world if framed else WorldFrame()
+        frame = self.world if framed else None
         return FieldBody(self.field, self._backdrop, RegionMask(self.cut, inside=False), frame)
 
     def capture_sky(self):
@@ -196,8 +192,8 @@ class DeformedRenderer:
         the world is behind the body, its shadow rays sampled and mapped as the camera rays are, and its
         obstacles hide what is behind them."""
         from neural.data import camera_rays
-        from neural.render.ground import surface_t_max, world_backdrop
         from neural.render.view import render_camera, transmittance
+        from shellsim.render.ground import surface_t_max, world_backdrop
 
         start = time.perf_counter()
         sampler, to_rest = self._frame(positions)
@@ -233,8 +229,8 @@ class DeformedRenderer:
         from neural.data import camera_rays
         from neural.render.bodies import FieldBody
         from neural.render.fullray import ray_background
-        from neural.render.ground import surface_t_max, world_backdrop
         from neural.render.view import bodies_transmittance, render_bodies
+        from shellsim.render.ground import surface_t_max, world_backdrop
 
         bodies = [FieldBody(self.field, sampler, self._cut_away(to_rest)), self.backdrop_body(framed=False)]
         origins, dirs = camera_rays(cameras, index, device=self.device)
@@ -262,23 +258,23 @@ class SceneRenderer:
     """Renders frames of a scene in the world (metres, z up): its neural bodies, each a
     :class:`DeformedRenderer` placed by its placement, whose samples are merged by depth and composited once
     (:func:`neural.render.view.render_bodies`); the surfaces of its mesh bodies and its static colliders as
-    opaque meshes (:class:`neural.render.obstacles.Meshes`) and ``obstacles``; the world's ground, light, sky
-    and shadows of ``look`` (:class:`neural.render.ground.WorldLook`; shadow rays through every body's
-    field, :func:`neural.render.view.bodies_transmittance`). A body cut out of a capture
+    opaque meshes (:class:`shellsim.render.obstacles.Meshes`) and ``obstacles``; the world's ground, light,
+    sky and shadows of ``look`` (:class:`shellsim.world.WorldLook`; shadow rays through every body's field,
+    :func:`neural.render.view.bodies_transmittance`). A body cut out of a capture
     (:mod:`neural.shell.cutout`) brings its room, the backdrop of its asset, drawn at rest where the asset is
     placed, and the world's ground is not drawn: the body stands on its own table; the environment map of
     its capture is the sky (:meth:`DeformedRenderer.capture_sky`).
 
     bodies : one :class:`DeformedRenderer` per neural body (made with its ``placement``, without a look)
     statics : ``(vertices (N, 3) world, faces (F, 3), albedo (3,))`` of the static meshes
-    obstacles : :class:`neural.render.obstacles.Obstacles` (boxes and spheres met in closed form)
+    obstacles : :class:`shellsim.render.obstacles.Obstacles` (boxes and spheres met in closed form)
     background : RGB behind everything without a ``look`` (with a cut body: its capture's environment map)
     """
 
     def __init__(
         self, bodies, look=None, obstacles=None, statics=(), device: str = "cpu", background=(1, 1, 1)
     ):
-        from neural.render.obstacles import Obstacles
+        from shellsim.render.obstacles import Obstacles
 
         self.bodies = list(bodies)
         if any(r.cut is not None for r in self.bodies):
@@ -296,9 +292,10 @@ class SceneRenderer:
         :func:`neural.render.view.render_bodies` plus ``build_ms`` (deforming the shells, refitting, the
         opaque meshes' scene) and ``ms`` with it."""
         from neural.data import camera_rays
-        from neural.render.ground import WorldFrame, surface_t_max, world_backdrop
-        from neural.render.obstacles import Meshes
         from neural.render.view import bodies_transmittance, render_bodies
+        from shellsim.render.ground import surface_t_max, world_backdrop
+        from shellsim.render.obstacles import Meshes
+        from shellsim.world import Placement
 
         start = time.perf_counter()
         positions = list(positions) or [None] * len(self.bodies)
@@ -310,7 +307,7 @@ class SceneRenderer:
         backdrop = t_max = None
         capture_sky = next((sky for sky in (r.capture_sky() for r in self.bodies) if sky), None)
         if self.look is not None:
-            world = WorldFrame()
+            world = Placement()  # the bodies and the cameras are in the world
 
             def visibility(o, d):
                 return bodies_transmittance(bodies, o, d)
@@ -341,5 +338,5 @@ def _camera_image(colors, stats: dict, cameras, index: int, start: float, build:
 
 
 def _without_ground(look):
-    """``look`` (a :class:`neural.render.ground.WorldLook`, or None) without its ground."""
+    """``look`` (a :class:`shellsim.world.WorldLook`, or None) without its ground."""
     return None if look is None else dataclasses.replace(look, ground=False)

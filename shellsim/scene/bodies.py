@@ -76,12 +76,14 @@ def file_digest(path) -> str:
 
 
 def build_body(spec: BodySpec, lift: float) -> SceneBody:
-    """Load or build ``spec``'s cage and collision surface (cached) and place it (:func:`body_placement`)."""
+    """Load or build ``spec``'s cage and collision surface (cached) and place it (:func:`body_placement`); a
+    mesh too large to tetrahedralise in the memory the machine has is refused before it is."""
     from neural.asset import load_asset, load_mesh
     from shellsim.cage.build import CageConfig, build_cage
     from shellsim.cage.collision import surface_of_asset, surface_of_mesh
+    from shellsim.cage.geometry import cage_digest
     from shellsim.cage.store import load_or_build_cage
-    from shellsim.motion.format import cage_digest
+    from shellsim.memory import check_memory, mesh_bytes
     from shellsim.physics.materials import get_material
 
     overrides = {k: v for k, v in (("target_tets", spec.cage.target_tets), ("margin", spec.cage.margin)) if v}
@@ -89,17 +91,21 @@ def build_body(spec: BodySpec, lift: float) -> SceneBody:
         asset = load_asset(spec.asset)
         cage = load_or_build_cage(asset, CageConfig(**overrides) if overrides else None)
         surface = surface_of_asset(asset, cage)
-        up, source = asset.up, {"name": asset.name, "digest": asset.digest()}
+        up, source = spec.up or asset.up, {"name": asset.name, "digest": asset.digest()}
     else:
         mesh = load_mesh(Path(spec.mesh))
-        overrides["margin"] = 0.0
-        cage = build_cage(mesh, mesh, CageConfig(**overrides), what=str(spec.mesh))
+        config = CageConfig(**{**overrides, "margin": 0.0})
+        faces = f"a mesh of {len(mesh.faces):,} faces"
+        check_memory("mesh", mesh_bytes(len(mesh.faces), config.target_tets), faces, "to tetrahedralise")
+        cage = build_cage(mesh, mesh, config, what=str(spec.mesh))
         surface = surface_of_mesh(mesh.vertices, mesh.faces, cage.vertices, cage.tets)
         up, source = (
             (0.0, 0.0, 1.0),
             {"mesh": str(Path(spec.mesh).resolve()), "digest": file_digest(spec.mesh)},
         )
-    placement = body_placement(surface.vertices, up, spec, spec.mesh is not None, lift)
+    placement = body_placement(
+        surface.vertices, np.asarray(up, np.float64), spec, spec.mesh is not None, lift
+    )
     try:
         material = get_material(spec.material, spec.youngs, spec.poisson, spec.density)
     except ValueError as err:

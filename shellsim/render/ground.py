@@ -1,11 +1,12 @@
 """A visible world behind a field: a checkered ground lit by a directional light and a sky, with the field's
 shadows on it (issue 41).
 
-The world is metres, z up, the ground at z = 0. The renderer works in the field's (asset's) frame, which a
-similarity ``x_world = s R x + t`` (:class:`WorldFrame`) places in the world; a ray ``o + t d`` there is the
-world ray ``(s R o + t) + t' (s R d)`` with the same parameter. :func:`world_backdrop` gives what each camera
-ray sees behind the field (the ``backdrop`` of :func:`neural.render.view.render_pixels`, composited under the
-field's samples with their transmittance, Eq. 2):
+The world is metres, z up, the ground at z = 0; how it looks is a :class:`~shellsim.world.WorldLook`. The
+renderer works in the field's (asset's) frame, which a similarity ``x_world = s R x + t`` (a
+:class:`~shellsim.world.Placement`) places in the world; a ray ``o + t d`` there is the world ray
+``(s R o + t) + t' (s R d)`` with the same parameter. :func:`world_backdrop` gives what each camera ray sees
+behind the field (the ``backdrop`` of :func:`neural.render.view.render_pixels`, composited under the field's
+samples with their transmittance, Eq. 2):
 
 - **ground**: a ray from above the ground that goes down meets it at ``t_g = -z(o_w) / z(d_w)``, the point
   ``p = o_w + t_g d_w``; its albedo is the checker of ``square`` metres,
@@ -14,7 +15,7 @@ field's samples with their transmittance, Eq. 2):
   and ``V`` the light's visibility from ``p``: the field's transmittance ``T = prod_i (1 - alpha_i)`` along
   the shadow ray from ``p`` toward the light (:func:`neural.render.view.transmittance`, with the camera rays'
   sampler and map to rest space, so a deformed body's shadow moves with it and fur casts a soft one);
-- **obstacles** (:mod:`neural.render.obstacles`: boxes and spheres met in closed form) where one is nearer
+- **obstacles** (:mod:`shellsim.render.obstacles`: boxes and spheres met in closed form) where one is nearer
   than the ground: ``obstacle_color * (ambient + diffuse * max(n.l, 0) * V)``, ``n`` the outward normal;
 - **sky** elsewhere: ``horizon + (zenith - horizon) * max(d_z / |d|, 0)`` (a plain colour when both agree).
 
@@ -28,26 +29,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .obstacles import Meshes, Obstacles, blocked, obstacle_hits
+from shellsim.render.obstacles import Meshes, Obstacles, blocked, obstacle_hits
 
 if TYPE_CHECKING:  # torch is imported where the images are made: the settings stay light for the jobs
     import torch
 
+    from shellsim.world import Placement, WorldLook
+
 #: Metres a shadow ray starts off its surface, along the normal (so that the surface does not shadow itself).
 SHADOW_OFFSET = 1e-6
-
-
-def _colour(name: str, value) -> tuple[float, float, float]:
-    """``value`` as an RGB triple in [0, 1]; else a ValueError naming ``name``."""
-    rgb = tuple(float(v) for v in np.asarray(value, np.float64).reshape(-1))
-    if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
-        raise ValueError(f"{name}: expected 3 numbers in [0, 1], got {value!r}")
-    return rgb
 
 
 #: Version of how the world is drawn, kept in the frames' records (:mod:`shellsim.io.png`): raise it when the
@@ -55,67 +49,7 @@ def _colour(name: str, value) -> tuple[float, float, float]:
 WORLD_RENDERER = 2
 
 
-@dataclass(frozen=True)
-class WorldLook:
-    """How the world behind a body looks: settings only (recorded with every frame).
-
-    ground : draw the ground plane z = 0 (else only the sky)
-    square : side of the checker's squares in metres (the ground's scale)
-    ground_colors : the checker's two RGB colours in [0, 1]
-    light : (3,) direction toward the directional light in world coordinates (any length, z > 0 lights the
-        ground from above)
-    ambient, diffuse : the sky's and the light's share of a lit ground point's brightness
-    shadows : shadow rays through the field (else the light is never blocked)
-    zenith, horizon : RGB of the sky straight up and at the horizon (and below it)
-    obstacle_color : RGB albedo of the static obstacles (boxes, spheres)
-    """
-
-    ground: bool = True
-    square: float = 0.1
-    ground_colors: tuple = ((0.82, 0.82, 0.80), (0.62, 0.63, 0.62))
-    light: tuple = (0.35, 0.5, 1.0)
-    ambient: float = 0.35
-    diffuse: float = 0.65
-    shadows: bool = True
-    zenith: tuple = (0.62, 0.74, 0.90)
-    horizon: tuple = (0.93, 0.94, 0.96)
-    obstacle_color: tuple = (0.78, 0.52, 0.36)
-
-    def __post_init__(self):
-        if not (math.isfinite(self.square) and self.square > 0):
-            raise ValueError(f"square: expected a positive number of metres, got {self.square!r}")
-        colors = np.asarray(self.ground_colors, np.float64)
-        if colors.shape != (2, 3):
-            raise ValueError(f"ground_colors: expected two RGB colours, got {self.ground_colors!r}")
-        object.__setattr__(self, "ground_colors", tuple(_colour("ground_colors", c) for c in colors))
-        light = tuple(float(v) for v in np.asarray(self.light, np.float64).reshape(-1))
-        if len(light) != 3 or not np.isfinite(light).all() or np.linalg.norm(light) == 0:
-            raise ValueError(f"light: expected a non-zero direction x, y, z, got {self.light!r}")
-        object.__setattr__(self, "light", light)
-        for name in ("ambient", "diffuse"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: expected a number >= 0, got {value!r}")
-        for name in ("zenith", "horizon", "obstacle_color"):
-            object.__setattr__(self, name, _colour(name, getattr(self, name)))
-
-    def light_unit(self) -> np.ndarray:
-        """(3,) unit direction toward the light (world)."""
-        light = np.asarray(self.light, np.float64)
-        return light / np.linalg.norm(light)
-
-
-@dataclass(frozen=True)
-class WorldFrame:
-    """The similarity ``x_world = scale * rotation @ x + translation`` from the renderer's frame (the field's)
-    to the world: scale > 0, rotation (3, 3) orthonormal, translation (3,) metres."""
-
-    scale: float = 1.0
-    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
-    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
-
-def to_world(frame: WorldFrame, origins: torch.Tensor, dirs: torch.Tensor):
+def to_world(frame: Placement, origins: torch.Tensor, dirs: torch.Tensor):
     """World rays ``(s R o + t, s R d)`` (R, 3) float64 of rays ``origins``, ``dirs`` (R, 3) of the renderer's
     frame (the same ray parameter)."""
     import torch
@@ -125,7 +59,7 @@ def to_world(frame: WorldFrame, origins: torch.Tensor, dirs: torch.Tensor):
     return frame.scale * origins.double() @ rotation.T + translation, frame.scale * dirs.double() @ rotation.T
 
 
-def ground_hits(frame: WorldFrame, origins: torch.Tensor, dirs: torch.Tensor):
+def ground_hits(frame: Placement, origins: torch.Tensor, dirs: torch.Tensor):
     """Where rays ``origins``, ``dirs`` (R, 3) of the renderer's frame meet the ground z = 0 of the world:
     ``hit`` (R,) bool (from above it, going down), ``t`` (R,) ray parameter (inf without a hit),
     ``points`` (R, 3) world hit points and the world directions ``dirs_w`` (R, 3) (``scale R d``)."""
@@ -140,7 +74,7 @@ def ground_hits(frame: WorldFrame, origins: torch.Tensor, dirs: torch.Tensor):
 
 def surface_t_max(
     look: WorldLook,
-    frame: WorldFrame,
+    frame: Placement,
     obstacles: Obstacles | None,
     origins,
     dirs,
@@ -201,7 +135,7 @@ def sky(look: WorldLook, dirs_w: torch.Tensor) -> torch.Tensor:
 
 def world_backdrop(
     look: WorldLook,
-    frame: WorldFrame,
+    frame: Placement,
     visibility: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
     obstacles: Obstacles | None = None,
     meshes: Meshes | None = None,
@@ -213,7 +147,7 @@ def world_backdrop(
     ``visibility(origins (G, 3), dirs (G, 3)) -> (G,)``: the light's visibility along shadow rays of the
     renderer's frame (the field's transmittance, e.g. :func:`neural.render.view.transmittance`); None: the
     field blocks no light. With ``look.shadows`` False nothing blocks it. ``meshes``: opaque triangle meshes
-    (:class:`~neural.render.obstacles.Meshes`), drawn and casting shadows as the obstacles do, in their own
+    (:class:`~shellsim.render.obstacles.Meshes`), drawn and casting shadows as the obstacles do, in their own
     albedo. ``sky_colors(dirs_w (R, 3)) -> (R, 3)``: what rays that meet nothing see along world directions
     instead of the look's sky (a capture's environment map)."""
     import torch

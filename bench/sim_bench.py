@@ -1,29 +1,15 @@
-"""Benchmark of the implicit FEM (:mod:`shellsim.physics.solver`, driven by :mod:`shellsim.physics.driver`):
-milliseconds per implicit step against tet count.
+"""Benchmark of the one simulation path (:class:`shellsim.physics.solver.Solver`, driven by
+:class:`shellsim.physics.driver.FrameDriver`, incremental potential contact by :mod:`shellsim.physics.ipc`):
+milliseconds per implicit step against tet count, beside newton's VBD.
 
 A 0.3 m cube of structured tets (6 per cell) falls 2 cm onto the ground while spinning, so the steps timed
-include contact and friction. For each size it prints the milliseconds per implicit step (one backward-Euler
-substep, Newton solve included), Newton iterations per step, tet Hessians per step (the Newton iterations that
-evaluated the tets' blocks: the others of a substep reuse them,
-``shellsim.physics.solver.ELASTIC_HESSIAN_REUSE``), CG iterations per Newton iteration and the peak resident
-memory, then (unless ``--no-vbd``) the same scene with
-the ``newton`` physics package's VBD solver (``newton.solvers.SolverVBD``, a benchmark-only dependency:
-``pip install newton``) and the time ratio.
-VBD runs a fixed number of local iterations per step and does not converge the step, so the ratio compares
-cost, not accuracy.
-
-Measured 2026-12-02 on the shared 2-core CPU under load average 4-6 (the lower of two runs, rubber, newton 1.8
-VBD): FEM 7.9 / 35.2 / 254.6 ms per step at 2k / 10k / 41k tets (2.9-3.2 Newton iterations per step,
-17.5 / 26.3 / 40.7 CG steps per Newton step), 0.42 / 0.45 / 0.80 of VBD's time; the code before SSOR and the
-leaner evaluation passes, run just before in the same conditions: 11.0 / 58.6 / 373.4 ms (21.4 / 35.7 / 57.5
-CG steps), 0.49-0.58 / 0.80-0.92 / 1.12-1.28 of VBD's. Absolute figures on this machine swing by 1.5-3x
-with its load; the FEM/VBD ratio, measured side by side, is the steadier figure. Night of 2026-12-02, with
-the last Newton step taken and inexact Newton (two runs): 6.9-8.3 / 26.2-29.5 / 107-133 ms, 11.9 / 16.9 /
-29.2 CG steps per Newton step, 0.34-0.36 / 0.44-0.48 / 0.40 of VBD's time; ``--accuracy``: positions 0.0074 /
-0.0032 / 0.0020 mm from a tightly converged run, where the code before ended 0.20 / 0.25 / 0.24 mm away.
-Afternoon of 2026-12-03, with the tets' Hessian blocks reused within a substep (a machine about 1.7x slower
-than that night): 11.1 / 47.6 / 253.5 ms, 1.62 / 1.71 / 1.71 tet Hessians per step (2.92 / 3.08 / 2.71
-before), the same Newton and CG counts and accuracy, 0.37 / 0.54 / 1.00 of VBD's time.
+include contact and friction; its boundary is its contact surface. For each size it prints the milliseconds
+per implicit step (one backward-Euler substep, Newton solve included), Newton iterations per step, the
+factorisations of the Newton systems per step (:class:`shellsim.physics.solver.NewtonSystems`) and the peak
+resident memory, then (unless ``--no-vbd``) the same scene with the ``newton`` physics package's VBD solver
+(``newton.solvers.SolverVBD``, a benchmark-only dependency: ``pip install newton``) and the time ratio. VBD
+runs a fixed number of local iterations per step and does not converge the step, so the ratio compares cost,
+not accuracy. The figures and their history are in docs/measurements.md.
 
     python bench/sim_bench.py                       # ~2k, 10k, 40k tets, rubber, CPU
     python bench/sim_bench.py --cells 12 --device cuda --material jelly
@@ -39,11 +25,12 @@ import numpy as np
 import warp as wp
 
 from neural.device import configure_process, processor
-from shellsim.cage.geometry import tet_volumes
-from shellsim.physics.control import Control
+from shellsim.cage.geometry import boundary_faces, tet_volumes
 from shellsim.physics.driver import FrameDriver
+from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY, BodySurface, Contact
 from shellsim.physics.materials import get_material
-from shellsim.physics.model import Model, SimSettings
+from shellsim.physics.model import Model, SolverSettings
+from shellsim.physics.solver import Solver
 
 SIZE = 0.3  # metres
 LIFT = 0.02  # metres above the ground
@@ -73,28 +60,40 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def cube_surface(tets: np.ndarray, n_vertices: int) -> BodySurface:
+    """The cube's boundary as its contact surface (the identity on its boundary vertices), friction 0.5."""
+    import scipy.sparse as sp
+
+    faces = boundary_faces(tets)
+    used, local = np.unique(faces, return_inverse=True)
+    weights = sp.csr_matrix((np.ones(len(used)), (np.arange(len(used)), used)), shape=(len(used), n_vertices))
+    return BodySurface(weights, local.reshape(-1, 3), 0.5)
+
+
 def bench_fem(vertices, tets, material, args, **tolerances) -> dict:
-    """Times the default solver, or the one with ``tolerances`` (SimSettings fields) instead."""
-    settings = SimSettings(dt=1.0 / args.fps, substeps=args.substeps, ground=0.0, **tolerances)
+    """Times the solver users run, or the one with ``tolerances`` (SolverSettings fields) instead."""
+    settings = SolverSettings(dt=1.0 / args.fps, substeps=args.substeps, **tolerances)
     model = Model(vertices, tets, material, settings, device=args.device)
-    state, control, driver = model.state((0.3, 0.0, 0.0), (0.0, 0.0, 4.0)), Control(model), FrameDriver(model)
-    driver.step(state, control)  # compile and warm up
-    steps = newton_its = cg_its = hessians = 0
+    contact = Contact(
+        [cube_surface(tets, len(vertices))], [0], vertices, [], CONTACT_GAP, FRICTION_VELOCITY, 0.5
+    )
+    solver = Solver([model], contact, settings)
+    state, driver = model.state((0.3, 0.0, 0.0), (0.0, 0.0, 4.0)), FrameDriver(solver)
+    driver.step([state])  # compile and warm up
+    steps = newton_its = 0
+    factorisations = solver.systems.factorisations
     start = time.perf_counter()
     for _ in range(args.frames):
-        stats = driver.step(state, control)
+        stats = driver.step([state])
         steps += stats.substeps
         newton_its += stats.newton_iterations
-        cg_its += stats.cg_iterations
-        hessians += stats.hessians
     wp.synchronize_device(model.device)
     seconds = time.perf_counter() - start
     positions = state.positions.numpy()
     return {
         "ms_per_step": 1e3 * seconds / steps,
         "newton_per_step": newton_its / steps,
-        "hessians_per_step": hessians / steps,
-        "cg_per_newton": cg_its / max(newton_its, 1),
+        "factorisations_per_step": (solver.systems.factorisations - factorisations) / steps,
         "z_min": float(positions[:, 2].min()),
         "positions": positions,
         "tol_mm": 1e3 * settings.newton_tol * model.size * settings.dt / settings.substeps,
@@ -172,7 +171,7 @@ def main() -> None:
     parser.add_argument(
         "--accuracy",
         action="store_true",
-        help="also print how far the positions end from a run converged to 1e-4 of the tolerances",
+        help="also print how far the positions end from a run converged to 1e-4 of Newton's tolerance",
     )
     args = parser.parse_args()
     wp.config.quiet = True
@@ -194,7 +193,7 @@ def main() -> None:
             )
             vbd_available = False
     print(
-        f"{'tets':>7} {'verts':>6} {'ms/step':>8} {'newton/step':>11} {'tet H/step':>10} {'cg/newton':>9} "
+        f"{'tets':>7} {'verts':>6} {'ms/step':>8} {'newton/step':>11} {'LU/step':>8} "
         f"{'peak MB':>8}"
         f"{'  VBD ms/step  FEM/VBD' if vbd_available else ''}"
         f"{'  max|x - x_tight| mm (Newton tol mm)' if args.accuracy else ''}"
@@ -204,7 +203,7 @@ def main() -> None:
         fem = bench_fem(vertices, tets, material, args)
         line = (
             f"{len(tets):7d} {len(vertices):6d} {fem['ms_per_step']:8.1f} {fem['newton_per_step']:11.2f} "
-            f"{fem['hessians_per_step']:10.2f} {fem['cg_per_newton']:9.1f} {peak_rss_mb():8.0f}"
+            f"{fem['factorisations_per_step']:8.2f} {peak_rss_mb():8.0f}"
         )
         if vbd_available:
             try:
@@ -213,15 +212,9 @@ def main() -> None:
             except Exception as err:  # report, do not hide, a VBD failure: the FEM figures still stand
                 line += f"  VBD failed: {type(err).__name__}: {err}"
         if args.accuracy:
-            defaults = SimSettings()
+            defaults = SolverSettings()
             tight = bench_fem(
-                vertices,
-                tets,
-                material,
-                args,
-                newton_tol=1e-4 * defaults.newton_tol,
-                cg_tol=1e-4 * defaults.cg_tol,
-                newton_iterations=50,
+                vertices, tets, material, args, newton_tol=1e-4 * defaults.newton_tol, newton_iterations=80
             )
             error = 1e3 * np.abs(fem["positions"] - tight["positions"]).max()
             line += f"  {error:.4f} ({fem['tol_mm']:.4f})"

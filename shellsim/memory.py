@@ -16,20 +16,12 @@ from pathlib import Path
 
 from shellsim.errors import SettingError
 
-#: Simulation, per tet [bytes]: the model's tets (int64, and int32 in Warp), rest-shape inverses Dm^-1
-#: (3x3 float64, twice) and volumes (float64): 200; the solver's copies in slab order (tets int32, Dm^-1,
-#: volume, F of the last step, the 16 block slots int32): 232; while the sparsity is built
-#: (``block_topology``), the rows, columns and keys of the 16 vertex pairs (int64) and ``np.unique``'s
-#: order, sorted keys and inverse (int64): 768.
-SIM_PER_TET = 1200
-#: Simulation, per stiffness block (about 2 T + 3 V of them): the matrix and the tets' part of it
-#: (3x3 float64 each) and the block's column (int32).
-SIM_PER_BLOCK = 148
-#: Simulation, per vertex: 20 vectors of 3 float64 (positions, velocities and their copies in the states,
-#: the solver's scratch and CG vectors) and the inverse diagonal block (3x3 float64).
-SIM_PER_VERTEX = 552
-#: Cage vertices per tet, used before a cage exists: fTetWild's cages have 0.18 (spheres) to 0.28 (LEGO).
-VERTICES_PER_TET = 0.25
+#: Simulation, per tet [bytes], measured: the growth of the peak resident memory over a frame of the one
+#: simulation path (Newton over the bodies with incremental potential contact on the ground: the tets'
+#: Hessian blocks assembled into scipy sparse matrices, their SuperLU factorisation with its fill-in, which
+#: dominates, ipctk's candidates) between Kuhn boxes of 10k and 48k tets: 11.6 kB (11.5 kB between 25k and
+#: 48k). ``tests/test_memory.py`` measures it again.
+SIM_PER_TET = 11_600
 #: fTetWild (its child process), per tet of the result: its own tet and vertex records, measured
 #: (1.05 kB between 35,000 and 283,000 tets of a sphere).
 TETWILD_PER_TET = 1050
@@ -77,11 +69,10 @@ def available_memory(device: str = "cpu") -> int:
     return free
 
 
-def simulation_bytes(n_vertices: int, n_tets: int) -> int:
-    """Peak bytes of simulating a cage of ``n_vertices`` and ``n_tets``: per tet, per block, per vertex
-    (:data:`SIM_PER_TET`, :data:`SIM_PER_BLOCK` x (2 T + 3 V), :data:`SIM_PER_VERTEX`)."""
-    blocks = 2 * n_tets + 3 * n_vertices
-    return int(SIM_PER_TET * n_tets + SIM_PER_BLOCK * blocks + SIM_PER_VERTEX * n_vertices)
+def simulation_bytes(n_tets: int) -> int:
+    """Peak bytes of simulating a cage of ``n_tets`` tets (:data:`SIM_PER_TET`; its vertices, about a fifth
+    as many, are counted in)."""
+    return SIM_PER_TET * n_tets
 
 
 def tetwild_bytes(n_tets: int) -> int:
@@ -91,8 +82,8 @@ def tetwild_bytes(n_tets: int) -> int:
 
 def cage_bytes(n_tets: int) -> int:
     """Peak bytes of building a cage of about ``n_tets`` tets (:func:`tetwild_bytes`) and then simulating it
-    (:func:`simulation_bytes`, :data:`VERTICES_PER_TET`): the larger, as they run in turn."""
-    return max(tetwild_bytes(n_tets), simulation_bytes(int(VERTICES_PER_TET * n_tets), n_tets))
+    (:func:`simulation_bytes`): the larger, as they run in turn."""
+    return max(tetwild_bytes(n_tets), simulation_bytes(n_tets))
 
 
 def mesh_bytes(n_faces: int, n_tets: int) -> int:

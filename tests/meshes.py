@@ -113,3 +113,17 @@ def save_collision_surface(asset, cage, mesh):
     surface = surface_of_mesh(mesh.vertices, mesh.faces, cage.vertices, cage.tets)
     key = surface_key(asset.digest(), cage_digest(cage.vertices, cage.tets), MAX_FACES, RESOLUTION)
     save_surface(asset.root / OWN_FILE, key, surface)
+
+
+def own_surface(tets, n, friction: float = 0.5):
+    """A tet mesh's boundary as its :class:`shellsim.physics.ipc.BodySurface` (weights: the identity on its
+    boundary vertices), with the Coulomb coefficient ``friction``."""
+    import scipy.sparse as sp
+
+    from shellsim.cage.geometry import boundary_faces
+    from shellsim.physics.ipc import BodySurface
+
+    faces = boundary_faces(tets)
+    used, local = np.unique(faces, return_inverse=True)
+    w = sp.csr_matrix((np.ones(len(used)), (np.arange(len(used)), used)), shape=(len(used), n))
+    return BodySurface(w, local.reshape(-1, 3), friction)

@@ -1,4 +1,4 @@
-"""Several bodies in one implicit solve with incremental potential contact (shellsim.physics.multibody, ipc):
+"""Several bodies in one implicit solve with incremental potential contact (shellsim.physics.solver, ipc):
 checked against conservation laws, the barrier's guarantee (no surfaces ever cross) and statics."""
 
 from __future__ import annotations
@@ -8,13 +8,13 @@ import pytest
 import scipy.sparse as sp
 
 from shellsim.cage.embed import embed_points
-from shellsim.cage.geometry import boundary_faces
 from shellsim.physics.control import Control
+from shellsim.physics.driver import FrameDriver
 from shellsim.physics.ipc import BodySurface, Contact, StaticSurface
 from shellsim.physics.materials import get_material
-from shellsim.physics.model import Model, SimSettings
-from shellsim.physics.multibody import SceneDriver, SceneSolver
-from tests.meshes import kuhn_grid
+from shellsim.physics.model import Model, SolverSettings
+from shellsim.physics.solver import Solver
+from tests.meshes import kuhn_grid, own_surface
 
 pytest.importorskip("ipctk")
 
@@ -33,14 +33,6 @@ def embedding(cage_vertices, cage_tets, points) -> sp.csr_matrix:
 def cube(half: float, cells: int, centre) -> tuple[np.ndarray, np.ndarray]:
     v, t, _ = kuhn_grid(-half, half, cells)
     return v + np.asarray(centre, np.float64), t
-
-
-def own_surface(tets, n) -> BodySurface:
-    """A tet mesh's boundary as its collision surface (weights: the identity on its boundary vertices)."""
-    faces = boundary_faces(tets)
-    used, local = np.unique(faces, return_inverse=True)
-    w = sp.csr_matrix((np.ones(len(used)), (np.arange(len(used)), used)), shape=(len(used), n))
-    return BodySurface(w, local.reshape(-1, 3), 0.5)
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +65,7 @@ def test_spheres_head_on_conserve_momentum_never_touch_and_separate_along_the_im
 
     v, t, sv, sf = ball
     turn = Rotation.from_rotvec([0.3, 0.5, 0.7]).as_matrix()
-    settings = SimSettings(gravity=0.0, ground=None, substeps=1)
+    settings = SolverSettings(gravity=0.0, substeps=1)
     rubber = get_material("rubber")
     models = [
         Model(v + [-0.06, 0, 0], t, rubber, settings),
@@ -88,7 +80,7 @@ def test_spheres_head_on_conserve_momentum_never_touch_and_separate_along_the_im
         DHAT,
         1e-2,
     )
-    solver = SceneSolver(models, contact, settings)
+    solver = Solver(models, contact, settings)
     states = [models[0].state(linear=(1.5, 0, 0)), models[1].state(linear=(-0.5, 0, 0))]
     controls = [Control(m) for m in models]
     mass = models[0].masses.sum()
@@ -114,14 +106,14 @@ def test_spheres_head_on_conserve_momentum_never_touch_and_separate_along_the_im
 
 
 def test_a_stack_of_boxes_comes_to_rest_with_gaps_within_the_barrier_reach():
-    settings = SimSettings(gravity=9.81, ground=None, substeps=4, damping=0.01)
+    settings = SolverSettings(gravity=9.81, substeps=4, damping=0.01)
     lower, lower_t = cube(0.05, 2, (0, 0, 0.05 + 0.5 * DHAT))
     upper, upper_t = cube(0.04, 2, (0.01, 0, 0.1 + 0.04 + 1.5 * DHAT))
     rubber = get_material("rubber", youngs=1e6)
     models = [Model(lower, lower_t, rubber, settings), Model(upper, upper_t, rubber, settings)]
     surfaces = [own_surface(lower_t, len(lower)), own_surface(upper_t, len(upper))]
     contact = Contact(surfaces, [0, len(lower)], np.concatenate([lower, upper]), [], DHAT, 1e-2, 0.5)
-    driver = SceneDriver(SceneSolver(models, contact, settings))
+    driver = FrameDriver(Solver(models, contact, settings))
     states = [m.state() for m in models]
     for _ in range(30):
         stats = driver.step(states)
@@ -141,11 +133,11 @@ def test_a_body_at_rest_has_its_visible_surface_on_the_ground_not_its_cage(ball)
     sphere = sv + [0, 0, 0.0]
     lift = -sphere[:, 2].min() + 0.5 * DHAT
     cage, sphere = cage + [0, 0, lift], sphere + [0, 0, lift]
-    settings = SimSettings(gravity=9.81, ground=None, substeps=4, damping=0.02)
+    settings = SolverSettings(gravity=9.81, substeps=4, damping=0.02)
     model = Model(cage, cage_t, get_material("rubber", youngs=2e6), settings)
     surface = BodySurface(embedding(cage, cage_t, sphere), sf, 0.5)
     contact = Contact([surface], [0], cage, [], DHAT, 1e-2, 0.5)
-    driver = SceneDriver(SceneSolver([model], contact, settings))
+    driver = FrameDriver(Solver([model], contact, settings))
     states = [model.state()]
     for _ in range(20):
         stats = driver.step(states)
@@ -160,7 +152,7 @@ def test_static_collider_friction_holds_a_body_on_a_gentle_slope_and_lets_it_sli
     """Coulomb: a block on a plane tilted by theta sticks when tan(theta) < mu and slides when it is above."""
     from scipy.spatial.transform import Rotation
 
-    settings = SimSettings(gravity=9.81, ground=None, substeps=4, damping=0.01)
+    settings = SolverSettings(gravity=9.81, substeps=4, damping=0.01)
     moved = {}
     for degrees in (10.0, 40.0):  # tan 10 = 0.18 and tan 40 = 0.84 against mu = 0.5
         turn = Rotation.from_euler("y", degrees, degrees=True).as_matrix()
@@ -170,7 +162,7 @@ def test_static_collider_friction_holds_a_body_on_a_gentle_slope_and_lets_it_sli
         model = Model(block, block_t, get_material("rubber", youngs=1e6), settings)
         slope = StaticSurface(plane, np.array([[0, 1, 2], [0, 2, 3]]), 0.5)
         contact = Contact([own_surface(block_t, len(block))], [0], block, [slope], DHAT, 1e-2)
-        driver = SceneDriver(SceneSolver([model], contact, settings))
+        driver = FrameDriver(Solver([model], contact, settings))
         states = [model.state()]
         for _ in range(10):
             driver.step(states)
@@ -186,7 +178,7 @@ def test_a_stiff_block_slides_down_a_slope_at_the_coulomb_acceleration(mu):
     within 3 %."""
     from scipy.spatial.transform import Rotation
 
-    settings = SimSettings(gravity=9.81, ground=None, substeps=4, damping=0.01)
+    settings = SolverSettings(gravity=9.81, substeps=4, damping=0.01)
     turn = Rotation.from_euler("y", 30.0, degrees=True).as_matrix()
     plane = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float) + [0.3, 0.5, 0]) @ turn.T
     block, block_t = cube(0.02, 2, (0, 0, 0.02 + 0.5 * DHAT))
@@ -196,7 +188,7 @@ def test_a_stiff_block_slides_down_a_slope_at_the_coulomb_acceleration(mu):
     surface = BodySurface(surface.weights, surface.faces, mu)
     slope = StaticSurface(plane, np.array([[0, 1, 2], [0, 2, 3]]), mu)
     contact = Contact([surface], [0], block, [slope], DHAT, 1e-2)
-    driver = SceneDriver(SceneSolver([model], contact, settings))
+    driver = FrameDriver(Solver([model], contact, settings))
     states = [model.state()]
     downhill = turn @ np.array([1.0, 0.0, 0.0])
     travelled = []

@@ -242,13 +242,14 @@ class BodyTerms:
 
     @property
     def prediction(self) -> np.ndarray:
-        """(V, 3) the inertial prediction of the step last prepared (pinned vertices: their targets)."""
-        return self._x_tilde.numpy()
+        """(V, 3) a copy of the inertial prediction of the last step prepared (pinned vertices: their
+        targets)."""
+        return self._x_tilde.numpy().copy()
 
     @property
     def force(self) -> np.ndarray:
-        """(V, 3) ``-dE/dx`` of the last FORCE :meth:`evaluate` (zero on pinned vertices)."""
-        return self._force.numpy()
+        """(V, 3) ``-dE/dx`` of the last FORCE :meth:`evaluate` (zero on pinned vertices); a copy."""
+        return self._force.numpy().copy()
 
     def evaluate(self, x: wp.array, step: StepInputs, order: int) -> tuple[float, float] | None:
         """ENERGY, FORCE: (the incremental potential at ``x`` (V,) vec3d, min det F); FORCE also fills

@@ -152,6 +152,7 @@ class Solver:
             rhs = force
             rhs[pinned] = x_tilde[pinned] - x[pinned]
             d = self.systems.solve(hessian, rhs.ravel()).reshape(-1, 3)
+            d[pinned] = rhs[pinned]  # their rows are the identity, apart from the rest: exact, not CG's
             if not np.isfinite(d).all():
                 return stats
             length = float(np.linalg.norm(d, axis=1).max(initial=0.0))

@@ -219,16 +219,6 @@ def test_cli_mismatching_motion_is_one_line(ball, tmp_path, capsys):
     assert "--frame" in capsys.readouterr().err
 
 
-def test_importing_inspect_loads_no_heavy_module():
-    import subprocess
-
-    code = (
-        "import sys, shellsim.viz.inspect, shellsim.cli.commands.inspect; "
-        "sys.exit(any(m in sys.modules for m in ('pyvista', 'vtk', 'torch', 'warp')))"
-    )
-    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
-
-
 def test_screenshot_prints_nothing_from_vtk(ball, tmp_path):
     """Without a display VTK warns 'bad X server connection' on stderr; inspect keeps it quiet."""
     import os

@@ -4,8 +4,6 @@ settings' defaults from the library's configs (that library errors name no optio
 import argparse
 import dataclasses
 import re
-import subprocess
-import sys
 
 import pytest
 
@@ -97,21 +95,6 @@ def test_a_job_time_error_names_the_option(tmp_path, capsys):
     assert (
         capsys.readouterr().err.strip() == f"shellsim: error: --images {tmp_path / 'none'}: no such directory"
     )
-
-
-def test_jobs_and_the_parser_import_no_heavy_module():
-    """``shellsim --help`` builds every parser: the settings and their defaults come without torch, Warp,
-    trimesh or pyvista (the library's configs live in the light :mod:`neural.config`)."""
-    code = (
-        "import sys, shellsim.cli.main\n"
-        "shellsim.cli.main.build_parser()\n"
-        "import shellsim.jobs.train, shellsim.jobs.extract, shellsim.jobs.cage, shellsim.jobs.poses\n"
-        "import shellsim.jobs.inspect, shellsim.jobs.eval, shellsim.jobs.render\n"
-        "heavy = ('torch', 'warp', 'trimesh', 'pyvista', 'vtk', 'pycolmap')\n"
-        "print(*[m for m in heavy if m in sys.modules])"
-    )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert result.returncode == 0 and result.stdout.strip() == "", (result.stdout, result.stderr)
 
 
 def test_settings_are_frozen_dataclasses_of_options():

@@ -6,10 +6,10 @@ import torch
 import trimesh
 
 from neural.config import NarrowBandConfig
+from neural.render._reference import narrow_band_samples_reference
 from neural.render.narrowband import (
     intervals_from_hits,
     narrow_band_samples,
-    narrow_band_samples_reference,
     samples_from_intervals,
     samples_per_interval,
 )

@@ -25,7 +25,7 @@ from neural.shell import (
     soft_falloff,
     voxel_alpha,
 )
-from neural.shell.levelset import evolve_level_set_reference
+from neural.shell._reference import evolve_level_set_reference
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 

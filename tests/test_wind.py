@@ -12,9 +12,8 @@ from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 from neural.errors import InputError
 from shellsim.cage.geometry import MIN_VOLUME_RATIO
 from shellsim.motion.read import load_motion
-from shellsim.motion.writer import MotionWriter
 from shellsim.physics.selection import parse_selection
-from shellsim.physics.wind import WindField, animate_wind, beam_profile, heights, wind_displacement
+from shellsim.physics.wind import WindField, beam_profile, heights, wind_displacement
 from shellsim.world import Placement
 
 
@@ -157,37 +156,46 @@ def test_settings_are_validated():
         heights(verts, WindField(anchor="z<5"))
 
 
-def test_animate_wind_writes_a_motion_file(tmp_path):
-    verts, tets = column()
-    settings = WindField(strength=0.1)
-    path = tmp_path / "wind.npz"
-    with MotionWriter(path, verts, tets) as writer:
-        animate_wind(verts, tets, settings, 10, 24.0, writer, progress=False)
-    motion = load_motion(path)
-    assert motion.positions.shape == (10, len(verts), 3)
-    np.testing.assert_array_equal(motion.tets, tets)
+def _wind_motion(tmp_path, name: str, frames: int, fps: float, **wind):
+    """The wind job's motion of the rod asset (its cage a column of Kuhn tets, no fTetWild run) with the
+    wind settings ``wind``, and the wind field the job used."""
+    from neural.asset import load_asset
+    from shellsim.jobs.wind import WindSettings
+    from shellsim.jobs.wind import wind as run_wind
+
+    root = tmp_path / "rod"
+    if not (root / "cage.npz").exists():
+        asset = load_asset(_write_asset(root))
+        verts, tets = column(n_xy=2, n_z=6, width=0.4, height=1.1)
+        save_embedded_cage(asset, verts - [0.2, 0.2, 0.05], tets)
+    settings = WindSettings(asset=str(root), frames=frames, fps=fps, out=str(tmp_path / name), **wind)
+    run_wind(settings, progress=False)
+    return load_motion(tmp_path / name), settings.field((0.0, 0.0, 1.0))
+
+
+def test_the_wind_job_writes_the_analytic_wind_and_resumes_it_exactly(tmp_path):
+    motion, field = _wind_motion(tmp_path, "wind.npz", 10, 24.0, strength=0.1)
+    rest = motion.rest_vertices
+    assert motion.positions.shape == (10, len(rest), 3)
     np.testing.assert_allclose(motion.times, np.arange(10) / 24.0)
-    np.testing.assert_array_equal(motion.positions[0], verts.astype(np.float32))
+    np.testing.assert_array_equal(motion.positions[0], rest.astype(np.float32))
     np.testing.assert_allclose(
-        motion.positions[7], verts + wind_displacement(verts, 7 / 24.0, settings), atol=1e-6
+        motion.positions[7], rest + wind_displacement(rest, 7 / 24.0, field), atol=1e-6
     )
     assert motion.settings["model"] == "analytic cantilever wind"
-    assert motion.settings["strength"] == 0.1 and motion.meta["fps"] == 24.0
-    assert 0 < motion.meta["stats"]["min_volume_ratio"] < 1
+    assert motion.settings["strength"] == 0.1 and motion.settings["fps"] == 24.0
+    stats = motion.meta["stats"]
+    assert stats["frames"] == 10 and 0 < stats["min_volume_ratio"] < 1 and stats["limited_frames"] == 0
     json.dumps(motion.meta)
 
     # resuming continues where the file stops and gives the same frames as one run
-    short = tmp_path / "short.npz"
-    with MotionWriter(short, verts, tets) as writer:
-        animate_wind(verts, tets, settings, 4, 24.0, writer, progress=False)
-    with MotionWriter.resume(short) as writer:
-        animate_wind(verts, tets, settings, 10, 24.0, writer, progress=False)
-    resumed = load_motion(short)
+    _wind_motion(tmp_path, "short.npz", 4, 24.0, strength=0.1)
+    resumed, _ = _wind_motion(tmp_path, "short.npz", 10, 24.0, strength=0.1)
     np.testing.assert_array_equal(resumed.positions, motion.positions)
     np.testing.assert_array_equal(resumed.times, motion.times)
-    with MotionWriter.resume(short) as writer, pytest.raises(InputError, match="other wind settings"):
-        animate_wind(verts, tets, WindField(strength=0.2), 12, 24.0, writer, progress=False)
-    assert load_motion(short).n_frames == 10
+    with pytest.raises(InputError, match=r"made with other settings \(strength: 0.1 -> 0.2\)"):
+        _wind_motion(tmp_path, "short.npz", 12, 24.0, strength=0.2)
+    assert load_motion(tmp_path / "short.npz").n_frames == 10
 
 
 def _ratios(rest, positions, tets):
@@ -203,13 +211,10 @@ def test_a_wind_too_strong_for_the_cage_is_limited_never_folds_it(tmp_path):
     """Full strength, gusts and turbulence fold a column's tets (volume ratio 1 - slope^2 / 2 < 0 at the
     top); every written frame keeps them above the floor, the frames that fit are the analytic wind, and
     a limited frame is the analytic wind of a lower strength: the same bent shape, scaled."""
-    verts, tets = column(n_xy=2, n_z=6, width=0.2, height=1.0)
-    settings = WindField(strength=1.0, gust=1.0, turbulence=1.0, frequency=1.0, direction=(1.0, 0.3, 0.0))
+    wind = dict(strength=1.0, gust=1.0, turbulence=1.0, frequency=1.0, direction=(1.0, 0.3, 0.0))
     fps, frames = 10.0, 24
-    path = tmp_path / "wind.npz"
-    with MotionWriter(path, verts, tets) as writer:
-        animate_wind(verts, tets, settings, frames, fps, writer, progress=False)
-    motion = load_motion(path)
+    motion, settings = _wind_motion(tmp_path, "wind.npz", frames, fps, **wind)
+    verts, tets = motion.rest_vertices, motion.tets
     assert motion.n_frames == frames
     unlimited = [
         _ratios(verts, verts + wind_displacement(verts, i / fps, settings), tets).min() for i in range(frames)
@@ -235,14 +240,6 @@ def test_a_wind_too_strong_for_the_cage_is_limited_never_folds_it(tmp_path):
         # bent as far as the floor allows, not further back
         assert written[i] < MIN_VOLUME_RATIO + 2e-3
     assert stats["min_bend_scale"] < 1 and stats["min_volume_ratio"] >= MIN_VOLUME_RATIO - 1e-9
-
-
-def test_gusts_faster_than_the_frames_can_show_are_refused(tmp_path):
-    verts, tets = column()
-    settings = WindField(frequency=2.0)
-    with MotionWriter(tmp_path / "w.npz", verts, tets) as writer:
-        with pytest.raises(InputError, match=r"frequency 2 Hz: frames at 10 fps show at most 1.66667 Hz"):
-            animate_wind(verts, tets, settings, 5, 10.0, writer, progress=False)
 
 
 def _write_asset(root):

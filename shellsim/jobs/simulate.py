@@ -298,6 +298,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     from shellsim.jobs.recording import record_frames, resume_or_refuse
     from shellsim.memory import cage_bytes, check_memory, render_bytes
     from shellsim.motion.writer import MotionWriter
+    from shellsim.scene.bodies import file_digest
     from shellsim.scene.save import scene_toml
     from shellsim.scene.simulation import SceneSimulation
 
@@ -328,6 +329,8 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         raise SettingError(
             "out", f"was made by an earlier shellsim in the asset's own units, not metres; {REPLACE}", out
         )
+    if writer is not None and s.mesh and writer.motion.asset.get("digest") != file_digest(s.mesh):
+        raise SettingError("out", f"made from another content of {s.mesh} (changed since); {REPLACE}", out)
     sim = SceneSimulation(spec, device, s.max_stretch, s.allow_stretch)
     body = sim.bodies[0]
     material = body.material
@@ -429,34 +432,27 @@ def scene_of(settings: SimulateSettings) -> SceneSpec:
         cage=CageSpec(target_tets=s.tets, margin=s.margin),
         where=name,
     )
+
+    def named(kind: str, k: int, values) -> str:  # as the user gave it: "box 1 (0,0,0.05,0.2,0.2,0.06)"
+        return f"{kind} {k} ({','.join(f'{c:g}' for c in values)})"
+
     colliders = [
-        ColliderSpec(f"sphere{k}", "sphere", point(p[:3]), radius=float(p[3]), friction=s.friction)
+        ColliderSpec(named("sphere", k, p), "sphere", point(p[:3]), radius=float(p[3]), friction=s.friction)
         for k, p in enumerate(s.sphere, 1)
     ]
     colliders += [
-        ColliderSpec(f"box{k}", "box", point(b[:3]), half_extents=point(b[3:]), friction=s.friction)
+        ColliderSpec(named("box", k, b), "box", point(b[:3]), half_extents=point(b[3:]), friction=s.friction)
         for k, b in enumerate(s.box, 1)
     ]
     colliders = [dataclasses.replace(c, where=c.name) for c in colliders]
-    pins = [
-        ActionSpec("pin", 0.0, world.duration, body=name, region=(rule,), where=f"pin {rule!r}")
-        for rule in s.pin
-    ]
+    pins = [ActionSpec("pin", 0.0, world.duration, body=name, region=(rule,), where="pin") for rule in s.pin]
     return specs.SceneSpec(name, world, (body,), tuple(colliders), tuple(pins))
 
 
 def _check_source(s: SimulateSettings, motion, sim) -> None:
-    """A :class:`SettingError` unless the motion being continued moves this cage, placed as now, or was made
-    from this content of the mesh file."""
+    """A :class:`SettingError` unless the motion being continued moves this cage, placed as now."""
     body = sim.bodies[0]
-    if s.mesh and motion.asset.get("digest") != body.source["digest"]:
-        raise SettingError(
-            "out", f"made from another content of {s.mesh} (changed since); {REPLACE}", motion.path
-        )
-    if motion.cage_digest != body.cage_digest:
-        raise SettingError(
-            "out", f"made for another cage of {s.name} (rebuilt since?); {REPLACE}", motion.path
-        )
+    motion.check_against(body.cage)
     rest = motion.rest_vertices
     if rest.shape != sim.rest.shape or not np.allclose(
         rest, sim.rest, rtol=0, atol=1e-9 * body.placement.scale

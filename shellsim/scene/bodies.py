@@ -27,7 +27,8 @@ SPHERE_SUBDIVISIONS = 3
 class SceneBody:
     """One body, ready to simulate: ``spec``; the rest cage in the world, ``rest`` (V, 3) [m] and ``tets``
     (T, 4); ``placement`` (asset frame -> world); ``cage_digest`` of the cage in the asset's frame;
-    ``source`` (the motion's record: asset name and digest, or the mesh path and digest); ``material``;
+    ``source`` (the motion's record: asset name and digest, or the mesh path and digest); ``cage`` the cage
+    in the asset's frame (``vertices``, ``tets``); ``material``;
     ``surface`` the :class:`shellsim.cage.collision.CollisionSurface` (asset frame) and
     ``surface_world`` (S, 3) its vertices in the world."""
 
@@ -37,6 +38,7 @@ class SceneBody:
     placement: Placement
     cage_digest: str
     source: dict
+    cage: object
     material: object
     surface: object
     surface_world: np.ndarray
@@ -117,6 +119,7 @@ def build_body(spec: BodySpec, lift: float) -> SceneBody:
         placement=placement,
         cage_digest=cage_digest(cage.vertices, cage.tets),
         source=source,
+        cage=cage,
         material=material,
         surface=surface,
         surface_world=placement.to_world(surface.vertices),

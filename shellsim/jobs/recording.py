@@ -40,12 +40,13 @@ def resume_or_refuse(
     resume: bool = False,
     names: dict[str, str] | None = None,
     compared: Callable[[dict], dict] = dict,
+    changed: str = "made with other settings",
 ):
     """The :class:`shellsim.motion.writer.MotionWriter` continuing ``out`` when it holds a motion of
     ``producer`` made with the settings ``record`` (as far as ``compared`` of both tells), None when there
     is nothing to continue (no motion there, or ``overwrite``); a :class:`SettingError` naming each setting
-    that changed (``names``: how a setting is shown when it is not its field) otherwise. A file that is not
-    a motion is refused as it is, never replaced."""
+    that changed (``names``: how a setting is shown when it is not its field; ``changed`` what the refusal
+    calls the difference) otherwise. A file that is not a motion is refused as it is, never replaced."""
     from shellsim.motion.changes import describe_changes
     from shellsim.motion.writer import MotionWriter, motion_exists
 
@@ -60,7 +61,7 @@ def resume_or_refuse(
         raise SettingError("out", f"not a '{producer}' motion file; {REPLACE}", out)
     changes = describe_changes(compared(writer.motion.settings), compared(record), names or {})
     if changes:
-        raise SettingError("out", f"made with other settings ({'; '.join(changes)}); {REPLACE}", out)
+        raise SettingError("out", f"{changed} ({'; '.join(changes)}); {REPLACE}", out)
     log.info("continuing %s after frame %d", out, writer.n_frames - 1)
     return writer
 

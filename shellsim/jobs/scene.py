@@ -44,7 +44,7 @@ PRODUCER = "shellsim scene"
 class SceneSettings:
     """What :func:`scene` does."""
 
-    scene: str = option(help="the scene file (TOML; its schema is in the README)", required=True)
+    scene: str = option(help="the scene file (TOML; its schema is in docs/scene-file.md)", required=True)
     out: str | None = option(
         help="output directory: motion.npz (the shot's motion)", shown_default="the scene file without .toml"
     )
@@ -127,7 +127,9 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
     out = out_dir / "motion.npz"
     record = scene_record(spec)
     names = [b.name for b in spec.bodies]
-    writer = resume_or_refuse(out, PRODUCER, record, s.overwrite, s.resume, compared=_simulated)
+    writer = resume_or_refuse(
+        out, PRODUCER, record, s.overwrite, s.resume, compared=_simulated, changed="made from another scene"
+    )
     if writer is not None and writer.n_frames >= frames:
         log.info("%s already holds %d frames", out, writer.n_frames)
         writer.close()

@@ -1,4 +1,4 @@
-"""Read a scene file (TOML, the schema in the README) into a :class:`~shellsim.scene.spec.SceneSpec`.
+"""Read a scene file (TOML, the schema in docs/scene-file.md) into a :class:`~shellsim.scene.spec.SceneSpec`.
 
 Every key is known, typed and in its domain, every name unique and every reference and path resolved (paths
 relative to the scene file's directory); nothing heavy is loaded (an asset is only found). Each problem is

@@ -15,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "scene",
         help="simulate a shot of several bodies, colliders and timed actions from a scene file",
-        description="Reads SCENE.toml (schema in the README: world, bodies, colliders, timed pins, "
+        description="Reads SCENE.toml (schema in docs/scene-file.md: world, bodies, colliders, timed pins, "
         "grabs, pushes and wind, cameras; SI units, z up, ground at z = 0), checks it, then simulates every "
         "body in one implicit solve with incremental potential contact between their visible surfaces, the "
         "colliders and the ground. Writes OUT/motion.npz, and with --video its frames (OUT/frames) and an "

@@ -100,7 +100,7 @@ class SimulateSettings:
     fps: float = option(30.0, help="frames per second")
     substeps: int = option(8, help="implicit steps per frame")
     size: float | None = option(
-        help="scale the body so that its largest extent measures this many metres",
+        help="scale the body so that its visible surface's largest extent measures this many metres",
         shown_default=f"{BODY_SIZE} for --asset; a --mesh keeps its own size, see --units",
     )
     units: str | None = option(
@@ -126,7 +126,8 @@ class SimulateSettings:
     )
     pin: tuple[str, ...] = option(
         help="hold the cage vertices selected by AXIS OP VALUE, in world metres (z up, ground at z = 0) or "
-        "in % of the body's bounding box: 'z<0.12', 'x>=0.1', 'z<5%'",
+        "in % of the body's bounding box: 'z<0.12', 'x>=0.1', 'z<5%'; each is a pin of the shot, so several "
+        "hold every vertex one of them selects",
         repeat=True,
         metavar="RULE",
         parse=selection_text,

@@ -51,7 +51,7 @@ _REQUIRED = object()  # the default of a key that must be given
 
 #: The tables of a scene file: name -> whether it is an array of tables.
 TABLES = {"world": False, "body": True, "collider": True, "action": True, "camera": True, "look": False}
-_WORLD_KEYS = (
+WORLD_KEYS = (
     "fps",
     "duration",
     "frames",
@@ -64,7 +64,7 @@ _WORLD_KEYS = (
     "contact_gap",
     "friction_velocity",
 )
-_BODY_KEYS = (
+BODY_KEYS = (
     "name",
     "size",
     "position",
@@ -79,18 +79,18 @@ _BODY_KEYS = (
     "spin",
     "cage",
 )
-_BODY_KINDS = {"asset": ("asset", "up"), "mesh": ("mesh", "units")}
-_COLLIDER_KEYS = ("name", "shape", "position", "rotation", "friction")
-_COLLIDER_KINDS = {"box": ("half_extents",), "sphere": ("radius",), "mesh": ("mesh", "units", "scale")}
-_ACTION_KEYS = ("kind", "start", "end", "body")
-_ACTION_KINDS = {
+BODY_KINDS = {"asset": ("asset", "up"), "mesh": ("mesh", "units")}
+COLLIDER_KEYS = ("name", "shape", "position", "rotation", "friction")
+COLLIDER_KINDS = {"box": ("half_extents",), "sphere": ("radius",), "mesh": ("mesh", "units", "scale")}
+ACTION_KEYS = ("kind", "start", "end", "body")
+ACTION_KINDS = {
     "pin": ("region",),
     "grab": ("region", "keyframes"),
     "push": ("region", "velocity", "force"),
     "wind": ("speed", "direction", "gust", "gust_frequency", "turbulence", "drag_coefficient"),
 }
-_CAMERA_KEYS = ("name", "kind", "fov")
-_CAMERA_KINDS = {
+CAMERA_KEYS = ("name", "kind", "fov")
+CAMERA_KINDS = {
     "orbit": ("target", "distance", "elevation", "azimuth", "degrees"),
     "fixed": ("position", "target"),
     "follow": ("position", "body"),
@@ -98,7 +98,7 @@ _CAMERA_KINDS = {
     "capture": ("path", "smooth", "body"),
     **{name: ("elevation",) if elevation is None else () for name, (_, elevation) in CAMERA_PRESETS.items()},
 }
-_LOOK_KEYS = ("ground_colors", "square", "light", "ambient", "diffuse", "shadows", "sky", "collider_color")
+LOOK_KEYS = ("ground_colors", "square", "light", "ambient", "diffuse", "shadows", "sky", "collider_color")
 MAX_FPS = 1000.0
 MAX_FRAMES = 10000
 MAX_SUBSTEPS = 1000
@@ -177,7 +177,7 @@ def _entries(data: dict, table: str, shown: str, names: dict[str, str] | None = 
     for k, entry in enumerate(data.get(table, []), 1):
         t = _Table(entry, f"{shown}: [[{table}]] #{k}", noun=table)
         t.name = (
-            t.choice("kind", _REQUIRED, _ACTION_KINDS) if names is None else t.text("name", f"{table}{k}")
+            t.choice("kind", _REQUIRED, ACTION_KINDS) if names is None else t.text("name", f"{table}{k}")
         )
         t.where += f" ({t.name})"
         if names is not None:
@@ -298,7 +298,7 @@ class _Table:
 
 def _world(t: _Table) -> WorldSpec:
     d = WorldSpec()
-    t.keys(_WORLD_KEYS)
+    t.keys(WORLD_KEYS)
     fps = t.number("fps", d.fps, (0.0, MAX_FPS, "(]"))
     if "duration" in t.data and "frames" in t.data:
         raise t.error("frames", "give duration or frames, not both")
@@ -327,7 +327,7 @@ def _world(t: _Table) -> WorldSpec:
 
 def _look(t: _Table) -> LookSpec:
     d = LookSpec()
-    t.keys(_LOOK_KEYS)
+    t.keys(LOOK_KEYS)
     light = t.vector("light", d.light)
     if not any(light):
         raise t.error("light", f"must not be zero, got {_shown(t.data['light'])}")
@@ -345,11 +345,11 @@ def _look(t: _Table) -> LookSpec:
 
 def _body(t: _Table, world: WorldSpec, base: Path) -> BodySpec:
     d = BodySpec(name=t.name)
-    given = [key for key in _BODY_KINDS if key in t.data]
+    given = [key for key in BODY_KINDS if key in t.data]
     if len(given) != 1:
         raise t.error("asset", "give asset or mesh, not both" if given else "missing (or give a mesh)")
     kind = given[0]
-    t.keys(_BODY_KEYS, _BODY_KINDS, kind)
+    t.keys(BODY_KEYS, BODY_KINDS, kind)
     position = t.vector("position", d.position)
     if world.ground and position[2] < 0:
         raise t.error("position", f"z = {position[2]:g} m puts the body's bottom below the ground (z = 0)")
@@ -416,9 +416,9 @@ def _mesh_file(t: _Table, base: Path) -> str:
 
 def _collider(t: _Table, base: Path) -> ColliderSpec:
     d = ColliderSpec(name=t.name, shape="box")
-    shape = t.choice("shape", _REQUIRED, _COLLIDER_KINDS)
-    t.keys(_COLLIDER_KEYS, _COLLIDER_KINDS, shape)
-    box, sphere, mesh = (shape == s for s in _COLLIDER_KINDS)
+    shape = t.choice("shape", _REQUIRED, COLLIDER_KINDS)
+    t.keys(COLLIDER_KEYS, COLLIDER_KINDS, shape)
+    box, sphere, mesh = (shape == s for s in COLLIDER_KINDS)
     half_extents = t.vector("half_extents", _REQUIRED) if box else None
     if box and min(half_extents) <= 0:
         raise t.error("half_extents", f"must all be > 0, got {_shown(t.data['half_extents'])}")
@@ -440,7 +440,7 @@ def _collider(t: _Table, base: Path) -> ColliderSpec:
 def _action(t: _Table, world: WorldSpec, bodies: set[str], names: dict[str, str]) -> ActionSpec:
     kind = t.name
     d = ActionSpec(kind=kind, start=0.0, end=0.0)
-    t.keys(_ACTION_KEYS, _ACTION_KINDS, kind)
+    t.keys(ACTION_KEYS, ACTION_KINDS, kind)
     start = t.number("start", 0.0, _NON_NEGATIVE)
     if start >= world.duration:
         raise t.error("start", f"{start:g} s is not before the end of the shot ({world.duration:g} s)")
@@ -531,8 +531,8 @@ def _keyframes(t: _Table, start: float, end: float) -> tuple[Keyframe, ...]:
 
 def _camera(t: _Table, bodies: tuple[BodySpec, ...], names: dict[str, str], base: Path) -> CameraSpec:
     d = CameraSpec(name=t.name)
-    kind = t.choice("kind", d.kind, _CAMERA_KINDS)
-    t.keys(_CAMERA_KEYS, _CAMERA_KINDS, kind)
+    kind = t.choice("kind", d.kind, CAMERA_KINDS)
+    t.keys(CAMERA_KEYS, CAMERA_KINDS, kind)
     position = t.vector("position", _REQUIRED if kind in ("fixed", "follow") else None)
     target = t.vector("target", d.target)
     if target is not None and target == position:

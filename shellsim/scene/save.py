@@ -10,20 +10,18 @@ import json
 import math
 
 from shellsim.scene.file import (
-    _ACTION_KEYS,
-    _ACTION_KINDS,
-    _BODY_KEYS,
-    _BODY_KINDS,
-    _CAMERA_KEYS,
-    _CAMERA_KINDS,
-    _COLLIDER_KEYS,
-    _COLLIDER_KINDS,
-    _LOOK_KEYS,
+    ACTION_KEYS,
+    ACTION_KINDS,
+    BODY_KEYS,
+    BODY_KINDS,
+    CAMERA_KEYS,
+    CAMERA_KINDS,
+    COLLIDER_KEYS,
+    COLLIDER_KINDS,
+    LOOK_KEYS,
+    WORLD_KEYS,
 )
-from shellsim.scene.spec import SceneSpec, WorldSpec
-
-#: ``[world]``'s keys as written (``frames``, not ``duration``).
-_WORLD_KEYS = tuple(f.name for f in dataclasses.fields(WorldSpec))
+from shellsim.scene.spec import SceneSpec
 
 
 def _value(value) -> str:
@@ -59,22 +57,25 @@ def _table(header: str, entry, keys: tuple[str, ...]) -> list[str]:
 
 def scene_toml(spec: SceneSpec) -> str:
     """The text of a scene file that reads back to ``spec`` (its ``path`` and ``where`` aside)."""
-    lines = _table("[world]", spec.world, _WORLD_KEYS)
+    lines = _table("[world]", spec.world, tuple(k for k in WORLD_KEYS if k != "duration"))  # frames kept
     for body in spec.bodies:
         kind = "asset" if body.asset is not None else "mesh"
-        keys = (*_BODY_KEYS, *_BODY_KINDS[kind])
+        keys = (*BODY_KEYS, *BODY_KINDS[kind])
         lines += ["", *_table("[[body]]", body, tuple(k for k in keys if k != "cage"))]
         cage = _table("[body.cage]", body.cage, ("target_tets", "margin"))
         if len(cage) > 1:
             lines += cage
     for collider in spec.colliders:
-        keys = (*_COLLIDER_KEYS, *_COLLIDER_KINDS[collider.shape])
+        keys = (*COLLIDER_KEYS, *COLLIDER_KINDS[collider.shape])
         lines += ["", *_table("[[collider]]", collider, keys)]
     for action in spec.actions:
-        keys = (*_ACTION_KEYS, *_ACTION_KINDS[action.kind])
+        keys = (*ACTION_KEYS, *ACTION_KINDS[action.kind])
         lines += ["", *_table("[[action]]", action, keys)]
     for camera in spec.cameras:
-        keys = (*_CAMERA_KEYS, *_CAMERA_KINDS[camera.kind])
+        keys = (*CAMERA_KEYS, *CAMERA_KINDS[camera.kind])
         lines += ["", *_table("[[camera]]", camera, keys)]
-    lines += ["", *_table("[look]", spec.look, _LOOK_KEYS)]
+    look = spec.look
+    if len(look.sky) == 1:  # a plain sky is one colour, not a list of one
+        look = dataclasses.replace(look, sky=look.sky[0])
+    lines += ["", *_table("[look]", look, LOOK_KEYS)]
     return "\n".join(lines) + "\n"

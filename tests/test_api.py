@@ -212,6 +212,7 @@ def test_extract_from_python_writes_the_cli_shells(ball, tmp_path):
     assert result.outer_faces == len(outer.faces) and result.width_max >= result.width_mean > 0
 
 
+@pytest.mark.slow
 def test_poses_returns_what_its_transforms_file_lists(tmp_path):
     from test_poses import ring_cameras, write_images
 

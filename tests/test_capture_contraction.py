@@ -38,8 +38,6 @@ from shellsim.world import WorldLook
 BOUND = 0.35  # the object's box half-size: smaller than the sphere (radius 0.5, 0.6 from the focus)
 GRID = HashGridConfig(n_levels=8, log2_table_size=14, max_resolution=256)
 
-pytestmark = pytest.mark.slow
-
 
 def _config(space: str) -> PipelineConfig:
     config = PipelineConfig(bound=BOUND, space=space)
@@ -90,6 +88,7 @@ def _render(asset, data, view: int) -> np.ndarray:
     return render_camera(field, data.cameras, view, asset_sampler(asset), background)[0]
 
 
+@pytest.mark.slow  # both spaces trained 1500 steps: 2 min on 2 cores
 def test_the_room_around_the_object_is_learnt_better_than_by_an_environment_map(both_spaces):
     data, assets = both_spaces
     scores = {}
@@ -124,6 +123,7 @@ def _sphere_points(n: int = 4000, depth: float = 0.0) -> np.ndarray:
     return points[points[:, 2] > 0.15]
 
 
+@pytest.mark.slow
 def test_no_part_of_an_object_past_the_box_is_cut_off(both_spaces):
     points = _sphere_points(depth=HALF_PIXEL)
     far = (np.abs(points - np.asarray(UNBOUNDED.target)) > BOUND).any(axis=1)
@@ -134,6 +134,7 @@ def test_no_part_of_an_object_past_the_box_is_cut_off(both_spaces):
     assert bounded[far].mean() < 0.05, bounded[far].mean()  # the bounded field's shells end at its box
 
 
+@pytest.mark.slow  # the capture trained 500 steps: 45 s
 def test_the_proposed_cut_holds_the_object(capture):
     # (after this short training the table is not flat enough for the plane search: no plane is asserted)
     asset = capture[1]
@@ -144,6 +145,7 @@ def test_the_proposed_cut_holds_the_object(capture):
     assert np.all(cut.lo[:2] > centre[:2] - 1.5 * radius) and np.all(cut.hi[:2] < centre[:2] + 1.5 * radius)
 
 
+@pytest.mark.slow
 def test_body_and_backdrop_at_rest_render_as_the_uncut_capture(capture, tmp_path):
     data, asset = capture
     out = tmp_path / "sphere"
@@ -178,6 +180,7 @@ def test_the_body_mask_and_the_backdrop_mask_split_every_sample():
     assert torch.equal(body, expected)
 
 
+@pytest.mark.slow
 def test_cut_shells_of_a_box_stay_inside_it(capture):
     field = load_field(capture[1])
     cut = Cut([-0.3, -0.3, 0.02], [0.3, 0.3, 0.9])  # slices through the sphere: the body is its middle
@@ -203,6 +206,7 @@ class _PlaneAndBall:
         return sdf, torch.full_like(sdf, 0.01)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("normal", [(0.0, 0.0, 1.0), (1.0, 0.0, 0.0)], ids=["table", "wall"])
 def test_the_proposed_cut_finds_the_table_or_the_wall_and_boxes_the_object_on_it(normal):
     field = _PlaneAndBall(normal)

@@ -137,6 +137,7 @@ def _frames_shown(logs: Path) -> int:
     return int(counts[-1]) + 1 if counts else 0
 
 
+@pytest.mark.slow
 def test_sigterm_keeps_the_frames_made_and_warp_is_quiet(tmp_path):
     """A simulation killed by SIGTERM after its first flush, once its progress bar shows two frames more
     than the file holds, exits 143 with one line, and its motion file holds every frame the bar showed:
@@ -199,6 +200,7 @@ def test_a_signal_that_lands_in_a_finalizer_is_not_lost(signum, raised):
         signal.signal(signum, previous)
 
 
+@pytest.mark.slow
 def test_verbose_shows_warp_messages(tmp_path):
     asset = rod_asset(tmp_path / "rod")
     proc = _cli(
@@ -210,6 +212,7 @@ def test_verbose_shows_warp_messages(tmp_path):
     assert "Warp" in stdout and "Module" in stdout
 
 
+@pytest.mark.slow
 def test_ctrl_c_still_interrupts_after_a_cage_build(tmp_path):
     """fTetWild resets the SIGINT handler; after a cage build, Ctrl-C must still raise KeyboardInterrupt (so
     writers save) instead of killing the process."""

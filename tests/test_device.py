@@ -149,6 +149,7 @@ configure_process()
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="FTZ/DAZ are x86 settings")
 def test_importing_the_packages_changes_nothing_process_wide():
     """Every module of neural and shellsim imported: no spin count, denormals kept on every thread, Warp's log
@@ -168,6 +169,7 @@ def test_the_entry_point_sets_openmp_spinning_unless_the_user_did(env, expected)
     assert done.stdout.split() == [expected] and OPENMP_SPIN_COUNT == "30000"
 
 
+@pytest.mark.slow
 def test_torch_loaded_first_is_a_warning():
     """The spin count cannot reach a torch that is already loaded: configure_process says so."""
     assert "GOMP_SPINCOUNT does not apply" not in _python(ENTRY_POINT + "import torch").stderr
@@ -205,6 +207,7 @@ WARP_NOISE = re.compile(
 )
 
 
+@pytest.mark.slow
 def test_the_entry_point_keeps_warp_quiet(tmp_path):
     """A kernel built and run after configure_process prints nothing; without it Warp's lines appear (the
     check can fail). The kernel cache is fresh, so the module is built, not only loaded."""

@@ -251,7 +251,7 @@ def test_pinned_vertices_hold_and_the_free_end_sags():
     assert (x[tip, 2] < v[tip, 2] - 1e-3).all()
 
 
-@pytest.mark.parametrize("obstacle", ["sphere", "box"])
+@pytest.mark.parametrize("obstacle", ["sphere", pytest.param("box", marks=pytest.mark.slow)])
 def test_obstacles_stop_a_falling_body(obstacle):
     v, t = box_tets((2, 2, 2), (0.06, 0.06, 0.06), origin=(-0.03, -0.03, 0.02))
     spec = (

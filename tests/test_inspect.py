@@ -219,6 +219,7 @@ def test_cli_mismatching_motion_is_one_line(ball, tmp_path, capsys):
     assert "--frame" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_screenshot_prints_nothing_from_vtk(ball, tmp_path):
     """Without a display VTK warns 'bad X server connection' on stderr; inspect keeps it quiet."""
     import os

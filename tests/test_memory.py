@@ -82,6 +82,7 @@ FrameDriver(Solver([model], contact, model.settings)).step([model.state()])
     _within_2(memory.simulation_bytes(t2) - memory.simulation_bytes(t1), m2 - m1)
 
 
+@pytest.mark.slow
 def test_the_shell_estimate_matches_the_peak_of_an_extraction():
     setup = """
 import dataclasses
@@ -99,6 +100,7 @@ stored = {k: v for k, v in asset.meta.get("shell", {}).items() if k in known}
     _within_2(memory.shell_bytes(128), high)
 
 
+@pytest.mark.slow
 def test_the_render_estimate_matches_the_peak_of_a_frame(tmp_path):
     eye = np.array([0.0, -3.5, 2.0])
     forward = -eye / np.linalg.norm(eye)
@@ -181,7 +183,7 @@ def test_a_mesh_too_large_for_the_machine_is_refused_before_it_is_tetrahedralise
     monkeypatch.setattr(memory, "available_memory", lambda device="cpu": 1_000_000)
     monkeypatch.setattr(shellsim.cage.build, "build_cage", lambda *a, **k: pytest.fail("tetrahedralised"))
     assert main(["simulate", "--mesh", str(tmp_path / "box.ply"), "--out", str(tmp_path / "box.npz")]) == 2
-    needed = (memory.LOAD_PER_FACE + memory.TETWILD_PER_FACE) * 12 + 5000 * (1200 + 148 * 2.75 + 552 / 4)
+    needed = (memory.LOAD_PER_FACE + memory.TETWILD_PER_FACE) * 12 + 5000 * memory.SIM_PER_TET
     assert capsys.readouterr().err.strip() == (
         f"shellsim: error: --mesh: a mesh of 12 faces needs about {needed / 1e6:.0f} MB to tetrahedralise "
         "and simulate; this machine has 1 MB available"

@@ -24,6 +24,7 @@ def beam_mesh(path, length=1.0, side=0.1):
     return path
 
 
+@pytest.mark.slow
 def test_clamped_rubber_beam_sags_as_euler_bernoulli(tmp_path, caplog):
     """A 1 m x 0.1 m x 0.1 m beam clamped at x = 0, E = 1.5e8 Pa, rho = 1000 kg/m^3: the tip sags
     rho g A L^4 / (8 E I) = 9.81 mm. Backward-Euler steps of 25 ms (the first bending mode has 39 rad/s) and

@@ -251,6 +251,7 @@ def _format2(path, rest, tets, frames, chunk=3, producer="shellsim wind"):
     path.write_bytes(data)
 
 
+@pytest.mark.slow
 def test_format_1_is_read_but_never_continued(tmp_path, capsys):
     rest, tets = _cage()
     frames = _frames(rest, 3)

@@ -148,6 +148,7 @@ def test_a_body_at_rest_has_its_visible_surface_on_the_ground_not_its_cage(ball)
     assert x[:, 2].min() < -0.015  # the cage itself reaches below the ground
 
 
+@pytest.mark.slow
 def test_static_collider_friction_holds_a_body_on_a_gentle_slope_and_lets_it_slide_on_a_steep_one():
     """Coulomb: a block on a plane tilted by theta sticks when tan(theta) < mu and slides when it is above."""
     from scipy.spatial.transform import Rotation
@@ -171,6 +172,7 @@ def test_static_collider_friction_holds_a_body_on_a_gentle_slope_and_lets_it_sli
     assert moved[40.0] > 0.05
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mu", [0.2, 0.4])
 def test_a_stiff_block_slides_down_a_slope_at_the_coulomb_acceleration(mu):
     """A stiff 4 cm block on a 30-degree plane (two triangles whose shared edge stays clear of the block: see

@@ -128,6 +128,7 @@ def opaque_body(centre_w: np.ndarray, radius_w: float) -> SphereField:
     return SphereField(radius_w / PLACEMENT.scale, 20000.0, tuple(centre.tolist()))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("wall_y", [-0.35, 0.35], ids=["in front", "behind"])
 def test_an_obstacle_hides_the_body_behind_it_and_not_in_front(wall_y):
     """A thin wall over the left half of the view, between the camera and an opaque sphere body (or behind
@@ -158,6 +159,7 @@ def test_an_obstacle_hides_the_body_behind_it_and_not_in_front(wall_y):
         assert is_obstacle(image)[left & (rho > radius + 1.0)].all()
 
 
+@pytest.mark.slow
 def test_the_ground_hides_the_body_below_it():
     """An opaque sphere body half sunk into the ground (centre at z = 0), seen from above at a slant: a pixel
     whose ray meets the sphere first below z = 0 shows the ground (the ray meets z = 0 first), one meeting it

@@ -147,6 +147,7 @@ def test_eval_and_extract_cli(fuzzy, tmp_path, capsys):
     assert "--max-peel" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_resumed_run_keeps_shells_time_and_normal_permissions(tmp_path, monkeypatch):
     """Interrupted in stage 2, a run leaves its checkpoints and shells; the next run does not extract again,
     and asset.json's wall time is the sum of both runs. Files get 0666 less the umask (not 0600)."""
@@ -193,6 +194,7 @@ def test_a_resumed_run_keeps_shells_time_and_normal_permissions(tmp_path, monkey
     assert not (out / "checkpoints").exists()
 
 
+@pytest.mark.slow
 def test_a_continued_training_starts_from_the_assets_field_step_and_minutes(tmp_path, monkeypatch, capsys):
     """``init``: stage 1 goes on from the asset's own weights (as saved) at the step its stage 1 reached, the
     curve's minutes after the asset's; more steps than it had are needed, and the same data."""
@@ -245,6 +247,7 @@ def test_a_continued_training_starts_from_the_assets_field_step_and_minutes(tmp_
     assert err.count("\n") == 0 and "nowhere" in err
 
 
+@pytest.mark.slow
 def test_finetune_continues_the_assets_field_in_its_shells_with_denser_samples(tmp_path, monkeypatch, capsys):
     """``shellsim finetune``: stage 2 starts from the asset's own weights, inside its own shells, at the given
     fraction of its stage-1 rates and with the narrow band asked for; the new asset keeps the old record and

@@ -71,6 +71,7 @@ def error_line(capsys) -> str:
     return err[0]
 
 
+@pytest.mark.slow
 def test_simulate_video_renders_a_new_motion_anew_and_resume_keeps_its_frames(tmp_path, asset_dir):
     """``simulate --video`` run again with other settings (--overwrite) must not reuse the earlier motion's
     frames; run again with the same settings, it keeps them."""

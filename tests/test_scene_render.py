@@ -82,6 +82,7 @@ def reference_composite(origins: np.ndarray, dirs: np.ndarray, spheres, steps: i
     return (weights[..., None] * mix).sum(1) + transmit[:, -1:] * keep[:, -1:] * 1.0
 
 
+@pytest.mark.slow
 def test_overlapping_spheres_match_the_reference_composite():
     """Two bodies in frames of their own, overlapping on screen: every pixel matches the brute-force
     composite, and where they overlap the nearer (red) one is seen."""
@@ -246,6 +247,7 @@ def shot(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_scene_video_films_every_frame(shot):
     from PIL import Image
 
@@ -255,6 +257,7 @@ def test_scene_video_films_every_frame(shot):
     assert (shot.parent / "shot.mp4").stat().st_size > 1000
 
 
+@pytest.mark.slow
 def test_render_scene_takes_other_cameras_sizes_and_strides(shot, tmp_path, capsys):
     import imageio_ffmpeg
     from PIL import Image
@@ -277,6 +280,7 @@ def test_render_scene_takes_other_cameras_sizes_and_strides(shot, tmp_path, caps
     assert "--scene" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_mesh_body_is_lit_and_shadows_the_ground_as_lambert_says(shot, tmp_path):
     """Seen from straight above, frame 0: the ball's top is its albedo times the open light; open ground is
     the checker times ``ambient + diffuse l_z``; ground points whose ray to the light meets the ball (the
@@ -321,6 +325,7 @@ def test_a_mesh_body_is_lit_and_shadows_the_ground_as_lambert_says(shot, tmp_pat
     assert look.ambient / open_light <= 0.40
 
 
+@pytest.mark.slow
 def test_the_scene_files_look_paints_its_frames_and_the_command_line_overrides_it(tmp_path, capsys):
     """A ``[look]`` with a plain sky fills the background of ``scene --video`` with it; changing only the look
     and running again films anew without simulating again; ``render --scene --sky`` replaces it."""

@@ -98,7 +98,8 @@ def build_body(spec: BodySpec, lift: float) -> SceneBody:
         mesh = load_mesh(Path(spec.mesh))
         config = CageConfig(**{**overrides, "margin": 0.0})
         faces = f"a mesh of {len(mesh.faces):,} faces"
-        check_memory("mesh", mesh_bytes(len(mesh.faces), config.target_tets), faces, "to tetrahedralise")
+        needed = mesh_bytes(len(mesh.faces), config.target_tets)
+        check_memory("mesh", needed, faces, "to tetrahedralise and simulate")
         cage = build_cage(mesh, mesh, config, what=str(spec.mesh))
         surface = surface_of_mesh(mesh.vertices, mesh.faces, cage.vertices, cage.tets)
         up, source = (

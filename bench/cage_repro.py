@@ -1,6 +1,6 @@
 """Reproducibility of the cage builder: rebuild an asset's cage N times with the same settings.
 
-Each run builds the cage from the asset's shells (:func:`~shellsim.cage.build.build_cage`, default settings
+Each run builds the cage from the asset's shells (:func:`~shellsim.tetcage.build.build_cage`, default settings
 unless given) and prints its tet count, seconds, whether it succeeded and a sha256 of the cage (vertices,
 tets and the embedding); the last line says whether every successful run gave the same cage. CPU-heavy
 (about 45 s a run for the LEGO on 2 busy cores): run it alone.
@@ -21,7 +21,7 @@ import numpy as np
 from neural.asset import load_asset
 from neural.device import configure_process
 from neural.errors import InputError
-from shellsim.cage.build import CageConfig, build_cage
+from shellsim.tetcage.build import CageConfig, build_cage
 
 
 def cage_hash(cage) -> str:

@@ -24,9 +24,9 @@ import numpy as np
 
 from neural.asset import load_asset, load_field
 from neural.device import configure_process, pick_device, processor
-from shellsim.cage.store import load_or_build_cage
+from shellsim.film.cameras import orbit_camera, orbit_framing
 from shellsim.physics.wind import WindField, wind_displacement
-from shellsim.render.cameras import orbit_camera, orbit_framing
+from shellsim.tetcage.store import load_or_build_cage
 
 
 def twist(vertices: np.ndarray, up: np.ndarray, turns: float = 0.15) -> np.ndarray:
@@ -42,7 +42,7 @@ def twist(vertices: np.ndarray, up: np.ndarray, turns: float = 0.15) -> np.ndarr
 
 
 def main() -> None:
-    from shellsim.render.renderer import STAGES, DeformedRenderer  # loads torch, after configure_process
+    from shellsim.film.renderer import STAGES, DeformedRenderer  # loads torch, after configure_process
 
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

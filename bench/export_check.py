@@ -65,9 +65,9 @@ def main() -> None:
     from pxr import Usd, UsdGeom
 
     from neural.asset import load_asset
-    from shellsim.cage.store import cage_for_motion
     from shellsim.deform.inverse_map import deform_points
     from shellsim.motion.read import load_motion
+    from shellsim.tetcage.store import cage_for_motion
 
     motion = load_motion(motion_path)
     asset = load_asset("lego")

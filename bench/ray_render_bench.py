@@ -25,7 +25,7 @@ def main() -> None:
     # here, after configure_process (run first): torch loads with them
     import torch
 
-    from shellsim.render.frames import render_motion
+    from shellsim.film.motion_frames import render_motion
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--asset", default="lego")
@@ -44,9 +44,7 @@ def main() -> None:
         torch.set_num_threads(args.serial_threads)
     out = Path(args.out or tempfile.mkdtemp(prefix="ray_render_bench_"))
     motion = out / "wind.npz"
-    wind(
-        WindSettings(asset=args.asset, frames=args.frames, out=str(motion), overwrite=True), progress=False
-    )
+    wind(WindSettings(asset=args.asset, frames=args.frames, out=str(motion), overwrite=True), progress=False)
     size = (args.size, args.size)
     times = {}
     for name, ray in (("serial", None), ("ray", args.address)):

@@ -43,10 +43,10 @@ def toml_text(data: dict) -> str:
 def run(scene: Path, out: Path, frames: int | None) -> dict:
     """Run ``scene`` into ``out``; its ms per substep, Newton iterations per substep and wall seconds."""
     from shellsim.jobs.scene import SceneSettings
-    from shellsim.jobs.scene import scene as scene_job
+    from shellsim.jobs.scene import scene as run_scene
 
     start = time.perf_counter()
-    result = scene_job(
+    result = run_scene(
         SceneSettings(scene=str(scene), out=str(out), frames=frames, overwrite=True), progress=False
     )
     wall = time.perf_counter() - start

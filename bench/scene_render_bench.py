@@ -47,9 +47,9 @@ STILL_FRAMES = {
 
 def simulate(scene: Path, out: Path, frames: int | None) -> Path:
     from shellsim.jobs.scene import SceneSettings
-    from shellsim.jobs.scene import scene as scene_job
+    from shellsim.jobs.scene import scene as run_scene
 
-    scene_job(SceneSettings(scene=str(scene), out=str(out), frames=frames), progress=False)
+    run_scene(SceneSettings(scene=str(scene), out=str(out), frames=frames), progress=False)
     return out
 
 
@@ -57,8 +57,8 @@ def renderer_of(scene, bodies, look):
     """A :class:`SceneRenderer` of the neural bodies named ``bodies`` of ``scene`` (``look`` None: no
     world)."""
     from neural.asset import load_field
-    from shellsim.render.renderer import DeformedRenderer, SceneRenderer
-    from shellsim.render.scene_frames import scene_world
+    from shellsim.film.renderer import DeformedRenderer, SceneRenderer
+    from shellsim.film.shot_frames import scene_world
 
     renderers = [
         DeformedRenderer(b.asset, load_field(b.asset, "cpu"), b.cage, "cpu", placement=b.placement)
@@ -76,10 +76,10 @@ def frame_cages(scene, positions, bodies):
 
 def cost(out: Path, size: int) -> dict:
     """Median ms per frame of the scene with its world, and of each body alone without one."""
+    from shellsim.film.cameras import scene_shot
+    from shellsim.film.shot_frames import scene_camera, scene_tracks
     from shellsim.motion.read import read_frames
-    from shellsim.render.cameras import scene_shot
-    from shellsim.render.scene_frames import scene_camera, scene_tracks
-    from shellsim.scene.motion import read_scene_motion
+    from shellsim.shot.recorded import read_scene_motion
     from shellsim.world import WorldLook
 
     scene = read_scene_motion(out)
@@ -131,7 +131,7 @@ def shadows(out: Path) -> None:
 
     from neural.render.view import bodies_transmittance
     from shellsim.motion.read import read_frames
-    from shellsim.scene.motion import read_scene_motion
+    from shellsim.shot.recorded import read_scene_motion
     from shellsim.world import WorldLook
 
     scene = read_scene_motion(out)
@@ -166,10 +166,10 @@ def no_gap(out: Path, size: int) -> None:
     """Rows of sky between a resting body's visible bottom and the ground, seen from the side at ground
     level (module docstring), at its last frame."""
     from neural.data import camera_rays, look_at
+    from shellsim.film.cameras import Shot
+    from shellsim.film.ground import sky
     from shellsim.motion.read import read_frames
-    from shellsim.render.cameras import Shot
-    from shellsim.render.ground import sky
-    from shellsim.scene.motion import read_scene_motion
+    from shellsim.shot.recorded import read_scene_motion
     from shellsim.world import WorldLook
 
     scene = read_scene_motion(out)
@@ -219,14 +219,14 @@ def videos(root: Path) -> None:
     from PIL import Image
 
     from shellsim.jobs.scene import SceneSettings
-    from shellsim.jobs.scene import scene as scene_job
+    from shellsim.jobs.scene import scene as run_scene
 
     STILLS.mkdir(parents=True, exist_ok=True)
     for path in sorted(EXAMPLES.glob("*.toml")):
         out = root / path.stem
         start = time.perf_counter()
         video = str(root / f"{path.stem}.mp4")
-        result = scene_job(SceneSettings(scene=str(path), out=str(out), video=video), progress=False)
+        result = run_scene(SceneSettings(scene=str(path), out=str(out), video=video), progress=False)
         wall = time.perf_counter() - start
         render = result.video
         print(

@@ -25,12 +25,12 @@ import numpy as np
 import warp as wp
 
 from neural.device import configure_process, processor
-from shellsim.cage.geometry import boundary_faces, tet_volumes
 from shellsim.physics.driver import FrameDriver
 from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY, BodySurface, Contact
 from shellsim.physics.materials import get_material
 from shellsim.physics.model import Model, SolverSettings
 from shellsim.physics.solver import Solver
+from shellsim.tetcage.geometry import boundary_faces, tet_volumes
 
 SIZE = 0.3  # metres
 LIFT = 0.02  # metres above the ground

@@ -19,8 +19,8 @@ from pathlib import Path
 
 from neural.device import configure_process
 from neural.errors import ShellsimError
+from shellsim.film.result import RenderResult
 from shellsim.jobs.simulate import SimulateSettings, simulate
-from shellsim.render.result import RenderResult
 from shellsim.settings import pixels
 
 

@@ -1,9 +1,9 @@
 """Wind animation of a neural asset (paper Sec. 5, Fig. 12 left): analytic wind on the cage, then a clip.
 
 The asset's cage bends like a cantilever in a gusty wind (:mod:`shellsim.jobs.wind`); every frame is
-rendered by deforming the adaptive shells with the cage (:func:`shellsim.render.frames.render_motion`), seen
-by a fixed camera from the side (the sway crosses the image). Writes ``OUT/wind.npz`` (the motion),
-``OUT/frames/00000.png ...`` and ``OUT/wind.mp4``. Re-running continues the motion when it was made with
+rendered by deforming the adaptive shells with the cage
+(:func:`shellsim.film.motion_frames.render_motion`), seen by a fixed camera from the side (the sway crosses
+the image). Writes ``OUT/wind.npz`` (the motion), ``OUT/frames/00000.png ...`` and ``OUT/wind.mp4``. Re-running continues the motion when it was made with
 the same wind (else it is refused, naming what changed, unless ``--overwrite``) and the render where it
 stopped.
 
@@ -21,15 +21,15 @@ from pathlib import Path
 from neural.device import configure_process
 from neural.errors import ShellsimError
 from shellsim.cli.options import options_named
+from shellsim.film.cameras import CameraSettings
+from shellsim.film.result import RenderResult
 from shellsim.jobs.wind import WindSettings, wind
-from shellsim.render.cameras import CameraSettings
-from shellsim.render.result import RenderResult
 from shellsim.settings import pixels
 
 
 def main(argv: list[str] | None = None) -> RenderResult:
     """Run the example; returns the render's result."""
-    from shellsim.render.frames import render_motion  # loads torch, after configure_process
+    from shellsim.film.motion_frames import render_motion  # loads torch, after configure_process
 
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

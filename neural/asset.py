@@ -1,5 +1,5 @@
 """The asset on disk: ``asset.json`` + ``field.safetensors`` + ``shell_outer.ply`` + ``shell_inner.ply``
-(+ ``cage.npz``, made on demand by :mod:`shellsim.cage`).
+(+ ``cage.npz``, made on demand by :mod:`shellsim.tetcage`).
 
 Loading validates everything and never executes code from the asset: JSON, safetensors and PLY only,
 and every file name must stay inside the asset directory.
@@ -83,7 +83,7 @@ def _inside(root: Path, name: str, what: str) -> Path:
 class Asset:
     """A validated asset directory. ``meta`` is the parsed ``asset.json``; ``shipped``: found by name among
     the installed package's assets, so nothing may be written into it (its cages with other settings go to
-    the cache, see :func:`shellsim.cage.load_or_build_cage`)."""
+    the cache, see :func:`shellsim.tetcage.load_or_build_cage`)."""
 
     root: Path
     meta: dict

@@ -10,18 +10,18 @@ Assets, cages and motions:
 Jobs (settings -> function -> result):
     TrainSettings -> train -> TrainResult            ExtractSettings -> extract -> ExtractResult
     FinetuneSettings -> finetune -> FinetuneResult
-    PosesSettings -> poses -> PosesResult            CageSettings -> cage_job -> CageResult
+    PosesSettings -> poses -> PosesResult            CageSettings -> cage -> CageResult
     SimulateSettings -> simulate -> SimulateResult   WindSettings -> wind -> WindResult
-    SceneSettings -> scene_job -> SceneResult
-    RenderSettings -> render_job -> RenderResult     EvalSettings -> evaluate -> EvalResult (ViewMetrics)
+    SceneSettings -> scene -> SceneResult
+    RenderSettings -> render -> RenderResult         EvalSettings -> evaluate -> EvalResult (ViewMetrics)
     ExportSettings -> export -> ExportResult         SweepSettings -> sweep -> SweepResult
     InspectSettings -> inspect -> the screenshot's path (None after an interactive view)
 Rendering without settings: render_views(asset, cameras, out, ...) and render_motion(asset, motion, out, ...)
     -> RenderResult.
 Errors: ShellsimError (anything a user can act on), SettingError (a setting's value, naming the field).
 
-The jobs of ``shellsim cage``, ``shellsim render`` and ``shellsim scene`` are ``cage_job``, ``render_job`` and
-``scene_job`` here: ``shellsim.cage``, ``shellsim.render`` and ``shellsim.scene`` are sub-packages.
+Every job is the function of its command's name: no sub-package is named after a command (the cages are
+``shellsim.tetcage``, the filming of motions and shots ``shellsim.film``, the shots ``shellsim.shot``).
 ``shellsim.physics`` (model, state, control, solver, driver, wind) and ``shellsim.motion.format`` work on
 plain numpy arrays and do not need torch.
 """
@@ -31,8 +31,8 @@ import importlib
 #: Public name -> (module, attribute), imported on first access (PEP 562).
 _EXPORTS = {
     "load_asset": ("neural.asset", "load_asset"),
-    "CageConfig": ("shellsim.cage.build", "CageConfig"),
-    "load_or_build_cage": ("shellsim.cage.store", "load_or_build_cage"),
+    "CageConfig": ("shellsim.tetcage.build", "CageConfig"),
+    "load_or_build_cage": ("shellsim.tetcage.store", "load_or_build_cage"),
     "load_motion": ("shellsim.motion.read", "load_motion"),
     "TrainSettings": ("shellsim.jobs.train", "TrainSettings"),
     "TrainResult": ("shellsim.jobs.train", "TrainResult"),
@@ -48,21 +48,21 @@ _EXPORTS = {
     "poses": ("shellsim.jobs.poses", "poses"),
     "CageSettings": ("shellsim.jobs.cage", "CageSettings"),
     "CageResult": ("shellsim.jobs.cage", "CageResult"),
-    "cage_job": ("shellsim.jobs.cage", "cage"),
+    "cage": ("shellsim.jobs.cage", "cage"),
     "SimulateSettings": ("shellsim.jobs.simulate", "SimulateSettings"),
     "SimulateResult": ("shellsim.jobs.simulate", "SimulateResult"),
     "simulate": ("shellsim.jobs.simulate", "simulate"),
     "SceneSettings": ("shellsim.jobs.scene", "SceneSettings"),
     "SceneResult": ("shellsim.jobs.scene", "SceneResult"),
-    "scene_job": ("shellsim.jobs.scene", "scene"),
+    "scene": ("shellsim.jobs.scene", "scene"),
     "WindSettings": ("shellsim.jobs.wind", "WindSettings"),
     "WindResult": ("shellsim.jobs.wind", "WindResult"),
     "wind": ("shellsim.jobs.wind", "wind"),
     "RenderSettings": ("shellsim.jobs.render", "RenderSettings"),
-    "RenderResult": ("shellsim.render.result", "RenderResult"),
-    "render_job": ("shellsim.jobs.render", "render"),
-    "render_views": ("shellsim.render.frames", "render_views"),
-    "render_motion": ("shellsim.render.frames", "render_motion"),
+    "RenderResult": ("shellsim.film.result", "RenderResult"),
+    "render": ("shellsim.jobs.render", "render"),
+    "render_views": ("shellsim.film.motion_frames", "render_views"),
+    "render_motion": ("shellsim.film.motion_frames", "render_motion"),
     "EvalSettings": ("shellsim.jobs.eval", "EvalSettings"),
     "EvalResult": ("shellsim.jobs.eval", "EvalResult"),
     "ViewMetrics": ("shellsim.jobs.eval", "ViewMetrics"),

@@ -8,7 +8,7 @@ the asset's up axis turned onto +z, its largest extent scaled to a size in metre
 given height above the ground and its bounding box centred over the origin. Rendering maps world points back
 through the inverse (:meth:`Placement.to_asset`); a :class:`Placement` is also the frame of a field drawn in
 the world (:class:`neural.render.bodies.FieldBody`). :class:`WorldLook` is how the world looks in the frames
-(the ground's checker, the light, the sky, the colliders' colour); :mod:`shellsim.render.ground` draws it.
+(the ground's checker, the light, the sky, the colliders' colour); :mod:`shellsim.film.ground` draws it.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ GROUND_Z = 0.0
 UP = (0.0, 0.0, 1.0)
 #: Named views of the world: (azimuth, elevation) in degrees of the direction from what is viewed to the
 #: camera, the azimuth about up from +x towards +y; None: the camera's own elevation. The presets of a
-#: motion's camera (:class:`shellsim.render.cameras.CameraSettings`) and of a scene file's ``[[camera]]``.
+#: motion's camera (:class:`shellsim.film.cameras.CameraSettings`) and of a scene file's ``[[camera]]``.
 CAMERA_PRESETS = {
     "front": (-90.0, 0.0),
     "side": (0.0, 0.0),
@@ -145,7 +145,7 @@ def _colour(name: str, value) -> tuple[float, float, float]:
 @dataclass(frozen=True)
 class WorldLook:
     """How the world behind a body looks: settings only (recorded with every frame), drawn by
-    :mod:`shellsim.render.ground`.
+    :mod:`shellsim.film.ground`.
 
     ground : draw the ground plane z = 0 (else only the sky)
     square : side of the checker's squares in metres (the ground's scale)

@@ -81,9 +81,9 @@ def write_asset_dir(root: Path, outer, inner, name: str, center=(0, 0, 0), scale
 def save_embedded_cage(asset, verts, tets):
     """The cage ``verts`` (V, 3), ``tets`` (T, 4) around ``asset``'s shells: both shells embedded in it, saved
     to ``asset.cage_path`` (where ``load_or_build_cage`` finds it). Returns the :class:`Cage`."""
-    from shellsim.cage.build import Cage, shell_digest
-    from shellsim.cage.embed import embed_points
-    from shellsim.cage.store import save_cage
+    from shellsim.tetcage.build import Cage, shell_digest
+    from shellsim.tetcage.embed import embed_points
+    from shellsim.tetcage.store import save_cage
 
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     cage = Cage(
@@ -100,7 +100,7 @@ def save_embedded_cage(asset, verts, tets):
 def save_collision_surface(asset, cage, mesh):
     """``mesh`` (a closed trimesh inside ``cage``) stored as ``asset``'s own collision surface, for assets
     whose field is a placeholder (its zero level set cannot be taken)."""
-    from shellsim.cage.collision import (
+    from shellsim.tetcage.collision import (
         MAX_FACES,
         OWN_FILE,
         RESOLUTION,
@@ -108,7 +108,7 @@ def save_collision_surface(asset, cage, mesh):
         surface_key,
         surface_of_mesh,
     )
-    from shellsim.cage.geometry import cage_digest
+    from shellsim.tetcage.geometry import cage_digest
 
     surface = surface_of_mesh(mesh.vertices, mesh.faces, cage.vertices, cage.tets)
     key = surface_key(asset.digest(), cage_digest(cage.vertices, cage.tets), MAX_FACES, RESOLUTION)
@@ -120,8 +120,8 @@ def own_surface(tets, n, friction: float = 0.5):
     boundary vertices), with the Coulomb coefficient ``friction``."""
     import scipy.sparse as sp
 
-    from shellsim.cage.geometry import boundary_faces
     from shellsim.physics.ipc import BodySurface
+    from shellsim.tetcage.geometry import boundary_faces
 
     faces = boundary_faces(tets)
     used, local = np.unique(faces, return_inverse=True)

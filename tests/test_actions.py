@@ -1,4 +1,4 @@
-"""shellsim.scene.actions: the timed pins, grabs, pushes and wind of a scene as the solver's inputs per
+"""shellsim.shot.actions: the timed pins, grabs, pushes and wind of a scene as the solver's inputs per
 substep, checked against closed forms on tiny hand-made vertex sets."""
 
 import math
@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from shellsim.scene.actions import AIR_DENSITY, Actions, BodyInfo
-from shellsim.scene.spec import ActionSpec, Keyframe, SceneError
+from shellsim.shot.actions import AIR_DENSITY, Actions, BodyInfo
+from shellsim.shot.spec import ActionSpec, Keyframe, SceneError
 
 REST = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]])
 MASSES = np.array([1.0, 2, 3, 4, 5])

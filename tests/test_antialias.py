@@ -1,4 +1,4 @@
-"""Anti-aliased frames (:func:`shellsim.render.frames.antialiased`): jittered rays per pixel, averaged.
+"""Anti-aliased frames (:func:`shellsim.film.motion_frames.antialiased`): jittered rays per pixel, averaged.
 
 The scene is an opaque white half-plane on black, one unit in front of a pinhole camera and facing it, with
 a slanted edge: its image is the half-plane ``n . (px, py) < c`` in pixel coordinates, so the fraction of a
@@ -16,9 +16,9 @@ import pytest
 import torch
 
 from neural.data import Cameras, camera_rays
+from shellsim.film.cameras import MOTION_ANTIALIAS
+from shellsim.film.motion_frames import antialiased, pixel_offsets
 from shellsim.io.png import renderer_identity
-from shellsim.render.cameras import MOTION_ANTIALIAS
-from shellsim.render.frames import antialiased, pixel_offsets
 
 W, H = 48, 36
 FOCAL = 40.0

@@ -33,10 +33,10 @@ JOBS = {
     "train": "TrainResult",
     "extract": "ExtractResult",
     "poses": "PosesResult",
-    "cage_job": "CageResult",
+    "cage": "CageResult",
     "simulate": "SimulateResult",
     "wind": "WindResult",
-    "render_job": "RenderResult",
+    "render": "RenderResult",
     "render_views": "RenderResult",
     "render_motion": "RenderResult",
     "evaluate": "EvalResult",
@@ -119,7 +119,7 @@ def test_render_from_python_writes_the_cli_frames(ball, tmp_path):
     asset, cameras, motion = ball
     out = tmp_path / "py"
     settings = shellsim.RenderSettings(asset=str(asset), cameras=str(cameras), out=str(out), width=20)
-    result = shellsim.render_job(settings)
+    result = shellsim.render(settings)
     argv = ["render", "--asset", str(asset), "--cameras", str(cameras), "--width", "20"]
     assert main([*argv, "--out", str(tmp_path / "cli")]) == 0
     assert _same_files(out, tmp_path / "cli") == ["v_0.png", "v_1.png", "v_2.png"]
@@ -127,7 +127,7 @@ def test_render_from_python_writes_the_cli_frames(ball, tmp_path):
     assert (result.rendered, result.skipped, result.replaced, result.video) == (3, 0, 0, None)
     assert result.ms > 0 and result.samples_per_pixel > 0
     assert set(result.stage_ms) == {"build", "sample", "map", "shade", "world"}
-    again = shellsim.render_job(settings)
+    again = shellsim.render(settings)
     assert (again.rendered, again.skipped, again.replaced) == (0, 3, 0)
     assert (again.ms, again.samples_per_pixel, again.stage_ms) == (None, None, {})
 
@@ -140,9 +140,9 @@ def test_render_from_python_writes_the_cli_frames(ball, tmp_path):
     assert [np.asarray(Image.open(p)).shape for p in moved.frames] == [(16, 16, 3)] * 3
 
 
-def test_cage_job_describes_the_cage_the_cli_prints(ball, capsys):
+def test_the_cage_job_describes_the_cage_the_cli_prints(ball, capsys):
     asset, _, _ = ball
-    result = shellsim.cage_job(shellsim.CageSettings(asset=str(asset)))
+    result = shellsim.cage(shellsim.CageSettings(asset=str(asset)))
     assert result.path == asset / "cage.npz" and result.name == "ball"
     cage = shellsim.load_or_build_cage(shellsim.load_asset(asset))
     assert (result.vertices, result.tets) == (len(cage.vertices), len(cage.tets))

@@ -1,4 +1,4 @@
-"""shellsim.cage and ``shellsim cage`` on procedural shells (spheres, a torus, two far-apart spheres)."""
+"""shellsim.tetcage and ``shellsim cage`` on procedural shells (spheres, a torus, two far-apart spheres)."""
 
 import shutil
 
@@ -7,14 +7,16 @@ import pytest
 import trimesh
 from meshes import kuhn_grid, write_asset_dir
 
-import shellsim.cage.build as cage_build
-import shellsim.cage.store as cage_store
+import shellsim.tetcage.build as cage_build
+import shellsim.tetcage.store as cage_store
 from neural.asset import load_asset
 from neural.errors import InputError
-from shellsim.cage.build import Cage, CageConfig, build_cage, shell_digest
-from shellsim.cage.embed import interpolate, outside_distance
-from shellsim.cage.geometry import boundary_faces, tet_quality, tet_volumes
-from shellsim.cage.store import (
+from shellsim.cli.main import main
+from shellsim.motion.format import Motion
+from shellsim.tetcage.build import Cage, CageConfig, build_cage, shell_digest
+from shellsim.tetcage.embed import interpolate, outside_distance
+from shellsim.tetcage.geometry import boundary_faces, tet_quality, tet_volumes
+from shellsim.tetcage.store import (
     cache_dir,
     cached_cage_path,
     cage_for_motion,
@@ -23,8 +25,6 @@ from shellsim.cage.store import (
     load_or_build_cage,
     save_cage,
 )
-from shellsim.cli.main import main
-from shellsim.motion.format import Motion
 
 #: Small, quick cages: a coarse dilation grid, one fTetWild run, any count within a factor 3 of 1000.
 QUICK = CageConfig(margin=0.05, target_tets=1000, surface_faces=1000, tolerance=3.0, max_attempts=1)
@@ -269,7 +269,7 @@ def test_stray_parts_without_shell_vertices_are_dropped(monkeypatch, caplog):
     vertices = np.concatenate([stray_v, grid_v])  # the stray first: every index moves when it goes
     tets = np.concatenate([[[0, 1, 2, 3]], grid_t + 4])
     monkeypatch.setattr(cage_build, "tetrahedralize", lambda *args: (vertices, tets, True))
-    with caplog.at_level("INFO", logger="shellsim.cage.build"):
+    with caplog.at_level("INFO", logger="shellsim.tetcage.build"):
         cage = build_cage(outer, inner, QUICK)
     assert "dropped 1 stray part(s) of the tet mesh that hold no shell vertex (1 tets)" in caplog.text
     np.testing.assert_array_equal(cage.vertices, grid_v)

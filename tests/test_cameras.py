@@ -1,4 +1,4 @@
-"""shellsim.render.cameras: world cameras of a motion against the pinhole model in closed form, and a fixed
+"""shellsim.film.cameras: world cameras of a motion against the pinhole model in closed form, and a fixed
 camera at rest against the same view given in the asset's frame."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from PIL import Image
 from scenes import look_at
 
 from neural.data import camera_rays, load_camera_file
-from shellsim.render.cameras import (
+from shellsim.film.cameras import (
     CAMERAS,
     FOLLOW_SECONDS,
     CameraSettings,
@@ -24,8 +24,8 @@ from shellsim.render.cameras import (
     motion_track,
     scene_shot,
 )
-from shellsim.render.frames import asset_camera
-from shellsim.scene.spec import CameraKeyframe, CameraSpec, SceneError
+from shellsim.film.motion_frames import asset_camera
+from shellsim.shot.spec import CameraKeyframe, CameraSpec, SceneError
 from shellsim.world import CAMERA_PRESETS, Placement, up_rotation
 
 W, H = 32, 20
@@ -132,10 +132,10 @@ def test_a_fixed_camera_at_rest_renders_the_asset_frame_view(tmp_path):
 
     from neural.asset import load_asset
     from neural.data import look_at
-    from shellsim.cage.geometry import cage_digest
-    from shellsim.cage.store import load_cage
+    from shellsim.film.motion_frames import render_motion
     from shellsim.motion.format import Motion, save_motion
-    from shellsim.render.frames import render_motion
+    from shellsim.tetcage.geometry import cage_digest
+    from shellsim.tetcage.store import load_cage
 
     asset_dir = make_asset(tmp_path / "asset")
     cage = load_cage(load_asset(asset_dir).cage_path)

@@ -32,7 +32,7 @@ from neural.shell.cutout import (
     propose_cut,
 )
 from shellsim.cli.main import main
-from shellsim.render.renderer import DeformedRenderer, SceneRenderer
+from shellsim.film.renderer import DeformedRenderer, SceneRenderer
 from shellsim.world import WorldLook
 
 BOUND = 0.35  # the object's box half-size: smaller than the sphere (radius 0.5, 0.6 from the focus)

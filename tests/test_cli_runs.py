@@ -219,7 +219,7 @@ def test_ctrl_c_still_interrupts_after_a_cage_build(tmp_path):
     code = (
         "import os, signal, time, trimesh\n"
         "signal.signal(signal.SIGINT, signal.default_int_handler)\n"  # as in a terminal, whatever started us
-        "from shellsim.cage.build import build_cage\n"
+        "from shellsim.tetcage.build import build_cage\n"
         "m = trimesh.creation.icosphere(subdivisions=2)\n"
         "build_cage(m, m.copy())\n"
         "try:\n"

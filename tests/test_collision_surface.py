@@ -1,4 +1,4 @@
-"""shellsim.cage.collision: the collision surface of an asset whose field is the exact SDF of a sphere lies
+"""shellsim.tetcage.collision: the collision surface of an asset whose field is the exact SDF of a sphere lies
 on that sphere (within half a grid cell and the decimation's chord error), is closed and outward oriented
 with the ball's volume; its embedding weights reproduce it exactly and carry affine maps of the cage
 exactly; a real field is read in the asset's frame; a mesh body in a cage of its own tets keeps its
@@ -17,8 +17,8 @@ from scenes import SphereField
 
 from neural.asset import load_asset
 from neural.errors import InputError
-from shellsim.cage.collision import surface_of_asset, surface_of_mesh
-from shellsim.cage.store import load_or_build_cage
+from shellsim.tetcage.collision import surface_of_asset, surface_of_mesh
+from shellsim.tetcage.store import load_or_build_cage
 
 CENTER = np.array([0.1, -0.2, 0.3])
 RADIUS = 0.5

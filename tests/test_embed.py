@@ -1,4 +1,4 @@
-"""shellsim.cage.embed on a procedural tet mesh of a box (Kuhn subdivision), where containment and the
+"""shellsim.tetcage.embed on a procedural tet mesh of a box (Kuhn subdivision), where containment and the
 distance outside have closed forms."""
 
 import igl
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from meshes import kuhn_grid
 
-from shellsim.cage.embed import barycentric, embed_points, interpolate, outside_distance
-from shellsim.cage.geometry import boundary_facets
+from shellsim.tetcage.embed import barycentric, embed_points, interpolate, outside_distance
+from shellsim.tetcage.geometry import boundary_facets
 
 LO, HI = np.array([-1.0, -0.5, 0.0]), np.array([1.0, 0.5, 0.75])
 

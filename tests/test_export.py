@@ -16,10 +16,10 @@ import trimesh
 from meshes import kuhn_grid, save_collision_surface, save_embedded_cage, write_asset_dir
 from test_render_deformed import CENTER, make_asset
 
-from shellsim.cage.embed import embed_points
 from shellsim.cli.main import main
 from shellsim.io.export import AnimatedMesh, up_rotation, write_ply_sequence
 from shellsim.motion.format import Motion, Surface, save_motion
+from shellsim.tetcage.embed import embed_points
 
 FRAMES = 4
 FPS = 24.0
@@ -311,8 +311,8 @@ def shot(tmp_path_factory):
     box collider 'table'."""
     pytest.importorskip("ipctk")
     from neural.asset import load_asset
-    from shellsim.cage.store import load_or_build_cage
     from shellsim.jobs.scene import SceneSettings, scene
+    from shellsim.tetcage.store import load_or_build_cage
 
     tmp = tmp_path_factory.mktemp("shot")
     root = make_asset(tmp / "orb")
@@ -377,10 +377,10 @@ def test_usd_of_a_scene_holds_every_body_its_cage_and_the_static_collider(shot, 
     from pxr import Usd, UsdGeom
 
     from neural.asset import load_asset
-    from shellsim.cage.store import load_or_build_cage
     from shellsim.motion.read import load_motion
-    from shellsim.scene.bodies import collider_mesh
-    from shellsim.scene.motion import MESH_BODY_COLORS, read_scene_motion
+    from shellsim.shot.bodies import collider_mesh
+    from shellsim.shot.recorded import MESH_BODY_COLORS, read_scene_motion
+    from shellsim.tetcage.store import load_or_build_cage
     from shellsim.world import Placement, WorldLook
 
     out, root = shot
@@ -443,10 +443,10 @@ def test_usd_of_a_scene_holds_every_body_its_cage_and_the_static_collider(shot, 
 
 def test_ply_of_a_scene_is_every_body_per_frame_and_each_collider_once(shot, tmp_path):
     from neural.asset import load_asset
-    from shellsim.cage.store import load_or_build_cage
     from shellsim.motion.read import load_motion
-    from shellsim.scene.bodies import collider_mesh
-    from shellsim.scene.motion import read_scene_motion
+    from shellsim.shot.bodies import collider_mesh
+    from shellsim.shot.recorded import read_scene_motion
+    from shellsim.tetcage.store import load_or_build_cage
 
     out, root = shot
     motion = load_motion(out / "motion.npz")
@@ -502,7 +502,7 @@ def test_names_that_would_clash_in_a_scene_export_are_one_line_naming_the_motion
     """A collider named like a body's cage guide ('orb_cage') would make two prims of one path."""
     import dataclasses
 
-    import shellsim.scene.motion as scene_motion
+    import shellsim.shot.recorded as scene_motion
 
     read = scene_motion.read_scene_motion
 

@@ -66,7 +66,7 @@ def test_full_disk_in_a_motion_names_file_frames_and_what_was_kept(tmp_path):
 
 
 def test_a_failing_frame_says_how_many_frames_are_on_disk(tmp_path):
-    from shellsim.render.frames import render_frames
+    from shellsim.film.motion_frames import render_frames
 
     jobs = [(tmp_path / f"{k:05d}.png", {"frame": k}, k) for k in range(5)]
     recipe = lambda: lambda k: (np.full((4, 4, 3), k / 5), {"ms": 1.0})  # noqa: E731

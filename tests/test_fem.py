@@ -7,7 +7,6 @@ import pytest
 import warp as wp
 from meshes import kuhn_grid, own_surface
 
-from shellsim.cage.geometry import MIN_VOLUME_RATIO, tet_volumes
 from shellsim.errors import SettingError
 from shellsim.jobs.recording import record_frames
 from shellsim.motion.read import load_motion
@@ -21,8 +20,9 @@ from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY, Contact, Static
 from shellsim.physics.materials import Material, get_material
 from shellsim.physics.model import Model, SolverSettings
 from shellsim.physics.solver import Solver
-from shellsim.scene.bodies import collider_mesh
-from shellsim.scene.spec import ColliderSpec
+from shellsim.shot.bodies import collider_mesh
+from shellsim.shot.spec import ColliderSpec
+from shellsim.tetcage.geometry import MIN_VOLUME_RATIO, tet_volumes
 
 G = 9.81
 
@@ -443,7 +443,7 @@ def cube_mesh(tmp_path, monkeypatch):
         verts, tets, _ = kuhn_grid(0.0, 1.0, 2)
         return types.SimpleNamespace(vertices=verts + outer.bounds[0], tets=tets)
 
-    monkeypatch.setattr("shellsim.cage.build.build_cage", build_cage)
+    monkeypatch.setattr("shellsim.tetcage.build.build_cage", build_cage)
     return path
 
 

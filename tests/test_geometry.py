@@ -1,4 +1,4 @@
-"""shellsim.cage.geometry against closed forms: the unit tet, a cube cut into tets, two tets sharing a
+"""shellsim.tetcage.geometry against closed forms: the unit tet, a cube cut into tets, two tets sharing a
 face."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
-from shellsim.cage.geometry import (
+from shellsim.tetcage.geometry import (
     boundary_faces,
     check_points,
     check_tets,

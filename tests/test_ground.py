@@ -1,4 +1,4 @@
-"""The world behind a body (shellsim.render.ground): a checkered ground plane at world z = 0 seen through a
+"""The world behind a body (shellsim.film.ground): a checkered ground plane at world z = 0 seen through a
 placement, lit by ambient + diffuse Lambert light, with shadows attenuated by the field's transmittance.
 
 Truths from outside the code: the pixel -> ground point map of a camera looking straight down (similar
@@ -21,14 +21,14 @@ from neural.asset import load_asset, load_field
 from neural.data import Cameras
 from neural.render.fullray import stepped_samples
 from neural.render.view import render_camera, transmittance
-from shellsim.cage.store import load_or_build_cage
 from shellsim.errors import SettingError
+from shellsim.film.ground import world_backdrop
+from shellsim.film.motion_frames import motion_world, world_record
+from shellsim.film.obstacles import Obstacles
+from shellsim.film.renderer import DeformedRenderer
+from shellsim.film.world import WorldSettings
 from shellsim.io.png import renderer_identity
-from shellsim.render.frames import motion_world, world_record
-from shellsim.render.ground import world_backdrop
-from shellsim.render.obstacles import Obstacles
-from shellsim.render.renderer import DeformedRenderer
-from shellsim.render.world import WorldSettings
+from shellsim.tetcage.store import load_or_build_cage
 from shellsim.world import Placement, WorldLook, place_on_ground
 
 # The renderer's (asset's) frame: world = 0.5 * R x + t, a turned, scaled and shifted frame.

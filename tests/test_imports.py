@@ -34,7 +34,8 @@ ENTRY_POINTS = {
         HEAVY,
     ),
     "the cage modules": (
-        "import shellsim.cage.build, shellsim.cage.store, shellsim.cage.embed, shellsim.cli.commands.cage\n",
+        "import shellsim.tetcage.build, shellsim.tetcage.store, shellsim.tetcage.embed\n"
+        "import shellsim.cli.commands.cage\n",
         ("torch",),
     ),
     "inspect": (

@@ -11,9 +11,9 @@ from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError, ShellsimError
 from neural.field import FieldConfig, HashGridConfig, ShellField
-from shellsim.cage.embed import interpolate  # noqa: E402
 from shellsim.cli.main import main  # noqa: E402
 from shellsim.motion.format import Motion, save_motion
+from shellsim.tetcage.embed import interpolate  # noqa: E402
 from shellsim.viz.inspect import SCALARS, build_scene, make_plotter, screenshot, shell_width
 
 

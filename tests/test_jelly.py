@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 from meshes import kuhn_grid, own_surface
 
-from shellsim.cage.geometry import MIN_VOLUME_RATIO, tet_volumes
 from shellsim.physics.driver import FrameDriver
 from shellsim.physics.elastic import elastic_energy, snh_energy_reference
 from shellsim.physics.ipc import CONTACT_GAP, FRICTION_VELOCITY, Contact
 from shellsim.physics.materials import Material
 from shellsim.physics.model import Model, SolverSettings
 from shellsim.physics.solver import Solver
+from shellsim.tetcage.geometry import MIN_VOLUME_RATIO, tet_volumes
 
 GEL = Material("gel", 1.0e4, 0.45, 1050.0)
 

@@ -63,8 +63,8 @@ def test_train_defaults_are_the_pipelines():
 
 
 def test_cage_defaults_are_the_cage_configs(tmp_path):
-    from shellsim.cage.build import CageConfig
     from shellsim.jobs.cage import CageSettings
+    from shellsim.tetcage.build import CageConfig
 
     assert CageSettings("a").cage_config() is None  # the asset's own cage, whatever its settings
     assert CageSettings("a", margin=0.05).cage_config() == CageConfig(margin=0.05)

@@ -23,12 +23,12 @@ FLAG = re.compile(r"--[a-z]")
 LAYERS = (
     ("errors", "world", "settings", "memory", "distributed"),
     ("io",),
-    ("cage",),
+    ("tetcage",),
     ("physics",),
     ("motion",),
-    ("scene",),
+    ("shot",),
     ("deform",),
-    ("render",),
+    ("film",),
     ("viz",),
     ("jobs",),
     ("cli", "view", ""),
@@ -73,7 +73,7 @@ def _imported(module: str, path: Path, tree: ast.Module) -> Iterator[tuple[int, 
 
 def _layer(name: str) -> str:
     """The layer of a name under ``shellsim`` (a module, or what an import takes): its sub-package or module
-    (``shellsim.cage.build`` -> ``cage``), else ``""``, the public API (``shellsim`` itself, the names
+    (``shellsim.tetcage.build`` -> ``tetcage``), else ``""``, the public API (``shellsim`` itself, the names
     ``shellsim/__init__.py`` exports)."""
     part = name.split(".")[1] if "." in name else ""
     return part if part in BAND else ""
@@ -157,7 +157,7 @@ def _assigned(scope: ast.AST) -> dict[str, list[ast.AST]]:
 def _messages(tree: ast.Module) -> Iterator[ast.AST]:
     """What may become an error message: the expressions of each ``raise`` and the arguments of each call
     that reports (:func:`_reports`), with what their names are assigned in the same function or the module
-    (``message = f"..."; raise ValueError(message)``; ``cage.build.APART_DILATED`` handed to
+    (``message = f"..."; raise ValueError(message)``; ``tetcage.build.APART_DILATED`` handed to
     ``check_tet_mesh``)."""
     module = _assigned(tree)
     functions = [n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)]
@@ -223,13 +223,13 @@ def test_a_planted_import_across_the_layers_is_reported(tmp_path):
     losses = _plant(root, "neural/losses.py", "def f():\n    from shellsim.settings import option\n")
     _plant(
         root,
-        "shellsim/cage/planted.py",
+        "shellsim/tetcage/planted.py",
         """\
         from shellsim.motion.format import Motion
-        from shellsim.cage.geometry import tet_volumes
+        from shellsim.tetcage.geometry import tet_volumes
         from ..io.npz import save_npz
         from shellsim import errors, world
-        import shellsim.cage.build
+        import shellsim.tetcage.build
         """,
     )
     npz = _plant(
@@ -239,7 +239,7 @@ def test_a_planted_import_across_the_layers_is_reported(tmp_path):
         def planted():
             from shellsim.io.outputs import check_writable_file
             from shellsim.settings import option
-            from shellsim.cage import geometry
+            from shellsim.tetcage import geometry
         """,
     )
     _plant(
@@ -251,7 +251,7 @@ def test_a_planted_import_across_the_layers_is_reported(tmp_path):
     _plant(root, "shellsim/motion/planted.py", "from shellsim import simulate\n")
     _plant(
         root,
-        "shellsim/render/planted.py",
+        "shellsim/film/planted.py",
         """\
         from typing import TYPE_CHECKING
         if TYPE_CHECKING:
@@ -260,11 +260,11 @@ def test_a_planted_import_across_the_layers_is_reported(tmp_path):
         """,
     )
     _plant(root, "shellsim/jobs/planted.py", "from shellsim.jobs import wind\nfrom shellsim import cli\n")
-    _plant(root, "shellsim/cli/planted.py", "import shellsim.jobs.wind\nfrom shellsim.render import frames\n")
+    _plant(root, "shellsim/cli/planted.py", "import shellsim.jobs.wind\nfrom shellsim.film import frames\n")
     _plant(
         root,
         "shellsim/view/planted.py",
-        "from shellsim.render.cameras import Shot\nfrom shellsim.jobs import render\nimport shellsim.cli\n",
+        "from shellsim.film.cameras import Shot\nfrom shellsim.jobs import render\nimport shellsim.cli\n",
     )
     api = _plant(root, "shellsim/__init__.py", "def planted():\n    from .cli import main\n")
     _plant(root, "shellsim/extra/planted.py", "from shellsim.world import UP\n")
@@ -273,15 +273,15 @@ def test_a_planted_import_across_the_layers_is_reported(tmp_path):
     assert set(planted) == {
         f"neural/losses.py:{losses + 1}: neural.losses (package neural) imports shellsim.settings "
         "(layer settings: neural never imports shellsim)",
-        "shellsim/cage/planted.py:3: shellsim.cage.planted (layer cage) imports shellsim.motion.format "
-        "(layer motion, above it)",
-        f"shellsim/io/npz.py:{npz + 3}: shellsim.io.npz (layer io) imports shellsim.cage "
-        "(layer cage, above it)",
+        "shellsim/tetcage/planted.py:3: shellsim.tetcage.planted (layer tetcage) imports "
+        "shellsim.motion.format (layer motion, above it)",
+        f"shellsim/io/npz.py:{npz + 3}: shellsim.io.npz (layer io) imports shellsim.tetcage "
+        "(layer tetcage, above it)",
         "shellsim/physics/planted.py:3: shellsim.physics.planted (layer physics) imports shellsim.cli "
         "(layer cli, above it)",
         "shellsim/motion/planted.py:3: shellsim.motion.planted (layer motion) imports shellsim.simulate "
         "(layer shellsim/__init__.py, above it)",
-        "shellsim/render/planted.py:5: shellsim.render.planted (layer render) imports shellsim.viz.inspect "
+        "shellsim/film/planted.py:5: shellsim.film.planted (layer film) imports shellsim.viz.inspect "
         "(layer viz, above it)",
         "shellsim/jobs/planted.py:4: shellsim.jobs.planted (layer jobs) imports shellsim.cli "
         "(layer cli, above it)",

@@ -120,8 +120,8 @@ def test_every_command_refuses_an_output_being_written_in_one_line(tmp_path, cap
 
 def test_a_cage_being_built_by_another_process_is_refused(capsys):
     from neural.asset import load_asset
-    from shellsim.cage.build import CageConfig, shell_digest
-    from shellsim.cage.store import cached_cage_path
+    from shellsim.tetcage.build import CageConfig, shell_digest
+    from shellsim.tetcage.store import cached_cage_path
 
     lego = load_asset("lego")
     entry = cached_cage_path(shell_digest(lego.outer_mesh(), lego.inner_mesh()), CageConfig(target_tets=3000))

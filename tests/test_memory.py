@@ -111,7 +111,7 @@ def test_the_render_estimate_matches_the_peak_of_a_frame(tmp_path):
     c2w[:3, 3] = eye
     cameras = tmp_path / "cameras.json"
     cameras.write_text(json.dumps({"camera_angle_x": 0.69, "frames": [{"transform_matrix": c2w.tolist()}]}))
-    setup = "from shellsim.render.frames import render_views"
+    setup = "from shellsim.film.motion_frames import render_views"
     work = f'render_views("lego", "{cameras}", "{tmp_path}/f{{n}}", size=({{n}}, {{n}}), progress=False)'
     # the sizes RENDER_PER_PIXEL was measured between: below 512 a frame's buffers grow more slowly (about
     # 150 B per pixel between 128 and 768, 240 between 512 and 1536 on the LEGO)
@@ -130,7 +130,7 @@ def test_the_mesh_load_estimate_matches_the_peak_of_loading_one(tmp_path):
 
 @pytest.mark.slow
 def test_the_tetwild_estimate_matches_the_peak_of_its_child(tmp_path):
-    setup = "import trimesh\nfrom shellsim.cage.tetwild import tetrahedralize\n"
+    setup = "import trimesh\nfrom shellsim.tetcage.tetwild import tetrahedralize\n"
     setup += "ball = trimesh.creation.icosphere(subdivisions=3)"
     work = "tets = tetrahedralize(ball.vertices, ball.faces, {edge}, 1e-3)[1]\nprint(len(tets))"
     counts, peaks = [], []
@@ -177,11 +177,11 @@ def test_a_run_the_machine_can_hold_is_not_refused():
 def test_a_mesh_too_large_for_the_machine_is_refused_before_it_is_tetrahedralised(
     tmp_path, capsys, monkeypatch
 ):
-    import shellsim.cage.build
+    import shellsim.tetcage.build
 
     trimesh.creation.box((0.1, 0.1, 0.1)).export(tmp_path / "box.ply")
     monkeypatch.setattr(memory, "available_memory", lambda device="cpu": 1_000_000)
-    monkeypatch.setattr(shellsim.cage.build, "build_cage", lambda *a, **k: pytest.fail("tetrahedralised"))
+    monkeypatch.setattr(shellsim.tetcage.build, "build_cage", lambda *a, **k: pytest.fail("tetrahedralised"))
     assert main(["simulate", "--mesh", str(tmp_path / "box.ply"), "--out", str(tmp_path / "box.npz")]) == 2
     needed = (memory.LOAD_PER_FACE + memory.TETWILD_PER_FACE) * 12 + 5000 * memory.SIM_PER_TET
     assert capsys.readouterr().err.strip() == (

@@ -90,7 +90,7 @@ def grid_cage(monkeypatch):
         v, t, _ = kuhn_grid(0.0, 1.0, 2)
         return types.SimpleNamespace(vertices=lo + v * (hi - lo), tets=t)
 
-    monkeypatch.setattr("shellsim.cage.build.build_cage", build_cage)
+    monkeypatch.setattr("shellsim.tetcage.build.build_cage", build_cage)
     return configs
 
 

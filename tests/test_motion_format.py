@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 
 from neural.errors import InputError
-from shellsim.cage.geometry import cage_digest
 from shellsim.cli.main import main
 from shellsim.motion.format import Motion, Surface, save_motion
 from shellsim.motion.log import MAGIC, partial_path
 from shellsim.motion.read import frame_bounds, iter_frames, load_motion, read_frames, read_motion_info
 from shellsim.motion.writer import MotionWriter, motion_exists
+from shellsim.tetcage.geometry import cage_digest
 
 
 def _cage(n=5):

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from shellsim.cage.embed import embed_points
 from shellsim.physics.control import Control
 from shellsim.physics.driver import FrameDriver
 from shellsim.physics.ipc import BodySurface, Contact, StaticSurface
 from shellsim.physics.materials import get_material
 from shellsim.physics.model import Model, SolverSettings
 from shellsim.physics.solver import Solver
+from shellsim.tetcage.embed import embed_points
 from tests.meshes import kuhn_grid, own_surface
 
 pytest.importorskip("ipctk")
@@ -40,7 +40,7 @@ def ball():
     """A tetrahedralised sphere of radius 5 cm and its surface, 642 vertices (fTetWild, once per module)."""
     import trimesh
 
-    from shellsim.cage.tetwild import tetrahedralize
+    from shellsim.tetcage.tetwild import tetrahedralize
 
     ico = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
     v, t, _ = tetrahedralize(ico.vertices, ico.faces, 0.02, 1e-3)

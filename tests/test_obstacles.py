@@ -1,4 +1,4 @@
-"""Static obstacles drawn around a body (shellsim.render.obstacles, shellsim.render.ground): boxes and spheres
+"""Static obstacles drawn around a body (shellsim.film.obstacles, shellsim.film.ground): boxes and spheres
 in world metres, Lambert-shaded, shadowing the ground and each other, hiding the body behind them.
 
 Truths from outside the code: the pinhole projection of a box's face and of a sphere's silhouette
@@ -19,10 +19,10 @@ from test_ground import PLACEMENT, checker_albedo, open_shade, stepped_sampler, 
 from neural.config import NarrowBandConfig
 from neural.data import Cameras, camera_rays
 from neural.render.view import render_camera
+from shellsim.film.ground import surface_t_max, world_backdrop
+from shellsim.film.motion_frames import motion_world, world_record
+from shellsim.film.obstacles import Obstacles
 from shellsim.io.png import renderer_identity
-from shellsim.render.frames import motion_world, world_record
-from shellsim.render.ground import surface_t_max, world_backdrop
-from shellsim.render.obstacles import Obstacles
 from shellsim.world import WorldLook
 
 LOOK = WorldLook(light=(0.3, -0.2, 1.0), ambient=0.3, diffuse=0.7, obstacle_color=(0.9, 0.05, 0.1))

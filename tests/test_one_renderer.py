@@ -23,9 +23,9 @@ from neural.data import load_dataset
 from neural.metrics import psnr
 from neural.render.raycast import EmbreeCaster
 from neural.render.view import asset_sampler, narrow_band_sampler, render_camera
-from shellsim.cage.store import load_or_build_cage
 from shellsim.cli.main import main
-from shellsim.render.renderer import DeformedRenderer
+from shellsim.film.renderer import DeformedRenderer
+from shellsim.tetcage.store import load_or_build_cage
 
 SIZE = 24
 N_VIEWS = 9  # views 0 and 8 are held out

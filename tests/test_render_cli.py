@@ -14,9 +14,9 @@ from PIL import Image
 from test_render_deformed import CENTER, make_asset
 
 from neural.asset import load_asset
-from shellsim.cage.store import load_cage
 from shellsim.cli.main import main
 from shellsim.motion.format import Motion, save_motion
+from shellsim.tetcage.store import load_cage
 
 
 @pytest.fixture(scope="module")
@@ -182,7 +182,7 @@ def test_unbuildable_cage_is_one_error_line(tmp_path, asset_dir, capsys, monkeyp
     def fail(*args, **kwargs):
         raise RuntimeError("fTetWild failed")
 
-    monkeypatch.setattr("shellsim.cage.build.build_cage", fail)
+    monkeypatch.setattr("shellsim.tetcage.build.build_cage", fail)
     cams = write_cameras(tmp_path / "cams.json", 1)
     motion = write_motion(tmp_path / "m.npz", asset_dir, 2)
     code = render(broken, tmp_path / "o", motion=motion, cameras=cams)

@@ -1,4 +1,4 @@
-"""shellsim.render: deformed-space rendering against independent truths.
+"""shellsim.film: deformed-space rendering against independent truths.
 
 The test asset is an untrained ``ShellField`` (a sphere SDF of radius 0.25 around an off-centre point with a
 kernel size of 0.025, so the band between the shells is semi-transparent, and a colourful, view-dependent
@@ -31,13 +31,13 @@ from neural.data import Cameras, look_at
 from neural.field import FieldConfig, ShellField
 from neural.field.hashgrid import HashGridConfig
 from neural.metrics import psnr
-from shellsim.cage.build import Cage, shell_digest
-from shellsim.cage.embed import embed_points
-from shellsim.cage.store import load_or_build_cage
 from shellsim.deform.inverse_map import InverseMap, deform_points, map_points_reference
-from shellsim.render.cameras import orbit_camera
-from shellsim.render.renderer import DeformedRenderer
+from shellsim.film.cameras import orbit_camera
+from shellsim.film.renderer import DeformedRenderer
 from shellsim.settings import parse_frames
+from shellsim.tetcage.build import Cage, shell_digest
+from shellsim.tetcage.embed import embed_points
+from shellsim.tetcage.store import load_or_build_cage
 
 CENTER = np.array([0.1, -0.2, 0.3])  # the asset's normalisation centre: the sphere's centre
 SCALE = 2.0  # unit space = (x - CENTER) * SCALE; the unit sphere of radius 0.5 has world radius 0.25

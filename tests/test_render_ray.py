@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from shellsim.cli.main import main
-from shellsim.render.frames import render_motion
+from shellsim.film.motion_frames import render_motion
 
 
 @pytest.mark.slow
@@ -32,7 +32,7 @@ def test_a_worker_killed_mid_render_loses_no_frame(tmp_path, monkeypatch):
     import signal
     import subprocess
 
-    import shellsim.render.frames as render
+    import shellsim.film.motion_frames as render
 
     motion = tmp_path / "w.npz"
     assert main(["wind", "--asset", "lego", "--frames", "6", "--out", str(motion)]) == 0

@@ -1,4 +1,4 @@
-"""The scene file (:mod:`shellsim.scene.file`): a full file read into the spec's dataclasses, the defaults,
+"""The scene file (:mod:`shellsim.shot.file`): a full file read into the spec's dataclasses, the defaults,
 paths relative to the file, and one line ``FILE: [table] key: problem`` for each kind of mistake."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from shellsim.scene.file import problem, read_scene
-from shellsim.scene.spec import (
+from shellsim.shot.file import problem, read_scene
+from shellsim.shot.spec import (
     ActionSpec,
     BodySpec,
     CageSpec,

@@ -1,5 +1,5 @@
 """Several bodies in one image (neural.render.bodies, view.render_bodies,
-shellsim.render.renderer.SceneRenderer).
+shellsim.film.renderer.SceneRenderer).
 
 Truths from outside the code: a per-ray composite of two analytic spheres marched by brute force (NeuS
 opacities ``max((Phi(s f_k) - Phi(s f_k+1)) / Phi(s f_k), 0)`` of each sphere's exact SDF over 20,000 steps,
@@ -154,7 +154,7 @@ def test_shadow_rays_multiply_the_bodies_transmittance():
 @pytest.fixture(scope="module")
 def ball(tmp_path_factory):
     from neural.asset import load_asset, load_field
-    from shellsim.cage.store import load_or_build_cage
+    from shellsim.tetcage.store import load_or_build_cage
 
     asset = load_asset(make_asset(tmp_path_factory.mktemp("ball")))
     return asset, load_field(asset, "cpu"), load_or_build_cage(asset)
@@ -163,7 +163,7 @@ def ball(tmp_path_factory):
 def test_a_rigidly_moved_two_body_scene_equals_its_rest_view(ball):
     """Two bodies placed side by side, both cages moved by one rigid motion (turned and shifted in the
     world): the frame equals the rest frame seen from the camera carried back by that motion (>= 35 dB)."""
-    from shellsim.render.renderer import DeformedRenderer, SceneRenderer
+    from shellsim.film.renderer import DeformedRenderer, SceneRenderer
     from shellsim.world import Placement
 
     asset, field, cage = ball
@@ -288,9 +288,9 @@ def test_a_mesh_body_is_lit_and_shadows_the_ground_as_lambert_says(shot, tmp_pat
     from PIL import Image
 
     from neural.data import camera_rays
-    from shellsim.render.cameras import scene_shot
-    from shellsim.render.scene_frames import render_scene, scene_camera, scene_tracks
-    from shellsim.scene.motion import MESH_BODY_COLORS, read_scene_motion
+    from shellsim.film.cameras import scene_shot
+    from shellsim.film.shot_frames import render_scene, scene_camera, scene_tracks
+    from shellsim.shot.recorded import MESH_BODY_COLORS, read_scene_motion
     from shellsim.world import WorldLook
 
     size = 96

@@ -1,4 +1,4 @@
-"""A scene written back (shellsim.scene.save) reads to the same spec (shellsim.scene.file): every example
+"""A scene written back (shellsim.shot.save) reads to the same spec (shellsim.shot.file): every example
 scene, and one that uses every kind of table and key."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from shellsim.scene.file import read_scene
-from shellsim.scene.save import scene_toml
+from shellsim.shot.file import read_scene
+from shellsim.shot.save import scene_toml
 
 EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples" / "scenes").glob("*.toml"))
 
@@ -147,7 +147,7 @@ collider_color = [0.2, 0.3, 0.4]
 
 
 def test_an_up_axis_of_zero_is_refused_naming_the_key(tmp_path):
-    from shellsim.scene.spec import SceneError
+    from shellsim.shot.spec import SceneError
 
     path = tmp_path / "zero.toml"
     path.write_text('[[body]]\nasset = "lego"\nup = [0, 0, 0]\n')

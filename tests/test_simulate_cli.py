@@ -46,7 +46,7 @@ def closed_mesh(tmp_path, monkeypatch):
         v, t, _ = kuhn_grid(0.0, 1.0, 2)
         return types.SimpleNamespace(vertices=v + outer.bounds[0], tets=t)
 
-    monkeypatch.setattr("shellsim.cage.build.build_cage", build_cage)
+    monkeypatch.setattr("shellsim.tetcage.build.build_cage", build_cage)
     return path, calls
 
 
@@ -244,7 +244,7 @@ def test_a_motion_is_continued_only_with_the_cage_and_mesh_it_was_made_from(
     out = tmp_path / "wind.npz"
     args = _wind_args(asset, out)
     assert main([*args, "--frames", "3"]) == 0
-    from shellsim.cage.store import cage_for_motion
+    from shellsim.tetcage.store import cage_for_motion
 
     (asset.root / "field.safetensors").write_bytes(b"retrained")  # same shells and cage, another field
     with caplog.at_level("WARNING"):
@@ -311,7 +311,7 @@ def test_the_saved_scene_is_the_run_and_the_scene_job_makes_the_same_motion(tmp_
 
     from shellsim.cli.options import add_options, from_args
     from shellsim.jobs.simulate import SimulateSettings, scene_of
-    from shellsim.scene.file import read_scene
+    from shellsim.shot.file import read_scene
 
     mesh, _ = closed_mesh
     toml = tmp_path / "shot.toml"

@@ -12,9 +12,9 @@ from meshes import kuhn_grid
 from PIL import Image
 
 from neural.data import Cameras, look_at
-from shellsim.cage.embed import embed_points
 from shellsim.cli.main import main  # noqa: E402
 from shellsim.motion.format import Motion, Surface, save_motion
+from shellsim.tetcage.embed import embed_points
 from shellsim.viz.surface import SurfaceRenderer, render_surface_motion  # noqa: E402
 
 SIZE = 64

@@ -10,10 +10,10 @@ import pytest
 from meshes import kuhn_grid, save_embedded_cage, write_asset_dir
 
 from neural.errors import InputError
-from shellsim.cage.geometry import MIN_VOLUME_RATIO
 from shellsim.motion.read import load_motion
 from shellsim.physics.selection import parse_selection
 from shellsim.physics.wind import WindField, beam_profile, heights, wind_displacement
+from shellsim.tetcage.geometry import MIN_VOLUME_RATIO
 from shellsim.world import Placement
 
 

@@ -1,5 +1,5 @@
 """shellsim.world: placements of bodies in the world (metres, z up, ground at z = 0) against closed forms;
-shellsim.render.world: the look of a scene file's ``[look]`` and the world options laid over it."""
+shellsim.film.world: the look of a scene file's ``[look]`` and the world options laid over it."""
 
 import dataclasses
 import json
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from neural.errors import InputError
-from shellsim.render.world import WorldSettings, look_of
-from shellsim.scene.spec import LookSpec
+from shellsim.film.world import WorldSettings, look_of
+from shellsim.shot.spec import LookSpec
 from shellsim.world import Placement, WorldLook, describe_placement, place_on_ground, up_rotation
 
 LOOK = LookSpec(

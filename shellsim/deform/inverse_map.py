@@ -27,8 +27,8 @@ import warp as wp
 
 from neural.device import cpu_threads as default_cpu_threads
 from neural.device import run_in_chunks
-from shellsim.cage.embed import interpolate
-from shellsim.cage.geometry import check_points, check_tets, tet_neighbors
+from shellsim.tetcage.embed import interpolate
+from shellsim.tetcage.geometry import check_points, check_tets, tet_neighbors
 
 #: Barycentric tolerance of the point-in-tet test: a point whose smallest barycentric coordinate is
 #: at least ``-BARY_TOL`` is inside (points on shared and boundary faces are found).
@@ -49,10 +49,10 @@ def deform_points(cage_positions, tets, tet_index, bary) -> np.ndarray:
 
     cage_positions : (V, 3) float, cage vertices of one frame
     tets : (T, 4) int
-    tet_index : (P,) int, containing tet of each embedded point (from :mod:`shellsim.cage.embed`)
+    tet_index : (P,) int, containing tet of each embedded point (from :mod:`shellsim.tetcage.embed`)
     bary : (P, 4) float, its barycentric coordinates in that tet
     returns : (P, 3) float64, ``sum_k bary[p, k] * cage_positions[tets[tet_index[p], k]]``
-        (:func:`shellsim.cage.embed.interpolate` for one frame)
+        (:func:`shellsim.tetcage.embed.interpolate` for one frame)
     """
     return interpolate(check_points("cage_positions", cage_positions), tets, tet_index, bary)
 
@@ -241,7 +241,8 @@ class InverseMap:
     device : Warp device ("cpu", "cuda:0"); None picks Warp's preferred device (CUDA when present)
     tol : barycentric tolerance of the point-in-tet test
     cpu_threads : threads sharing a query on the CPU (None: :func:`neural.device.cpu_threads`)
-    neighbors : (T, 4) int, the tet across each face as :func:`shellsim.cage.geometry.tet_neighbors` gives it;
+    neighbors : (T, 4) int, the tet across each face as :func:`shellsim.tetcage.geometry.tet_neighbors` gives
+        it;
         None computes it (-1 everywhere ends every walk at once, so each point searches the BVH)
 
     Building costs one Warp kernel over the tets and one BVH build (a few ms for 10k tets on a CPU), and

@@ -54,7 +54,7 @@ def digest(*parts) -> str:
 
 def asset_identity(asset, cage=None) -> str:
     """Digest of what an asset's images depend on: its field weights and configuration, normalisation,
-    shells and the rest ``cage`` (:class:`shellsim.cage.build.Cage`, when it deforms them) by content."""
+    shells and the rest ``cage`` (:class:`shellsim.tetcage.build.Cage`, when it deforms them) by content."""
     meta = {k: asset.meta.get(k) for k in ("normalisation", "field")}
     files = [asset.file("field"), asset.file("shell_outer"), asset.file("shell_inner")]
     return digest(json.dumps(meta, sort_keys=True), *files, *([cage.vertices, cage.tets] if cage else []))
@@ -109,10 +109,10 @@ def stale_reason(path: Path, record: dict) -> str | None:
 
 def renderer_identity(asset, antialias: int = 1, world: dict | None = None) -> str:
     """Digest of the narrow-band renderer's settings for ``asset`` (its sampling and background), the
-    jittered rays per pixel ``antialias`` (:func:`shellsim.render.frames.antialiased`; 1, one ray through
+    jittered rays per pixel ``antialias`` (:func:`shellsim.film.motion_frames.antialiased`; 1, one ray through
     each pixel's centre, leaves the digest as it was before antialiasing, so those PNGs stay valid) and the
     ``world`` around the body (JSON: its look, the body's placement and the static obstacles,
-    :func:`shellsim.render.frames.world_record`; None, the asset's background, leaves the digest as it
+    :func:`shellsim.film.motion_frames.world_record`; None, the asset's background, leaves the digest as it
     was)."""
     from dataclasses import asdict
 

@@ -1,6 +1,6 @@
 """Build (or load) the tetrahedral cage of an asset (paper Sec. 5) and describe it.
 
-Where the cage lives and when it is rebuilt: :func:`shellsim.cage.store.load_or_build_cage`.
+Where the cage lives and when it is rebuilt: :func:`shellsim.tetcage.store.load_or_build_cage`.
 """
 
 from __future__ import annotations
@@ -9,15 +9,15 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from shellsim.cage.build import CageConfig
 from shellsim.errors import SettingError
 from shellsim.settings import check_required, option
+from shellsim.tetcage.build import CageConfig
 
 
 @dataclass(frozen=True)
 class CageSettings:
     """What ``shellsim cage`` takes. Neither ``tets`` nor ``margin`` set: the asset's own cage whatever its
-    settings; one set: the other takes :class:`~shellsim.cage.build.CageConfig`'s default."""
+    settings; one set: the other takes :class:`~shellsim.tetcage.build.CageConfig`'s default."""
 
     asset: str = option(help="asset directory, or the name of a shipped asset", required=True)
     tets: int | None = option(
@@ -46,9 +46,9 @@ class CageSettings:
 
 @dataclass(frozen=True)
 class CageResult:
-    """The cage :func:`cage` loaded or built (facts of :func:`~shellsim.cage.store.cage_summary`).
+    """The cage :func:`cage` loaded or built (facts of :func:`~shellsim.tetcage.store.cage_summary`).
 
-    name : the asset's name; path : the cage file; config : its :class:`~shellsim.cage.build.CageConfig`
+    name : the asset's name; path : the cage file; config : its :class:`~shellsim.tetcage.build.CageConfig`
     seconds : wall time of loading or building it
     vertices, tets : V and T, the cage's vertex and tet counts; volume : its volume (asset units cubed)
     min_quality, median_quality : tet quality (1 = regular)
@@ -74,8 +74,8 @@ class CageResult:
 def cage(settings: CageSettings) -> CageResult:
     """Load or build the cage of ``settings.asset`` and describe it."""
     from neural.asset import load_asset
-    from shellsim.cage.store import cage_summary, load_or_build_cage
     from shellsim.memory import check_memory, tetwild_bytes
+    from shellsim.tetcage.store import cage_summary, load_or_build_cage
 
     if settings.tets:
         what = f"a cage of {settings.tets:,} tets"

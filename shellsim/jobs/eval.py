@@ -11,8 +11,8 @@ from dataclasses import dataclass
 from neural.config import PipelineConfig
 from neural.device import DEVICES, processor
 from shellsim.errors import SettingError
+from shellsim.film.cameras import check_antialias
 from shellsim.io.outputs import holds_outputs
-from shellsim.render.cameras import check_antialias
 from shellsim.settings import check_choice, check_required, config_bounds, device_setting, option
 
 
@@ -107,8 +107,8 @@ def evaluate(settings: EvalSettings) -> EvalResult:
     from neural.metrics import lpips_status
     from neural.render.view import asset_sampler, full_ray_sampler, render_camera
     from neural.train import evaluate as evaluate_views
+    from shellsim.film.motion_frames import antialiased
     from shellsim.io.outputs import check_writable_dir, check_writable_file, lock_output
-    from shellsim.render.frames import antialiased
 
     if settings.json:
         lock_output(check_writable_file(settings.json, "json"), "json")

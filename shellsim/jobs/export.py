@@ -70,17 +70,17 @@ def _compact(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _meshes(settings: ExportSettings, motion):
     """The moving meshes of ``motion`` (list of AnimatedMesh): the asset's M+ (through its cage, with the
-    field's colour at each vertex, :func:`shellsim.render.shell_colors.shell_colors`), the surface a
+    field's colour at each vertex, :func:`shellsim.film.shell_colors.shell_colors`), the surface a
     'simulate --mesh' motion carries, and the cage's boundary last, a guide (not rendered)."""
-    from shellsim.cage.geometry import boundary_faces
-    from shellsim.cage.store import cage_for_motion
     from shellsim.deform.inverse_map import deform_points
     from shellsim.io.export import AnimatedMesh
+    from shellsim.tetcage.geometry import boundary_faces
+    from shellsim.tetcage.store import cage_for_motion
 
     meshes = []
     if settings.asset is not None:
         from neural.asset import load_asset, load_field
-        from shellsim.render.shell_colors import shell_colors
+        from shellsim.film.shell_colors import shell_colors
 
         asset = load_asset(settings.asset)
         cage = cage_for_motion(asset, motion, settings.motion)
@@ -112,10 +112,10 @@ def _scene_meshes(path: Path, motion) -> list:
     from collections import Counter
 
     from neural.errors import InputError
-    from shellsim.cage.geometry import boundary_faces
     from shellsim.io.export import AnimatedMesh, safe_name
-    from shellsim.scene.bodies import collider_mesh
-    from shellsim.scene.motion import read_scene_motion
+    from shellsim.shot.bodies import collider_mesh
+    from shellsim.shot.recorded import read_scene_motion
+    from shellsim.tetcage.geometry import boundary_faces
     from shellsim.world import WorldLook
 
     scene = read_scene_motion(path)
@@ -139,15 +139,15 @@ def _scene_meshes(path: Path, motion) -> list:
 
 def _body_meshes(body, motion, boundary: np.ndarray, colors: dict) -> tuple:
     """(surface, cage guide) AnimatedMeshes of the scene body ``body``
-    (:class:`shellsim.scene.motion.MotionBody`) of ``motion``, in world metres. A neural body's surface is
+    (:class:`shellsim.shot.recorded.MotionBody`) of ``motion``, in world metres. A neural body's surface is
     its asset's M+ deformed by its cage (barycentric in the cage's world positions: the same as in the
     asset's frame mapped to the world, a placement being affine) with its field's colours (kept in
     ``colors`` by asset directory for the next body of that asset); a mesh body's is its own surface in its
     colour. The guide is its share of ``boundary`` (F, 3), the boundary faces of the motion's tets."""
     from neural.asset import load_field
     from shellsim.deform.inverse_map import deform_points
+    from shellsim.film.shell_colors import shell_colors
     from shellsim.io.export import AnimatedMesh
-    from shellsim.render.shell_colors import shell_colors
 
     def share(k: int) -> np.ndarray:
         return motion.positions[k][body.vertices]
@@ -175,17 +175,17 @@ def _body_meshes(body, motion, boundary: np.ndarray, colors: dict) -> tuple:
 
 @holds_outputs
 def export(settings: ExportSettings, progress: bool = True) -> ExportResult:
-    """Write the export ``settings`` describe; a scene motion (:func:`shellsim.scene.motion.is_scene_motion`)
+    """Write the export ``settings`` describe; a scene motion (:func:`shellsim.shot.recorded.is_scene_motion`)
     is exported whole (:func:`_scene_meshes`), in world metres, z up."""
     from tqdm import tqdm
 
-    from shellsim.cage.geometry import volume_ratios
+    from shellsim.film.motion_frames import motion_fps
     from shellsim.io.export import require_usd, write_ply_sequence, write_usd, write_vtu_series
     from shellsim.io.outputs import check_writable_dir, check_writable_file, lock_output
     from shellsim.motion.read import load_motion, read_motion_info
-    from shellsim.render.frames import motion_fps
-    from shellsim.scene.motion import is_scene_motion, motion_path
     from shellsim.settings import parse_frames
+    from shellsim.shot.recorded import is_scene_motion, motion_path
+    from shellsim.tetcage.geometry import volume_ratios
 
     if settings.format == "usd":
         require_usd()

@@ -87,7 +87,7 @@ def inspect(settings: InspectSettings) -> Path | None:
             return surface_plotter(motion, frame, settings.size, off_screen=off_screen, slider=slider)
     else:
         from neural.asset import load_asset
-        from shellsim.cage.store import cage_for_motion, load_or_build_cage
+        from shellsim.tetcage.store import cage_for_motion, load_or_build_cage
 
         asset = load_asset(settings.asset)
         cage = (

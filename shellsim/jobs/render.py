@@ -2,8 +2,9 @@
 motion deformed by its cage (paper Sec. 5), or of a scene's motion (every body in one image), or a motion's
 own surface without an asset.
 
-The renderers are :func:`shellsim.render.frames.render_views`, :func:`shellsim.render.frames.render_motion`,
-:func:`shellsim.render.scene_frames.render_scene` and :func:`shellsim.viz.surface.render_surface_motion`;
+The renderers are :func:`shellsim.film.motion_frames.render_views`,
+:func:`shellsim.film.motion_frames.render_motion`,
+:func:`shellsim.film.shot_frames.render_scene` and :func:`shellsim.viz.surface.render_surface_motion`;
 this module checks the settings and outputs first.
 """
 
@@ -14,9 +15,7 @@ from dataclasses import dataclass
 
 from neural.device import DEVICES
 from shellsim.errors import SettingError
-from shellsim.io.outputs import check_writable_dir, check_writable_file, holds_outputs, lock_output
-from shellsim.memory import check_memory, render_bytes
-from shellsim.render.cameras import (
+from shellsim.film.cameras import (
     MOTION_ANTIALIAS,
     OPTIONS,
     VIDEO_SIZE,
@@ -24,8 +23,10 @@ from shellsim.render.cameras import (
     camera_option,
     check_antialias,
 )
-from shellsim.render.result import RenderResult
-from shellsim.render.world import WorldSettings, world_option
+from shellsim.film.result import RenderResult
+from shellsim.film.world import WorldSettings, world_option
+from shellsim.io.outputs import check_writable_dir, check_writable_file, holds_outputs, lock_output
+from shellsim.memory import check_memory, render_bytes
 from shellsim.settings import check_choice, check_required, device_setting, option
 
 MOTION_ONLY = ("frames", "video", "fps", *OPTIONS)
@@ -154,7 +155,7 @@ class RenderSettings:
 
 @holds_outputs
 def render(settings: RenderSettings) -> RenderResult:
-    """Render what ``settings`` ask for; returns the :class:`~shellsim.render.result.RenderResult` (the
+    """Render what ``settings`` ask for; returns the :class:`~shellsim.film.result.RenderResult` (the
     frames, how many were rendered, kept and replaced, mean ms per frame and per stage, the video). Outputs
     and the frame range are checked before torch or pyvista is imported."""
     lock_output(check_writable_dir(settings.out, "out"), "out")
@@ -166,8 +167,8 @@ def render(settings: RenderSettings) -> RenderResult:
         lock_output(check_writable_file(settings.video, "video"), "video")
     if settings.motion is not None or settings.scene is not None:
         from shellsim.motion.read import read_motion_info
-        from shellsim.scene.motion import motion_path
         from shellsim.settings import parse_frames
+        from shellsim.shot.recorded import motion_path
 
         path = motion_path(settings.scene) if settings.scene else settings.motion
         parse_frames(settings.frames, read_motion_info(path).n_frames, str(path))
@@ -187,7 +188,7 @@ def render(settings: RenderSettings) -> RenderResult:
         **common,
     )
     if settings.scene is not None:
-        from shellsim.render.scene_frames import render_scene
+        from shellsim.film.shot_frames import render_scene
 
         camera = CameraSettings.of(settings) if settings.camera else None
         frames.update(look=WorldSettings.of(settings), ground=settings.ground)  # over the scene's own look
@@ -208,7 +209,7 @@ def render(settings: RenderSettings) -> RenderResult:
             **common,
         )
     if settings.motion is None:
-        from shellsim.render.frames import render_views
+        from shellsim.film.motion_frames import render_views
 
         return render_views(
             settings.asset,
@@ -219,7 +220,7 @@ def render(settings: RenderSettings) -> RenderResult:
             antialias=settings.antialias or 1,
             **common,
         )
-    from shellsim.render.frames import render_motion
+    from shellsim.film.motion_frames import render_motion
 
     camera = None if settings.cameras else CameraSettings.of(settings)
     return render_motion(

@@ -1,7 +1,7 @@
 """The scene job: a shot of several bodies, static colliders and timed actions, read from a scene file.
 
-The file (:mod:`shellsim.scene.file`, schema in docs/scene-file.md) is read and checked before anything
-heavy runs; then the shot is made to move (:class:`shellsim.scene.simulation.SceneSimulation`: every body's
+The file (:mod:`shellsim.shot.file`, schema in docs/scene-file.md) is read and checked before anything
+heavy runs; then the shot is made to move (:class:`shellsim.shot.simulation.SceneSimulation`: every body's
 cage and collision surface loaded or built and placed, the first instant checked, one implicit solve over
 every body per substep with incremental potential contact and the timed actions) and its frames recorded
 (:mod:`shellsim.jobs.recording`). ``shellsim simulate`` is the one-body case (:mod:`shellsim.jobs.simulate`).
@@ -84,7 +84,7 @@ class SceneSettings:
 class SceneResult:
     """out : the motion file; frames : its frame count; history : the
     :class:`shellsim.physics.driver.FrameStats` of the frames simulated now; bodies : their names; video :
-    the :class:`shellsim.render.result.RenderResult` of its frames and video (None without one)."""
+    the :class:`shellsim.film.result.RenderResult` of its frames and video (None without one)."""
 
     out: Path
     frames: int
@@ -111,8 +111,8 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
     from shellsim.io.outputs import check_writable_dir, lock_output
     from shellsim.jobs.recording import record_frames, resume_or_refuse
     from shellsim.motion.writer import MotionWriter
-    from shellsim.scene.file import read_scene
-    from shellsim.scene.simulation import SceneSimulation
+    from shellsim.shot.file import read_scene
+    from shellsim.shot.simulation import SceneSimulation
 
     s = settings
     spec = read_scene(s.scene)  # every error of the file, before anything heavy or written
@@ -168,7 +168,7 @@ def _video(settings: SceneSettings, spec, out_dir: Path, frames: int, progress: 
     video."""
     if settings.video is None:
         return None
-    from shellsim.render.scene_frames import render_scene
+    from shellsim.film.shot_frames import render_scene
 
     return render_scene(
         out_dir,

@@ -1,9 +1,9 @@
 """The simulate job: drop an asset's cage (or a closed mesh, tetrahedralised) as an elastic body: the
 one-body shot of :mod:`shellsim.jobs.scene`.
 
-:func:`scene_of` translates the settings into a :class:`~shellsim.scene.spec.SceneSpec`: one body, the
+:func:`scene_of` translates the settings into a :class:`~shellsim.shot.spec.SceneSpec`: one body, the
 ground, its obstacles as box and sphere colliders, each ``pin`` rule a pin action for the whole shot, every
-friction the one ``friction``; :class:`shellsim.scene.simulation.SceneSimulation` moves it and
+friction the one ``friction``; :class:`shellsim.shot.simulation.SceneSimulation` moves it and
 :mod:`shellsim.jobs.recording` records it. ``save_scene`` writes that spec as a scene file, which
 ``shellsim scene`` runs to the same positions.
 
@@ -31,14 +31,14 @@ import numpy as np
 
 from neural.errors import InputError
 from shellsim.errors import SettingError
+from shellsim.film.cameras import OPTIONS, CameraSettings, camera_option
+from shellsim.film.result import RenderResult
+from shellsim.film.world import OPTIONS as WORLD_OPTIONS
+from shellsim.film.world import WorldSettings, world_option
 from shellsim.io.outputs import holds_outputs
 from shellsim.jobs.recording import REPLACE
 from shellsim.motion.format import MAX_FPS, MAX_FRAMES
 from shellsim.physics.selection import selection_text
-from shellsim.render.cameras import OPTIONS, CameraSettings, camera_option
-from shellsim.render.result import RenderResult
-from shellsim.render.world import OPTIONS as WORLD_OPTIONS
-from shellsim.render.world import WorldSettings, world_option
 from shellsim.settings import (
     allow_stretch_option,
     check_range,
@@ -53,7 +53,7 @@ from shellsim.settings import (
 from shellsim.world import BODY_SIZE, UNITS, UP, describe_placement
 
 if TYPE_CHECKING:
-    from shellsim.scene.spec import SceneSpec
+    from shellsim.shot.spec import SceneSpec
 
 log = logging.getLogger(__name__)
 
@@ -282,7 +282,7 @@ _OPTIONS = {
 @dataclass
 class SimulateResult:
     """out : the motion file; frames : its frame count; history : :class:`shellsim.physics.driver.FrameStats`
-    of the frames simulated now; video : the render's :class:`shellsim.render.result.RenderResult` (None
+    of the frames simulated now; video : the render's :class:`shellsim.film.result.RenderResult` (None
     without ``video``)."""
 
     out: Path
@@ -299,9 +299,9 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
     from shellsim.jobs.recording import record_frames, resume_or_refuse
     from shellsim.memory import cage_bytes, check_memory, render_bytes
     from shellsim.motion.writer import MotionWriter
-    from shellsim.scene.bodies import file_digest
-    from shellsim.scene.save import scene_toml
-    from shellsim.scene.simulation import SceneSimulation
+    from shellsim.shot.bodies import file_digest
+    from shellsim.shot.save import scene_toml
+    from shellsim.shot.simulation import SceneSimulation
 
     s = settings
     out = lock_output(check_writable_file(s.out_path, "out"), "out")
@@ -397,8 +397,8 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
 def scene_of(settings: SimulateSettings) -> SceneSpec:
     """The one-body shot the settings describe (module docstring): what :func:`simulate` runs and
     ``save_scene`` writes."""
-    from shellsim.scene import spec as specs
-    from shellsim.scene.spec import ActionSpec, BodySpec, CageSpec, ColliderSpec, WorldSpec
+    from shellsim.shot import spec as specs
+    from shellsim.shot.spec import ActionSpec, BodySpec, CageSpec, ColliderSpec, WorldSpec
 
     def point(values) -> tuple[float, float, float]:
         return tuple(float(c) for c in values)
@@ -470,7 +470,7 @@ def _render(s: SimulateSettings, out: Path, frames_dir: Path, video: Path, devic
     each frame already there is kept only if it records this motion frame and camera."""
     camera = CameraSettings.of(s)
     if s.asset:
-        from shellsim.render.frames import render_motion
+        from shellsim.film.motion_frames import render_motion
 
         return render_motion(
             s.asset,

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from shellsim.errors import SettingError
+from shellsim.film.cameras import CameraSettings, camera_option
 from shellsim.io.outputs import holds_outputs
 from shellsim.motion.format import MAX_FRAMES
-from shellsim.render.cameras import CameraSettings, camera_option
 from shellsim.settings import check_range, check_required, float_list, name_list, option, pixels
 
 
@@ -142,7 +142,7 @@ def render_combination(
     """Render one simulated combination by the camera of ``settings``, which keeps ``framing`` (N, 3) in
     view (the same for every combination; a follow camera frames the body); returns its entry of the index:
     the combination, its files (relative to ``out``) and figures."""
-    from shellsim.render.frames import render_motion
+    from shellsim.film.motion_frames import render_motion
 
     out = Path(settings.out)
     folder = out / combo["name"]

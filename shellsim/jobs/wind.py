@@ -136,13 +136,13 @@ def wind(settings: WindSettings, progress: bool = True) -> WindResult:
     import numpy as np
 
     from neural.asset import load_asset
-    from shellsim.cage.build import CageConfig
-    from shellsim.cage.geometry import MIN_VOLUME_RATIO, cage_digest
-    from shellsim.cage.store import load_or_build_cage
     from shellsim.io.outputs import check_writable_file, lock_output
     from shellsim.jobs.recording import REPLACE, record_frames, resume_or_refuse
     from shellsim.motion.writer import MotionWriter
     from shellsim.physics.wind import SETTING_NAMES, limited_wind_displacement, wind_record
+    from shellsim.tetcage.build import CageConfig
+    from shellsim.tetcage.geometry import MIN_VOLUME_RATIO, cage_digest
+    from shellsim.tetcage.store import load_or_build_cage
     from shellsim.world import UP, Placement, describe_placement, place_on_ground
 
     s = settings

@@ -7,9 +7,9 @@ plain, uncompressed ``.npz`` (``np.savez``'s layout: :func:`numpy.load` opens it
   int64, ``positions`` (F, V, 3) float32 and ``times`` (F,) float64 (seconds);
 - ``header``: a 0-d string of JSON: ``format`` ("shellsim-motion"), ``format_version`` (3), ``producer``
   (what made it: "shellsim simulate", ...), ``settings`` (the producer's), ``asset`` (``name`` and content
-  ``digest`` of the asset, or the mesh simulated), ``cage`` (the :func:`~shellsim.cage.geometry.cage_digest`
-  of the cage in the asset's own frame: the identity :meth:`Motion.check_against` compares), ``placement``
-  (the similarity from the asset's frame to the world, :class:`shellsim.world.Placement`; ``{}`` for none),
+  ``digest`` of the asset, or the mesh simulated), ``cage`` (the
+  :func:`~shellsim.tetcage.geometry.cage_digest` of the cage in the asset's own frame: the identity
+  :meth:`Motion.check_against` compares), ``placement`` (the similarity from the asset's frame to the world, :class:`shellsim.world.Placement`; ``{}`` for none),
   ``meta`` (facts: statistics, wall time) and ``units`` ("m");
 - optionally the surface of what moves (``simulate --mesh``), embedded in the cage: ``surface_tet`` (S,)
   int64, ``surface_bary`` (S, 4) float64, ``surface_faces`` (F, 3) int64;
@@ -42,8 +42,8 @@ import numpy as np
 
 from neural.errors import InputError
 from neural.files import write_atomically
-from shellsim.cage.geometry import cage_digest, check_tets
 from shellsim.io.npz import Blocks, NpzReader, write_npz
+from shellsim.tetcage.geometry import cage_digest, check_tets
 
 FORMAT = "shellsim-motion"
 
@@ -92,7 +92,7 @@ class _MovesACage:
     def check_against(self, cage, source: str | None = None) -> None:
         """:class:`InputError` (``source: problem``, default the file's path) unless this motion moves
         ``cage`` (vertices (V, 3), tets (T, 4) in the asset's frame, e.g. a
-        :class:`shellsim.cage.build.Cage`): the cage it was made for has the same :func:`cage_digest`."""
+        :class:`shellsim.tetcage.build.Cage`): the cage it was made for has the same :func:`cage_digest`."""
         source = source or self.path or "motion"
         n_motion, n_cage = len(self.rest_vertices), len(cage.vertices)
         if n_motion != n_cage:
@@ -143,7 +143,7 @@ class Motion(_MovesACage):
 
     def surface_points(self, k: int) -> np.ndarray:
         """(S, 3) float64: the points of :attr:`surface` in frame ``k``."""
-        from shellsim.cage.embed import interpolate
+        from shellsim.tetcage.embed import interpolate
 
         s = self.surface
         return interpolate(np.asarray(self.positions[k], np.float64), self.tets, s.tet, s.bary)

@@ -32,7 +32,6 @@ import numpy as np
 
 from neural.errors import InputError
 from neural.files import write_atomically
-from shellsim.cage.geometry import cage_digest
 from shellsim.io.npz import Member, NpzReader, damaged_as
 from shellsim.motion.format import (
     FORMAT,
@@ -52,6 +51,7 @@ from shellsim.motion.format import (
     surface_arrays,
     to_json,
 )
+from shellsim.tetcage.geometry import cage_digest
 
 log = logging.getLogger(__name__)
 

@@ -3,7 +3,7 @@ inputs of a schedule, the checks that stop a run and the retry policy. Arrays in
 progress bars (the jobs record frames: :mod:`shellsim.jobs.recording`).
 
 A frame of ``dt`` runs ``substeps`` solver steps. It is invalid when a step leaves a tet's det F below
-``min_volume_ratio`` (:data:`shellsim.cage.geometry.MIN_VOLUME_RATIO`: inverted or near-degenerate), a
+``min_volume_ratio`` (:data:`shellsim.tetcage.geometry.MIN_VOLUME_RATIO`: inverted or near-degenerate), a
 vertex faster than ``max_speed`` or a non-finite state, or when the frame ends with a tet stretched past
 ``max_stretch`` (its largest principal stretch, the largest singular value of ``F = Ds Dm^-1``); an invalid
 frame is redone from its start with ``retry_factors`` times the substeps, and raises
@@ -147,7 +147,7 @@ def warn_stretched(t: float, stretch: float, limit: float) -> None:
 
 
 class Schedule(Protocol):
-    """The timed inputs of a scene (e.g. :class:`shellsim.scene.actions.Actions`)."""
+    """The timed inputs of a scene (e.g. :class:`shellsim.shot.actions.Actions`)."""
 
     def inputs(self, t: float, h: float, positions: list, velocities: list) -> list:
         """Per body, (pinned (V,) bool, targets (V, 3), forces (V, 3)) for the substep [t, t + h]."""

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from shellsim.cage.geometry import tet_volumes
 from shellsim.physics.materials import Material
+from shellsim.tetcage.geometry import tet_volumes
 
 wp.set_module_options({"enable_backward": False})  # no autodiff here; halves compile time
 

@@ -1,7 +1,7 @@
 """Incremental potential contact between several bodies and static colliders, with the IPC Toolkit
 (``ipctk``).
 
-Contact acts on each body's collision surface (:mod:`shellsim.cage.collision`: the asset's visible surface,
+Contact acts on each body's collision surface (:mod:`shellsim.tetcage.collision`: the asset's visible surface,
 embedded in its cage), never on the cage itself. A surface vertex is a fixed linear combination of cage
 vertices, so the collision vertices of every body are ``U = W x``: ``W`` (S, N) stacks the bodies' embedding
 weights over the global cage vertices ``x`` (N, 3), and the static colliders' vertices (boxes, spheres,

@@ -15,10 +15,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import warp as wp
 
-from shellsim.cage.geometry import MIN_VOLUME_RATIO, check_tets, tet_volumes
 from shellsim.physics.elastic import f64, mat33
 from shellsim.physics.materials import Material
 from shellsim.physics.state import State
+from shellsim.tetcage.geometry import MIN_VOLUME_RATIO, check_tets, tet_volumes
 
 
 @dataclass(frozen=True)

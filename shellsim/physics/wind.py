@@ -24,7 +24,7 @@ No simulation: the object is treated as a cantilever anchored at its base and lo
 
 - **Limit.** The second-order drop leaves a tet the volume ratio ``1 - slope^2 / 2``, and turbulence
   compresses the cage along the wind: where a frame would squeeze a tet below
-  :data:`~shellsim.cage.geometry.MIN_VOLUME_RATIO`, :func:`limited_wind_displacement` scales that frame's
+  :data:`~shellsim.tetcage.geometry.MIN_VOLUME_RATIO`, :func:`limited_wind_displacement` scales that frame's
   tip deflection down until none does: a gust too strong for the cage bends it as far
   as it can go. ``strength`` itself is at most 1 (:data:`RANGES`).
 
@@ -42,8 +42,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.cage.geometry import MIN_VOLUME_RATIO, tet_volumes
 from shellsim.physics.selection import parse_selection
+from shellsim.tetcage.geometry import MIN_VOLUME_RATIO, tet_volumes
 
 _BINS = 64  # resolution of the beam profile along the bending axis
 _MODES = 3  # turbulence modes

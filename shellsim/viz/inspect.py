@@ -17,7 +17,7 @@ with a motion, which also draws the ground and the obstacles it was simulated wi
   (interior ones are referenced by no face and not drawn), so a frame's points are the motion's positions.
 
 With a motion, frame ``k`` moves the cage to ``motion.positions[k]`` and the shells with it by barycentric
-interpolation of the cage vertices (paper Sec. 5, :func:`shellsim.cage.embed.interpolate`).
+interpolation of the cage vertices (paper Sec. 5, :func:`shellsim.tetcage.embed.interpolate`).
 
 :func:`build_scene` makes the meshes (no rendering, testable), :func:`pose_scene` moves them to a frame,
 :func:`make_plotter` puts them in a pyvista plotter, :func:`show` opens an interactive window with a frame
@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError, ShellsimError
-from shellsim.cage.embed import interpolate
+from shellsim.tetcage.embed import interpolate
 from shellsim.world import GROUND_Z, has_ground
 
 #: Point-data array of ``M+`` holding the colouring, per ``color`` option.
@@ -141,7 +141,7 @@ def pose_scene(scene: dict, cage, positions) -> None:
 def build_scene(asset, cage, motion=None, color: str = "width", frame: int = 0, device: str = "cpu") -> dict:
     """The meshes to draw (module docstring), posed at ``frame`` of ``motion`` (None: the rest state).
 
-    asset : :class:`neural.asset.Asset`, cage : its :class:`shellsim.cage.build.Cage`,
+    asset : :class:`neural.asset.Asset`, cage : its :class:`shellsim.tetcage.build.Cage`,
     motion : :class:`shellsim.motion.format.Motion` of this cage or None, color : "width" or "kernel",
     frame : frame index (negative counts from the end), device : torch device of the kernel-size colouring.
     returns : {"outer": pyvista.PolyData with point data ``SCALARS[color]`` (Vo,), "inner": pyvista.PolyData,
@@ -153,7 +153,7 @@ def build_scene(asset, cage, motion=None, color: str = "width", frame: int = 0, 
         motion.check_against(cage)
     frame = _check_frame(motion, frame)
     pv = _pyvista()
-    from shellsim.cage.geometry import boundary_faces
+    from shellsim.tetcage.geometry import boundary_faces
 
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     for name, mesh in (("outer", outer), ("inner", inner)):

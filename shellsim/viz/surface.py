@@ -5,8 +5,8 @@ A motion made by ``shellsim simulate --mesh`` carries the mesh's surface embedde
 interpolation of the frame's cage vertices in its rest tet (paper Sec. 5). A motion without one shows the
 boundary of its cage. :class:`SurfaceRenderer` draws that surface, opaque and shaded, through a pinhole
 camera of :class:`neural.data.Cameras`; :func:`render_surface_motion` renders a motion's frames to PNGs
-(and an MP4) with the cameras of :mod:`shellsim.render.cameras` and the frame records of
-:func:`shellsim.render.frames.render_motion`
+(and an MP4) with the cameras of :mod:`shellsim.film.cameras` and the frame records of
+:func:`shellsim.film.motion_frames.render_motion`
 (a PNG already there is kept only when it records the same motion frame, camera, size and surface);
 :func:`surface_plotter` is the inspector's view of it (surface, cage wireframe, frame slider).
 """
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shellsim.render.result import RenderResult
+from shellsim.film.result import RenderResult
 from shellsim.viz.inspect import CAGE_COLOR, _pyvista, frame_label
 
 log = logging.getLogger(__name__)
@@ -30,7 +30,7 @@ SURFACE_COLOR = "lightsteelblue"
 
 def surface_faces(motion) -> np.ndarray:
     """(F, 3) int64 triangles of the motion's surface (or of its cage's boundary)."""
-    from shellsim.cage.geometry import boundary_faces
+    from shellsim.tetcage.geometry import boundary_faces
 
     return motion.surface.faces if motion.surface is not None else boundary_faces(motion.tets)
 
@@ -111,14 +111,15 @@ def render_surface_motion(
     camera=None,
 ) -> RenderResult:
     """Render a motion's surface to ``out_dir/<k:05d>.png`` (and an MP4) seen by ``camera``
-    (:class:`~shellsim.render.cameras.CameraSettings` in world metres about the motion's up axis; None:
-    the default orbit) as :func:`shellsim.render.frames.render_motion` would; ``frames``, ``size`` (default
-    :data:`~shellsim.render.cameras.VIDEO_SIZE`), ``video``, ``fps`` and ``overwrite`` as there. Returns its
-    :class:`~shellsim.render.result.RenderResult` (counts, ``ms``, ``video``)."""
+    (:class:`~shellsim.film.cameras.CameraSettings` in world metres about the motion's up axis; None:
+    the default orbit) as :func:`shellsim.film.motion_frames.render_motion` would; ``frames``, ``size``
+    (default
+    :data:`~shellsim.film.cameras.VIDEO_SIZE`), ``video``, ``fps`` and ``overwrite`` as there. Returns its
+    :class:`~shellsim.film.result.RenderResult` (counts, ``ms``, ``video``)."""
+    from shellsim.film.cameras import VIDEO_SIZE, CameraSettings, mass_weights, motion_track
+    from shellsim.film.motion_frames import motion_frame_ids, render_frames, with_video
     from shellsim.io.png import digest, frame_record
     from shellsim.motion.read import load_motion
-    from shellsim.render.cameras import VIDEO_SIZE, CameraSettings, mass_weights, motion_track
-    from shellsim.render.frames import motion_frame_ids, render_frames, with_video
     from shellsim.settings import parse_frames
 
     motion = load_motion(motion_path)
@@ -152,7 +153,7 @@ def surface_plotter(motion, frame: int = 0, size=(1024, 768), off_screen: bool |
     """A ``pyvista.Plotter`` of the motion's surface (opaque) and its cage (wireframe) at ``frame``, with a
     title; ``slider`` adds a frame slider."""
     pv = _pyvista()
-    from shellsim.cage.geometry import boundary_faces
+    from shellsim.tetcage.geometry import boundary_faces
 
     n = motion.n_frames
     if not -n <= frame < n:
@@ -181,7 +182,7 @@ def surface_plotter(motion, frame: int = 0, size=(1024, 768), off_screen: bool |
             pointa=(0.55, 0.92),
             pointb=(0.95, 0.92),
         )
-    from shellsim.render.cameras import orbit_camera, orbit_framing
+    from shellsim.film.cameras import orbit_camera, orbit_framing
 
     center, distance = orbit_framing(motion.positions)  # every frame in view, also in a wide window's height
     distance *= max(1.0, size[0] / size[1])

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from shellsim.cli.options import add_options, from_args, options_named
+from shellsim.film.result import RenderResult
 from shellsim.jobs.render import RenderSettings, render
-from shellsim.render.result import RenderResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -16,7 +16,7 @@ How it is made (:func:`surface_of_asset`):
    :data:`MIN_PART` of the largest's (drops floaters);
 2. decimate to about ``max_faces`` triangles (``igl.qslim``, collapses that would make the surface
    intersect itself blocked);
-3. embed the vertices in the cage (:func:`shellsim.cage.embed.embed_points`); a vertex slightly outside
+3. embed the vertices in the cage (:func:`shellsim.tetcage.embed.embed_points`); a vertex slightly outside
    it (the cage's boundary may sit inside its input by fTetWild's envelope) has its coordinates clipped
    to its tet, so it lies on the cage and moves with it; one farther than :data:`OUTSIDE_TOL` is an error;
 4. check the result is closed, outward oriented and free of self-intersections (ipctk); when it is not,
@@ -41,9 +41,9 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.cage.build import UNDILATED_EPSILON
-from shellsim.cage.embed import BARY_TOL, check_embedding, embed_points
-from shellsim.cage.geometry import check_points, check_tets
+from shellsim.tetcage.build import UNDILATED_EPSILON
+from shellsim.tetcage.embed import BARY_TOL, check_embedding, embed_points
+from shellsim.tetcage.geometry import check_points, check_tets
 
 logger = logging.getLogger(__name__)
 
@@ -264,14 +264,14 @@ def _level_set(field, cage_vertices: np.ndarray, resolution: int, what: str, cut
 
 def cached_surface_path(key: str) -> Path:
     """The cache's file of the collision surface whose :func:`surface_key` is ``key``."""
-    from shellsim.cage.store import cache_dir
+    from shellsim.tetcage.store import cache_dir
 
     return cache_dir() / "collision" / f"{key[:32]}.npz"
 
 
 def surface_key(asset_digest: str, cage_digest: str, max_faces: int, resolution: int) -> str:
     """sha256 (hex) of what a cached collision surface depends on: the asset's content
-    (:meth:`neural.asset.Asset.digest`), the cage (:func:`shellsim.cage.geometry.cage_digest`), the
+    (:meth:`neural.asset.Asset.digest`), the cage (:func:`shellsim.tetcage.geometry.cage_digest`), the
     settings and :data:`FORMAT_VERSION`."""
     parts = [FORMAT, FORMAT_VERSION, asset_digest, cage_digest, int(max_faces), int(resolution)]
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()
@@ -310,12 +310,12 @@ def surface_of_asset(
     asset, cage, max_faces: int = MAX_FACES, resolution: int = RESOLUTION
 ) -> CollisionSurface:
     """The collision surface of ``asset`` (:class:`neural.asset.Asset`) in ``cage`` (``.vertices`` (V, 3),
-    ``.tets`` (T, 4) in the asset's frame, e.g. :func:`shellsim.cage.store.load_or_build_cage`): its
+    ``.tets`` (T, 4) in the asset's frame, e.g. :func:`shellsim.tetcage.store.load_or_build_cage`): its
     field's zero level set on a grid whose cell is the cage's bounding-box diagonal / ``resolution``,
     decimated to about ``max_faces`` faces (module docstring). Read from the cache when it holds it, else
     built and cached; an :class:`InputError` naming the asset when no usable surface comes out."""
     from neural.asset import load_field
-    from shellsim.cage.geometry import cage_digest
+    from shellsim.tetcage.geometry import cage_digest
 
     _check_max_faces(max_faces)
     if resolution < 8:

@@ -1,8 +1,8 @@
-"""A shot made to move: every body of a :class:`~shellsim.scene.spec.SceneSpec` built and placed
-(:mod:`shellsim.scene.bodies`), its first instant checked, and one implicit solve over all of them per substep
+"""A shot made to move: every body of a :class:`~shellsim.shot.spec.SceneSpec` built and placed
+(:mod:`shellsim.shot.bodies`), its first instant checked, and one implicit solve over all of them per substep
 (:class:`shellsim.physics.solver.Solver`) with incremental potential contact between the bodies' visible
 surfaces, the colliders and the ground (:mod:`shellsim.physics.ipc`) and the actions' pins, grabs, pushes and
-wind (:mod:`shellsim.scene.actions`). Arrays in, arrays out: the jobs record the frames
+wind (:mod:`shellsim.shot.actions`). Arrays in, arrays out: the jobs record the frames
 (:mod:`shellsim.jobs.recording`).
 """
 
@@ -13,15 +13,15 @@ import dataclasses
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.cage.geometry import boundary_faces
 from shellsim.motion.format import Surface
 from shellsim.physics.driver import FrameDriver, FrameStats
 from shellsim.physics.ipc import BodySurface, Contact, StaticSurface
 from shellsim.physics.model import Model, SolverSettings
 from shellsim.physics.solver import Solver
-from shellsim.scene.actions import Actions, BodyInfo
-from shellsim.scene.bodies import SceneBody, build_body, check_start, collider_mesh
-from shellsim.scene.spec import SceneSpec
+from shellsim.shot.actions import Actions, BodyInfo
+from shellsim.shot.bodies import SceneBody, build_body, check_start, collider_mesh
+from shellsim.shot.spec import SceneSpec
+from shellsim.tetcage.geometry import boundary_faces
 
 #: Prefix of the actions' state arrays in a motion's state (after the velocities).
 ACTION_STATE = "action_"
@@ -56,7 +56,7 @@ class SceneSimulation:
     collision surface (cached) and refuses a first instant where bodies overlap each other, a collider or
     the ground, or an action's region selects nothing.
 
-    Attributes: ``bodies`` (:class:`shellsim.scene.bodies.SceneBody`), ``starts`` (B + 1,) their first
+    Attributes: ``bodies`` (:class:`shellsim.shot.bodies.SceneBody`), ``starts`` (B + 1,) their first
     vertex in the concatenated cage, ``rest`` (N, 3) and ``tets`` (T, 4) the concatenated rest cage [m],
     ``settings`` the solver's, ``time`` [s] of the current state.
     """

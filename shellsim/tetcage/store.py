@@ -1,10 +1,10 @@
 """Where cages are kept: the cage file (``cage.npz``), an asset's own cage and the user cache.
 
 A cage file holds the rest cage (vertices (V, 3) float64, tets (T, 4) int64), the embedding of the shells'
-vertices (optional), the :func:`~shellsim.cage.build.shell_digest` of the shells it was built for and its
-:class:`~shellsim.cage.build.CageConfig`. :func:`load_or_build_cage` returns an asset's own cage when it
+vertices (optional), the :func:`~shellsim.tetcage.build.shell_digest` of the shells it was built for and its
+:class:`~shellsim.tetcage.build.CageConfig`. :func:`load_or_build_cage` returns an asset's own cage when it
 fits, else a cached one keyed by the shells and the settings, else builds one
-(:func:`shellsim.cage.build.build_cage`) and caches it; :func:`cage_for_motion` finds the cage a motion was
+(:func:`shellsim.tetcage.build.build_cage`) and caches it; :func:`cage_for_motion` finds the cage a motion was
 made with.
 """
 
@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.cage import build
-from shellsim.cage.build import Cage, CageConfig, check_tet_mesh, shell_digest
-from shellsim.cage.embed import BARY_TOL, check_embedding, embed_points, interpolate, outside_distance
-from shellsim.cage.geometry import check_tets, tet_quality, tet_volumes
 from shellsim.io.npz import load_npz, save_npz
 from shellsim.io.outputs import check_writable_file, output_lock
+from shellsim.tetcage import build
+from shellsim.tetcage.build import Cage, CageConfig, check_tet_mesh, shell_digest
+from shellsim.tetcage.embed import BARY_TOL, check_embedding, embed_points, interpolate, outside_distance
+from shellsim.tetcage.geometry import check_tets, tet_quality, tet_volumes
 
 FORMAT = "shellsim-cage"
 
@@ -212,7 +212,7 @@ def asset_cages(asset, digest: str) -> list[Path]:
 
 
 def find_cage(asset, digest: str) -> tuple[Cage | None, Cage | None]:
-    """The asset's cage (its own or a cached one) whose :func:`shellsim.cage.geometry.cage_digest` is
+    """The asset's cage (its own or a cached one) whose :func:`shellsim.tetcage.geometry.cage_digest` is
     ``digest``, or None; and the first readable cage of the asset (None when it has none)."""
     outer, inner = asset.outer_mesh(), asset.inner_mesh()
     shells = shell_digest(outer, inner)
@@ -228,7 +228,7 @@ def find_cage(asset, digest: str) -> tuple[Cage | None, Cage | None]:
 def cage_for_motion(asset, motion, source: str | None = None) -> Cage:
     """The asset's cage (its own or a cached one) that ``motion`` (a :class:`shellsim.motion.format.Motion` or
     :class:`~shellsim.motion.format.MotionInfo`) moves, found by the cage digest its header records
-    (:func:`shellsim.cage.geometry.cage_digest`); an :class:`InputError` (``source: ...``, default the
+    (:func:`shellsim.tetcage.geometry.cage_digest`); an :class:`InputError` (``source: ...``, default the
     motion's file) saying how they differ when there is none. A motion recording another digest of the
     asset (:meth:`neural.asset.Asset.digest`: a retrained field) is logged, and rendered all the same. A scene
     motion moves several cages, not one asset's: an :class:`InputError` naming its bodies."""

@@ -11,13 +11,13 @@ using precomputed barycentric coordinates generated as a pre-process."
    closed surface by construction, then quadric-error decimation to ``surface_faces`` triangles, since
    fTetWild's time grows with its input;
    ``margin=0`` skips this: a closed mesh that is the body itself is tetrahedralised as it is;
-2. **tetrahedralize** it with fTetWild (:func:`shellsim.cage.tetwild.tetrahedralize`: seeded, one thread, a
+2. **tetrahedralize** it with fTetWild (:func:`shellsim.tetcage.tetwild.tetrahedralize`: seeded, one thread, a
    fresh process per run, so the same shells and settings give the same cage), steering the ideal edge
    length until the tet count is within a factor ``tolerance`` of ``target_tets`` (at most
    ``max_attempts`` runs; the closest is kept). fTetWild's envelope (how far its boundary may stray from the
    dilated surface) is ``envelope * margin`` (:data:`UNDILATED_EPSILON` of the diagonal when undilated);
-3. **embed** every ``M+`` and ``M-`` vertex (:func:`shellsim.cage.embed.embed_points`) and drop the connected
-   parts of the tet mesh that hold none of them (fTetWild's stray tets), with a log line;
+3. **embed** every ``M+`` and ``M-`` vertex (:func:`shellsim.tetcage.embed.embed_points`) and drop the
+   connected parts of the tet mesh that hold none of them (fTetWild's stray tets), with a log line;
 4. **validate** (:func:`check_tet_mesh`): every tet positively oriented and not degenerate, and one solid
    connected through shared faces. A shell whose parts lie farther apart than twice the margin gives a
    cage in pieces, which is an :class:`~neural.errors.InputError` (raise the margin, or remove the floaters).
@@ -41,9 +41,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from neural.errors import InputError
-from shellsim.cage.embed import embed_points
-from shellsim.cage.geometry import cage_digest, connected_parts, tet_quality
-from shellsim.cage.tetwild import tetrahedralize
+from shellsim.tetcage.embed import embed_points
+from shellsim.tetcage.geometry import cage_digest, connected_parts, tet_quality
+from shellsim.tetcage.tetwild import tetrahedralize
 
 logger = logging.getLogger(__name__)
 
@@ -140,7 +140,7 @@ class Cage:
 
     @property
     def digest(self) -> str:
-        """:func:`shellsim.cage.geometry.cage_digest` of the rest cage: the identity a motion records."""
+        """:func:`shellsim.tetcage.geometry.cage_digest` of the rest cage: the identity a motion records."""
         return cage_digest(self.vertices, self.tets)
 
 

@@ -1,4 +1,4 @@
-"""What a scene file says, once read and checked (:mod:`shellsim.scene.file`): plain frozen dataclasses in SI
+"""What a scene file says, once read and checked (:mod:`shellsim.shot.file`): plain frozen dataclasses in SI
 units (metres, seconds, kg/m^3, Pa, radians per second, degrees for rotations), z up, the ground at z = 0.
 
 Nothing here loads an asset or a mesh: :class:`SceneSpec` is what a user wrote, with defaults filled in and
@@ -45,7 +45,7 @@ class WorldSpec:
 
 @dataclass(frozen=True)
 class CageSpec:
-    """``[body.cage]``: overrides of :class:`shellsim.cage.build.CageConfig` (None: its default)."""
+    """``[body.cage]``: overrides of :class:`shellsim.tetcage.build.CageConfig` (None: its default)."""
 
     target_tets: int | None = None
     margin: float | None = None
@@ -164,7 +164,7 @@ class CameraKeyframe:
 
 @dataclass(frozen=True)
 class CameraSpec:
-    """One ``[[camera]]``: how a shot is framed (its frames: :func:`shellsim.render.cameras.scene_shot`).
+    """One ``[[camera]]``: how a shot is framed (its frames: :func:`shellsim.film.cameras.scene_shot`).
 
     ``kind``:
 
@@ -182,7 +182,7 @@ class CameraSpec:
       directory, in the asset's frame of the asset body ``body``) once over the shot, in the file's order,
       their path smoothed over ``smooth`` views (0: the file's own cameras).
 
-    ``fov`` [degrees] horizontal (as :mod:`shellsim.render.cameras`; None, capture only: the file's own);
+    ``fov`` [degrees] horizontal (as :mod:`shellsim.film.cameras`; None, capture only: the file's own);
     ``target`` None (orbit, fixed): the centre of the bodies' box at t = 0; ``distance`` None: the least
     that keeps every body in view.
     """
@@ -205,7 +205,7 @@ class CameraSpec:
 
 @dataclass(frozen=True)
 class LookSpec:
-    """``[look]``: how the shot's frames look (:func:`shellsim.render.world.look_of`); the defaults are those
+    """``[look]``: how the shot's frames look (:func:`shellsim.film.world.look_of`); the defaults are those
     of :class:`shellsim.world.WorldLook`."""
 
     ground_colors: tuple[RGB, RGB] = _LOOK.ground_colors  # the ground checker's two colours

@@ -5,7 +5,7 @@ the concatenated cages, their collision surfaces, ``asset.bodies`` and the scene
 A neural body is drawn by its asset's field through the cage its record names (found by digest among the
 asset's own and cached cages); a mesh body by its collision surface, which is the mesh itself, carried by its
 cage. Colliders are rebuilt from the scene's record as the solver saw them
-(:func:`shellsim.scene.bodies.collider_mesh`).
+(:func:`shellsim.shot.bodies.collider_mesh`).
 """
 
 from __future__ import annotations
@@ -49,9 +49,9 @@ class MotionBody:
 @dataclass
 class SceneMotion:
     """``path`` of the motion file, ``info`` its :class:`~shellsim.motion.format.MotionInfo`, ``bodies``
-    (:class:`MotionBody`), ``colliders`` (:class:`~shellsim.scene.spec.ColliderSpec`), ``ground`` (the world
-    has one), ``cameras`` (:class:`~shellsim.scene.spec.CameraSpec`) and ``look``
-    (:class:`~shellsim.scene.spec.LookSpec`) of the scene."""
+    (:class:`MotionBody`), ``colliders`` (:class:`~shellsim.shot.spec.ColliderSpec`), ``ground`` (the world
+    has one), ``cameras`` (:class:`~shellsim.shot.spec.CameraSpec`) and ``look``
+    (:class:`~shellsim.shot.spec.LookSpec`) of the scene."""
 
     path: Path
     info: object
@@ -82,9 +82,9 @@ def read_scene_motion(path, load_assets: bool = True) -> SceneMotion:
     :class:`InputError` naming the file when it is not a scene motion or a body's asset or cage is gone.
     ``load_assets`` False leaves neural bodies' ``asset`` and ``cage`` None (cameras, framing)."""
     from neural.asset import load_asset
-    from shellsim.cage.store import find_cage
     from shellsim.motion.read import read_motion_info
-    from shellsim.scene.spec import CameraKeyframe, CameraSpec, ColliderSpec, LookSpec
+    from shellsim.shot.spec import CameraKeyframe, CameraSpec, ColliderSpec, LookSpec
+    from shellsim.tetcage.store import find_cage
     from shellsim.world import Placement
 
     path = motion_path(path)

@@ -123,7 +123,7 @@ def tetrahedralize(
         env = {**os.environ, "OMP_NUM_THREADS": "1"}
         env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
         done = subprocess.run(
-            [sys.executable, "-m", "shellsim.cage.tetwild", "in.npz", "out.npz"],
+            [sys.executable, "-m", "shellsim.tetcage.tetwild", "in.npz", "out.npz"],
             cwd=tmp,
             env=env,
             capture_output=True,

@@ -1,11 +1,11 @@
 """The frames of a scene motion (``shellsim scene``): every body in one image, in the world, seen by a camera
 of the scene file (or any world camera), ``DIR/<k:05d>.png`` for motion frame ``k`` and optionally an MP4.
 
-Each frame is drawn by :class:`shellsim.render.renderer.SceneRenderer`: the neural bodies through their
+Each frame is drawn by :class:`shellsim.film.renderer.SceneRenderer`: the neural bodies through their
 deformed shells (samples merged by depth, each shaded by its own field), the mesh bodies' surfaces and the
 colliders as opaque meshes (a box without rotation and a sphere met in closed form), on the world's lit
 ground under its sky, with the shadows of every body. Frames run serially or as Ray tasks, and a PNG on disk
-is kept only when its record matches, as for one asset's motion (:mod:`shellsim.render.frames`).
+is kept only when its record matches, as for one asset's motion (:mod:`shellsim.film.motion_frames`).
 """
 
 from __future__ import annotations
@@ -19,20 +19,20 @@ from pathlib import Path
 import numpy as np
 
 from shellsim.errors import SettingError
+from shellsim.film.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, MotionTrack
+from shellsim.film.motion_frames import antialiased, pixel_offsets, render_frames, with_video
+from shellsim.film.result import RenderResult
 from shellsim.io.png import asset_identity, digest, frame_record
-from shellsim.render.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, MotionTrack
-from shellsim.render.frames import antialiased, pixel_offsets, render_frames, with_video
-from shellsim.render.result import RenderResult
 
 log = logging.getLogger(__name__)
 
 
 def scene_tracks(scene) -> dict[str, MotionTrack]:
-    """What the cameras frame in a :class:`shellsim.scene.motion.SceneMotion`: each body's
+    """What the cameras frame in a :class:`shellsim.shot.recorded.SceneMotion`: each body's
     :class:`MotionTrack` (its cage's box and centre of mass per frame) by name, and under "" that of all
     the bodies together; frames read a batch at a time."""
+    from shellsim.film.cameras import mass_weights
     from shellsim.motion.read import iter_frames
-    from shellsim.render.cameras import mass_weights
 
     info = scene.info
     weights = mass_weights(info.rest_vertices, info.tets)
@@ -57,10 +57,10 @@ def scene_tracks(scene) -> dict[str, MotionTrack]:
 def scene_world(scene, look):
     """(look, obstacles, statics) of a scene's world: ``look`` (:class:`shellsim.world.WorldLook`) with
     its ground drawn only where the scene has one; its colliders as
-    :class:`shellsim.render.obstacles.Obstacles` (boxes without rotation, spheres) and as static meshes
+    :class:`shellsim.film.obstacles.Obstacles` (boxes without rotation, spheres) and as static meshes
     ``(vertices, faces, albedo)`` (the others)."""
-    from shellsim.render.obstacles import Obstacles
-    from shellsim.scene.bodies import collider_mesh
+    from shellsim.film.obstacles import Obstacles
+    from shellsim.shot.bodies import collider_mesh
 
     boxes, spheres, statics = [], [], []
     for c in scene.colliders:
@@ -79,11 +79,11 @@ def scene_look(scene, look):
 
 
 def scene_renderer(scene, device: str, look):
-    """The :class:`~shellsim.render.renderer.SceneRenderer` of ``scene``'s neural bodies (each asset's field
+    """The :class:`~shellsim.film.renderer.SceneRenderer` of ``scene``'s neural bodies (each asset's field
     loaded once on the device picked for ``device``) in the world of ``look`` (:func:`scene_world`)."""
     from neural.asset import load_field
     from neural.device import pick_device
-    from shellsim.render.renderer import DeformedRenderer, SceneRenderer
+    from shellsim.film.renderer import DeformedRenderer, SceneRenderer
 
     device = pick_device(device)
     fields, renderers = {}, []
@@ -121,7 +121,7 @@ def _scene_frames(scene, device: str, antialias: int, look):
 
 def scene_recipe(motion_path: str, device: str, antialias: int, look):
     """In a Ray worker: the ``render_one`` of the scene motion at ``motion_path``."""
-    from shellsim.scene.motion import read_scene_motion
+    from shellsim.shot.recorded import read_scene_motion
 
     return _scene_frames(read_scene_motion(motion_path), device, antialias, look)
 
@@ -142,7 +142,7 @@ def scene_identity(scene) -> str:
 def scene_renderer_identity(scene, antialias: int, look) -> str:
     """Digest of the renderer's settings for ``scene``: each neural body's narrow band, the jittered rays
     per pixel, the world's look and renderer version."""
-    from shellsim.render.ground import WORLD_RENDERER
+    from shellsim.film.ground import WORLD_RENDERER
 
     settings = {
         "narrowband": [dataclasses.asdict(b.asset.narrowband_config()) for b in scene.bodies if b.asset],
@@ -153,10 +153,10 @@ def scene_renderer_identity(scene, antialias: int, look) -> str:
 
 
 def scene_camera(scene, name: str | None):
-    """The :class:`~shellsim.scene.spec.CameraSpec` named ``name`` among the scene's cameras (None: its
-    first, else :func:`~shellsim.render.cameras.default_scene_camera`); a :class:`SettingError` of
+    """The :class:`~shellsim.shot.spec.CameraSpec` named ``name`` among the scene's cameras (None: its
+    first, else :func:`~shellsim.film.cameras.default_scene_camera`); a :class:`SettingError` of
     ``scene_camera`` naming the cameras there are otherwise."""
-    from shellsim.render.cameras import default_scene_camera
+    from shellsim.film.cameras import default_scene_camera
 
     if name is None:
         return scene.cameras[0] if scene.cameras else default_scene_camera()
@@ -190,24 +190,24 @@ def render_scene(
     scene_path : a ``shellsim scene`` output directory or its ``motion.npz``
     scene_camera_name : the scene file's ``[[camera]]`` that views the frames (None: its first, or a
         three-quarter orbit framed to the bodies when it has none)
-    camera : a :class:`~shellsim.render.cameras.CameraSettings` instead (framed to every body)
+    camera : a :class:`~shellsim.film.cameras.CameraSettings` instead (framed to every body)
     frames : ``"a:b[:step]"`` of :func:`shellsim.settings.parse_frames` (None: all)
     size : (W, H) (default :data:`VIDEO_SIZE`); video, fps : MP4 of the frames (default fps: the motion's
         divided by the step)
-    look : :class:`shellsim.world.WorldLook`, or a :class:`~shellsim.render.world.WorldSettings` whose
+    look : :class:`shellsim.world.WorldLook`, or a :class:`~shellsim.film.world.WorldSettings` whose
         options set to other than their defaults replace those of the scene's ``[look]``
         (:meth:`WorldSettings.over`); None: the scene's look
     ground : draw the ground where the scene has one (False: nowhere)
-    spec : the :class:`~shellsim.scene.spec.SceneSpec` of the scene file as it says now, whose cameras and
+    spec : the :class:`~shellsim.shot.spec.SceneSpec` of the scene file as it says now, whose cameras and
         look replace those the motion recorded (they do not change the motion)
-    Other arguments as :func:`shellsim.render.frames.render_motion`'s. Returns its :class:`RenderResult`.
+    Other arguments as :func:`shellsim.film.motion_frames.render_motion`'s. Returns its :class:`RenderResult`.
     """
+    from shellsim.film.cameras import scene_shot
+    from shellsim.film.motion_frames import motion_frame_ids
+    from shellsim.film.world import look_of
     from shellsim.motion.read import iter_frames
-    from shellsim.render.cameras import scene_shot
-    from shellsim.render.frames import motion_frame_ids
-    from shellsim.render.world import look_of
-    from shellsim.scene.motion import read_scene_motion
     from shellsim.settings import parse_frames
+    from shellsim.shot.recorded import read_scene_motion
     from shellsim.world import WorldLook
 
     pixel_offsets(antialias)

@@ -18,7 +18,7 @@ import logging
 
 import numpy as np
 
-from shellsim.cage.geometry import boundary_facets, check_points, check_tets
+from shellsim.tetcage.geometry import boundary_facets, check_points, check_tets
 
 logger = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 spheres in world metres, met by rays in closed form (float64).
 
 A world ray ``o + t d`` (``d`` need not be unit; ``t`` is the renderer's ray parameter,
-:func:`shellsim.render.ground.to_world`) crosses
+:func:`shellsim.film.ground.to_world`) crosses
 
 - a **box** of centre ``c`` and half extents ``h`` over ``[t_near, t_far]``, the intersection of its three
   slabs (Kay and Kajiya 1986): ``t_near = max_k min(t1_k, t2_k)``, ``t_far = min_k max(t1_k, t2_k)`` with

@@ -1,7 +1,7 @@
 """A scene's bodies and colliders made real: cages, collision surfaces, materials and placements in the world,
 and the checks of the shot's first instant that need them (bodies overlapping, below the ground).
 
-A body is placed by its **visible** surface (its collision surface, :mod:`shellsim.cage.collision`): its
+A body is placed by its **visible** surface (its collision surface, :mod:`shellsim.tetcage.collision`): its
 largest extent is ``size``, and the bottom centre of its bounding box, after the rotation, is at
 ``position``. A body set on the ground (``position`` z below half the barrier's reach ``contact_gap``) starts
 half that reach above it: incremental potential contact needs a positive gap at every instant.
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from shellsim.scene.file import problem
-from shellsim.scene.spec import BodySpec, ColliderSpec, SceneSpec
+from shellsim.shot.file import problem
+from shellsim.shot.spec import BodySpec, ColliderSpec, SceneSpec
 from shellsim.world import UNITS, Placement, place_on_ground
 
 #: Subdivisions of the icosphere that stands for a sphere collider (642 vertices).
@@ -29,7 +29,7 @@ class SceneBody:
     (T, 4); ``placement`` (asset frame -> world); ``cage_digest`` of the cage in the asset's frame;
     ``source`` (the motion's record: asset name and digest, or the mesh path and digest); ``cage`` the cage
     in the asset's frame (``vertices``, ``tets``); ``material``;
-    ``surface`` the :class:`shellsim.cage.collision.CollisionSurface` (asset frame) and
+    ``surface`` the :class:`shellsim.tetcage.collision.CollisionSurface` (asset frame) and
     ``surface_world`` (S, 3) its vertices in the world."""
 
     spec: BodySpec
@@ -81,12 +81,12 @@ def build_body(spec: BodySpec, lift: float) -> SceneBody:
     """Load or build ``spec``'s cage and collision surface (cached) and place it (:func:`body_placement`); a
     mesh too large to tetrahedralise in the memory the machine has is refused before it is."""
     from neural.asset import load_asset, load_mesh
-    from shellsim.cage.build import CageConfig, build_cage
-    from shellsim.cage.collision import surface_of_asset, surface_of_mesh
-    from shellsim.cage.geometry import cage_digest
-    from shellsim.cage.store import load_or_build_cage
     from shellsim.memory import check_memory, mesh_bytes
     from shellsim.physics.materials import get_material
+    from shellsim.tetcage.build import CageConfig, build_cage
+    from shellsim.tetcage.collision import surface_of_asset, surface_of_mesh
+    from shellsim.tetcage.geometry import cage_digest
+    from shellsim.tetcage.store import load_or_build_cage
 
     overrides = {k: v for k, v in (("target_tets", spec.cage.target_tets), ("margin", spec.cage.margin)) if v}
     if spec.asset is not None:
@@ -168,7 +168,7 @@ def _intersect(a, b) -> bool:
 
 
 def check_start(scene: SceneSpec, bodies: list[SceneBody], colliders: list) -> None:
-    """A :class:`shellsim.scene.spec.SceneError` for the first problem of the shot's first instant: a body
+    """A :class:`shellsim.shot.spec.SceneError` for the first problem of the shot's first instant: a body
     below the ground, two bodies overlapping (naming both), or a body overlapping a collider."""
     surfaces = [(b.surface_world, np.asarray(b.surface.faces)) for b in bodies]
     for body, (vertices, _) in zip(bodies, surfaces, strict=True):

@@ -15,7 +15,7 @@ samples with their transmittance, Eq. 2):
   and ``V`` the light's visibility from ``p``: the field's transmittance ``T = prod_i (1 - alpha_i)`` along
   the shadow ray from ``p`` toward the light (:func:`neural.render.view.transmittance`, with the camera rays'
   sampler and map to rest space, so a deformed body's shadow moves with it and fur casts a soft one);
-- **obstacles** (:mod:`shellsim.render.obstacles`: boxes and spheres met in closed form) where one is nearer
+- **obstacles** (:mod:`shellsim.film.obstacles`: boxes and spheres met in closed form) where one is nearer
   than the ground: ``obstacle_color * (ambient + diffuse * max(n.l, 0) * V)``, ``n`` the outward normal;
 - **sky** elsewhere: ``horizon + (zenith - horizon) * max(d_z / |d|, 0)`` (a plain colour when both agree).
 
@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from shellsim.render.obstacles import Meshes, Obstacles, blocked, obstacle_hits
+from shellsim.film.obstacles import Meshes, Obstacles, blocked, obstacle_hits
 
 if TYPE_CHECKING:  # torch is imported where the images are made: the settings stay light for the jobs
     import torch
@@ -147,7 +147,7 @@ def world_backdrop(
     ``visibility(origins (G, 3), dirs (G, 3)) -> (G,)``: the light's visibility along shadow rays of the
     renderer's frame (the field's transmittance, e.g. :func:`neural.render.view.transmittance`); None: the
     field blocks no light. With ``look.shadows`` False nothing blocks it. ``meshes``: opaque triangle meshes
-    (:class:`~shellsim.render.obstacles.Meshes`), drawn and casting shadows as the obstacles do, in their own
+    (:class:`~shellsim.film.obstacles.Meshes`), drawn and casting shadows as the obstacles do, in their own
     albedo. ``sky_colors(dirs_w (R, 3)) -> (R, 3)``: what rays that meet nothing see along world directions
     instead of the look's sky (a capture's environment map)."""
     import torch

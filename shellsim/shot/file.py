@@ -1,4 +1,4 @@
-"""Read a scene file (TOML, the schema in docs/scene-file.md) into a :class:`~shellsim.scene.spec.SceneSpec`.
+"""Read a scene file (TOML, the schema in docs/scene-file.md) into a :class:`~shellsim.shot.spec.SceneSpec`.
 
 Every key is known, typed and in its domain, every name unique and every reference and path resolved (paths
 relative to the scene file's directory); nothing heavy is loaded (an asset is only found). Each problem is
@@ -21,7 +21,7 @@ from neural.asset import resolve_asset, shipped_assets_dir
 from neural.errors import InputError
 from shellsim.physics.materials import PRESETS, RANGES
 from shellsim.physics.selection import parse_selection
-from shellsim.scene.spec import (
+from shellsim.shot.spec import (
     RGB,
     ActionSpec,
     BodySpec,
@@ -103,7 +103,7 @@ MAX_FPS = 1000.0
 MAX_FRAMES = 10000
 MAX_SUBSTEPS = 1000
 MAX_CONTACT_GAP = 0.1  # [m]
-MIN_TARGET_TETS = 10  # shellsim.cage.build.CageConfig's bound
+MIN_TARGET_TETS = 10  # shellsim.tetcage.build.CageConfig's bound
 
 
 def problem(where: str, key: str | None, message: str) -> SceneError:
@@ -176,9 +176,7 @@ def _entries(data: dict, table: str, shown: str, names: dict[str, str] | None = 
     out = []
     for k, entry in enumerate(data.get(table, []), 1):
         t = _Table(entry, f"{shown}: [[{table}]] #{k}", noun=table)
-        t.name = (
-            t.choice("kind", _REQUIRED, ACTION_KINDS) if names is None else t.text("name", f"{table}{k}")
-        )
+        t.name = t.choice("kind", _REQUIRED, ACTION_KINDS) if names is None else t.text("name", f"{table}{k}")
         t.where += f" ({t.name})"
         if names is not None:
             if t.name in names:
@@ -589,7 +587,7 @@ def capture_cameras(path, width: int, height: int) -> Cameras:
     """The cameras of the camera file or dataset directory ``path`` (:func:`neural.data.load_camera_file`:
     their order, the asset's frame), imaging ``width`` x ``height`` pixels (each keeps its horizontal field
     of view); an :class:`InputError` naming ``path`` when it cannot be read or lists fewer than 2. A capture
-    camera's file, checked here and followed by :func:`shellsim.render.cameras.scene_shot`."""
+    camera's file, checked here and followed by :func:`shellsim.film.cameras.scene_shot`."""
     from neural.data import load_camera_file
 
     cameras = load_camera_file(path, width, height)

@@ -1,6 +1,6 @@
 """The timed actions of a scene (pin, grab, push, wind) as what the solver takes at each substep.
 
-:class:`Actions` turns the :class:`~shellsim.scene.spec.ActionSpec` list of a scene into, for each body and
+:class:`Actions` turns the :class:`~shellsim.shot.spec.ActionSpec` list of a scene into, for each body and
 each substep ``[t, t + h]``, the inputs of :class:`shellsim.physics.control.Control`: a pinned mask, the
 pins' targets and external forces. An action acts in the substeps that overlap its window ``[start, end)``
 (an impulse, ``end == start``: the substep containing ``start``):
@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from shellsim.physics.selection import parse_selection
-from shellsim.scene.spec import ActionSpec, SceneError
+from shellsim.shot.spec import ActionSpec, SceneError
 
 AIR_DENSITY = 1.2  # [kg/m^3]
 WIND_RAMP = 0.25  # [s] the wind rises and falls smoothly over this time at the ends of its window
@@ -59,7 +59,7 @@ class BodyInputs:
 class Actions:
     """The actions of a scene on its bodies.
 
-    actions : the scene's actions, in the order of the file, in their domain (:mod:`shellsim.scene.file`);
+    actions : the scene's actions, in the order of the file, in their domain (:mod:`shellsim.shot.file`);
     bodies : every body of the scene. Each region is resolved once on its body's t = 0 vertices; one that
     selects no vertex is a :class:`SceneError` naming the action's ``where``.
     """

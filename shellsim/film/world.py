@@ -14,7 +14,7 @@ from shellsim.settings import float_list, floats, option
 from shellsim.world import WorldLook
 
 if TYPE_CHECKING:
-    from shellsim.scene.spec import LookSpec
+    from shellsim.shot.spec import LookSpec
 
 #: The options of :class:`WorldSettings`, declared by every job that renders a motion.
 OPTIONS = ("ground_colors", "light", "sky")

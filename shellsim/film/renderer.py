@@ -20,12 +20,12 @@ to rest space. :class:`DeformedRenderer`
 4. **shades** the rest-space samples with the field and composites them along the deformed rays (Eq. 2-3),
    over the asset's background, or, given a :class:`~shellsim.world.WorldLook` and the body's
    :class:`~shellsim.world.Placement`, over the world's lit ground and sky
-   (:func:`~shellsim.render.ground.world_backdrop`), its shadow rays cast through the same deformed shells,
+   (:func:`~shellsim.film.ground.world_backdrop`), its shadow rays cast through the same deformed shells,
    mapped to rest space alike and attenuated by the field's transmittance
    (:func:`~neural.render.view.transmittance`); the world's static obstacles
-   (:class:`~shellsim.render.obstacles.Obstacles`) are drawn there too, and hide the body's samples behind
+   (:class:`~shellsim.film.obstacles.Obstacles`) are drawn there too, and hide the body's samples behind
    them, and the ground hides the shells below z = 0 (each ray's ``t_max``,
-   :func:`~shellsim.render.ground.surface_t_max`).
+   :func:`~shellsim.film.ground.surface_t_max`).
 
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
 pipeline without a map, with the asset's rest sampler, exactly what ``shellsim eval`` measures.
@@ -51,7 +51,7 @@ class DeformedRenderer:
 
     asset : :class:`neural.asset.Asset` (shells, background, narrow-band settings)
     field : its ``ShellField`` on ``device``
-    cage : :class:`shellsim.cage.build.Cage` embedding the asset's shells; None renders at rest only
+    cage : :class:`shellsim.tetcage.build.Cage` embedding the asset's shells; None renders at rest only
     device : torch device of the field ("cpu", "cuda"); the inverse map runs on the matching Warp device
     config : narrow-band settings; None takes the asset's ``meta["narrowband"]`` (or the defaults)
     look : :class:`shellsim.world.WorldLook` of the world behind the body (ground, light, shadows,
@@ -59,7 +59,7 @@ class DeformedRenderer:
         background colour
     placement : :class:`shellsim.world.Placement` of the asset's frame in the world (with ``look``; None: the
         identity)
-    obstacles : :class:`shellsim.render.obstacles.Obstacles` of the world, drawn with ``look`` (None: none)
+    obstacles : :class:`shellsim.film.obstacles.Obstacles` of the world, drawn with ``look`` (None: none)
 
     State: the rest sampler (:func:`neural.render.view.asset_sampler`, Embree scenes built once), the field,
     the cage, Warp meshes of the shells refitted to each deformed frame and the inverse map updated to it
@@ -71,7 +71,7 @@ class DeformedRenderer:
     ):
         from neural.device import warp_device
         from neural.render.view import asset_sampler
-        from shellsim.render.obstacles import Obstacles
+        from shellsim.film.obstacles import Obstacles
         from shellsim.world import Placement
 
         self.outer, self.inner = asset.outer_mesh(), asset.inner_mesh()
@@ -193,7 +193,7 @@ class DeformedRenderer:
         obstacles hide what is behind them."""
         from neural.data import camera_rays
         from neural.render.view import render_camera, transmittance
-        from shellsim.render.ground import surface_t_max, world_backdrop
+        from shellsim.film.ground import surface_t_max, world_backdrop
 
         start = time.perf_counter()
         sampler, to_rest = self._frame(positions)
@@ -230,7 +230,7 @@ class DeformedRenderer:
         from neural.render.bodies import FieldBody
         from neural.render.fullray import ray_background
         from neural.render.view import bodies_transmittance, render_bodies
-        from shellsim.render.ground import surface_t_max, world_backdrop
+        from shellsim.film.ground import surface_t_max, world_backdrop
 
         bodies = [FieldBody(self.field, sampler, self._cut_away(to_rest)), self.backdrop_body(framed=False)]
         origins, dirs = camera_rays(cameras, index, device=self.device)
@@ -258,7 +258,7 @@ class SceneRenderer:
     """Renders frames of a scene in the world (metres, z up): its neural bodies, each a
     :class:`DeformedRenderer` placed by its placement, whose samples are merged by depth and composited once
     (:func:`neural.render.view.render_bodies`); the surfaces of its mesh bodies and its static colliders as
-    opaque meshes (:class:`shellsim.render.obstacles.Meshes`) and ``obstacles``; the world's ground, light,
+    opaque meshes (:class:`shellsim.film.obstacles.Meshes`) and ``obstacles``; the world's ground, light,
     sky and shadows of ``look`` (:class:`shellsim.world.WorldLook`; shadow rays through every body's field,
     :func:`neural.render.view.bodies_transmittance`). A body cut out of a capture
     (:mod:`neural.shell.cutout`) brings its room, the backdrop of its asset, drawn at rest where the asset is
@@ -267,14 +267,14 @@ class SceneRenderer:
 
     bodies : one :class:`DeformedRenderer` per neural body (made with its ``placement``, without a look)
     statics : ``(vertices (N, 3) world, faces (F, 3), albedo (3,))`` of the static meshes
-    obstacles : :class:`shellsim.render.obstacles.Obstacles` (boxes and spheres met in closed form)
+    obstacles : :class:`shellsim.film.obstacles.Obstacles` (boxes and spheres met in closed form)
     background : RGB behind everything without a ``look`` (with a cut body: its capture's environment map)
     """
 
     def __init__(
         self, bodies, look=None, obstacles=None, statics=(), device: str = "cpu", background=(1, 1, 1)
     ):
-        from shellsim.render.obstacles import Obstacles
+        from shellsim.film.obstacles import Obstacles
 
         self.bodies = list(bodies)
         if any(r.cut is not None for r in self.bodies):
@@ -293,8 +293,8 @@ class SceneRenderer:
         opaque meshes' scene) and ``ms`` with it."""
         from neural.data import camera_rays
         from neural.render.view import bodies_transmittance, render_bodies
-        from shellsim.render.ground import surface_t_max, world_backdrop
-        from shellsim.render.obstacles import Meshes
+        from shellsim.film.ground import surface_t_max, world_backdrop
+        from shellsim.film.obstacles import Meshes
         from shellsim.world import Placement
 
         start = time.perf_counter()

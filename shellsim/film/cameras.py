@@ -5,7 +5,8 @@ framed to the motion), an orbit over a given arc per clip, or a camera that foll
 ``sweep``, copied by :func:`camera_option`); :func:`motion_track` sums a motion up for it (each frame's box
 and centre of mass); :meth:`CameraSettings.shot` turns both into a :class:`Shot`, whose
 :meth:`Shot.camera_for_frame` is a pinhole camera in the world's frame. The asset renderer maps it into the
-asset's frame (:func:`shellsim.render.frames.asset_camera`); the pyvista surface renderer draws the world.
+asset's frame (:func:`shellsim.film.motion_frames.asset_camera`); the pyvista surface renderer draws the
+world.
 :func:`scene_shot` is the :class:`Shot` of a scene file's ``[[camera]]`` (:func:`default_scene_camera` where
 the file has none); a ``capture`` camera moves along a camera file's own cameras (:func:`capture_path`).
 :func:`orbit_camera` and :func:`orbit_framing` are one camera about a point and the distance of a sphere.
@@ -26,13 +27,13 @@ from shellsim.settings import check_choice, check_range, floats, option
 from shellsim.world import CAMERA_PRESETS, UP
 
 if TYPE_CHECKING:
-    from shellsim.scene.spec import CameraSpec
+    from shellsim.shot.spec import CameraSpec
     from shellsim.world import Placement
 
 #: (W, H) of a motion's frames when neither a size nor a camera file gives one.
 VIDEO_SIZE = (512, 512)
-#: Jittered rays per pixel of a motion's frames by default (:func:`shellsim.render.frames.antialiased`); rest
-#: views take 1, the pixel-centre rays that ``shellsim eval`` scores.
+#: Jittered rays per pixel of a motion's frames by default (:func:`shellsim.film.motion_frames.antialiased`);
+#: rest views take 1, the pixel-centre rays that ``shellsim eval`` scores.
 MOTION_ANTIALIAS = 4
 MAX_ANTIALIAS = 64  # jittered rays per pixel at most
 
@@ -177,17 +178,17 @@ def scene_shot(
     - a preset of :data:`~shellsim.world.CAMERA_PRESETS`: the shot of ``CameraSettings(camera=kind,
       fov=spec.fov, elevation=spec.elevation)`` over ``tracks[""]``, keeping every body over the whole motion
       in view;
-    - capture: along the cameras of the file ``spec.path`` (:func:`shellsim.scene.file.capture_cameras`, in
+    - capture: along the cameras of the file ``spec.path`` (:func:`shellsim.shot.file.capture_cameras`, in
       the asset's frame of ``spec.body``) once over the shot, :func:`capture_path` with ``spec.smooth``,
       each camera-to-world moved into the world by ``placements[spec.body]`` (rotation ``R c2w``, position
       :meth:`~shellsim.world.Placement.to_world`): the inverse of
-      :func:`shellsim.render.frames.asset_camera`, so that a frame on a camera of the file casts that
+      :func:`shellsim.film.motion_frames.asset_camera`, so that a frame on a camera of the file casts that
       camera's rays; ``spec.fov`` None: the median of the cameras' own horizontal fields of view. The
       shot's pinhole keeps neither their principal points nor ``fy`` nor their distortion.
 
     A camera that stands where it looks at some frame, or a capture's camera file that cannot be read, is a
-    :class:`~shellsim.scene.spec.SceneError` naming the spec's ``where``."""
-    from shellsim.scene.file import capture_cameras, problem
+    :class:`~shellsim.shot.spec.SceneError` naming the spec's ``where``."""
+    from shellsim.shot.file import capture_cameras, problem
 
     up, every = _unit(UP), tracks[""]
     if spec.kind in CAMERA_PRESETS:
@@ -281,7 +282,7 @@ def capture_path(c2w, frames: int, smooth: float) -> np.ndarray:
 def default_scene_camera() -> CameraSpec:
     """The camera of a scene file without any: a three-quarter view (azimuth -45 degrees, elevation 20)
     orbiting 30 degrees over the shot, framed to the bodies."""
-    from shellsim.scene.spec import CameraSpec
+    from shellsim.shot.spec import CameraSpec
 
     return CameraSpec(name="default", kind="orbit", elevation=20.0, azimuth=-45.0, degrees=30.0)
 
@@ -328,7 +329,7 @@ def mass_weights(rest_vertices, tets) -> np.ndarray:
     """(V,) each vertex's share of the rest volume: a quarter of the volume of each tet (T, 4) it belongs
     to, so that ``weights @ positions / weights.sum()`` is the centre of mass of a body of uniform density
     whose tets keep their mass (linear in the positions, exact for a rigid motion)."""
-    from shellsim.cage.geometry import tet_volumes
+    from shellsim.tetcage.geometry import tet_volumes
 
     tets = np.asarray(tets)
     weights = np.zeros(len(rest_vertices))

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import write_failures
+from shellsim.film.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, CameraSettings, mass_weights, motion_track
+from shellsim.film.result import RenderResult
 from shellsim.io.png import asset_identity, digest, frame_record, renderer_identity, save_png, stale_reason
 from shellsim.io.video import write_video
-from shellsim.render.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, CameraSettings, mass_weights, motion_track
-from shellsim.render.result import RenderResult
 from shellsim.settings import parse_frames
 
 log = logging.getLogger(__name__)
@@ -197,7 +197,7 @@ def _view_frames(asset, cage, device: str, antialias: int, frame=None, world=Non
     ``world``: (look, placement, obstacles) of :func:`motion_world` around the body (None: the asset's
     background)."""
     device, field = _field(asset, device)
-    from shellsim.render.renderer import DeformedRenderer
+    from shellsim.film.renderer import DeformedRenderer
 
     renderer = DeformedRenderer(asset, field, cage, device, None, *(world or (None, None, None)))
     if frame is None:
@@ -221,8 +221,8 @@ def motion_recipe(asset_path: str, motion_path: str, device: str, antialias: int
     """In a Ray worker: the ``render_one((view, frame))`` of a motion of the asset at ``asset_path`` (``look``
     as :func:`motion_world`'s)."""
     from neural.asset import load_asset
-    from shellsim.cage.store import cage_for_motion
     from shellsim.motion.read import read_motion_info
+    from shellsim.tetcage.store import cage_for_motion
 
     asset, motion = load_asset(asset_path), read_motion_info(motion_path)
     cage = cage_for_motion(asset, motion, motion_path)
@@ -235,8 +235,8 @@ def motion_world(motion, look=None):
     world was in metres (no placement: the asset's background). ``look``: a
     :class:`shellsim.world.WorldLook` (None: the default one); its ground is drawn only for motions
     that have one (not simulated without a ground), the others have the sky alone. ``obstacles``: the
-    :class:`shellsim.render.obstacles.Obstacles` of the motion's settings (``box``, ``sphere``)."""
-    from shellsim.render.obstacles import Obstacles
+    :class:`shellsim.film.obstacles.Obstacles` of the motion's settings (``box``, ``sphere``)."""
+    from shellsim.film.obstacles import Obstacles
     from shellsim.world import Placement, WorldLook, has_ground
 
     if not motion.placement:
@@ -252,7 +252,7 @@ def world_record(world) -> dict | None:
     None)."""
     if world is None:
         return None
-    from shellsim.render.ground import WORLD_RENDERER
+    from shellsim.film.ground import WORLD_RENDERER
 
     look, placement, obstacles = world
     return {
@@ -325,7 +325,7 @@ def render_motion(
     asset_spec : asset directory or shipped name; motion_path : ``.npz`` of :mod:`shellsim.motion.format` made
         for this asset's cage (else an :class:`InputError`)
     cameras : camera file in the asset's frame (its first camera views every frame), or None
-    camera : :class:`~shellsim.render.cameras.CameraSettings` of a camera in world metres (not with
+    camera : :class:`~shellsim.film.cameras.CameraSettings` of a camera in world metres (not with
         ``cameras``; neither: ``CameraSettings()``, an orbit of 30 degrees over the clip)
     frames : ``"a:b"`` spec of :func:`parse_frames` (None: all)
     size : (W, H); default the camera file's, or :data:`VIDEO_SIZE` for ``camera``
@@ -346,8 +346,8 @@ def render_motion(
     """
     from neural.asset import load_asset
     from neural.data import load_camera_file
-    from shellsim.cage.store import cage_for_motion
     from shellsim.motion.read import iter_frames, read_motion_info
+    from shellsim.tetcage.store import cage_for_motion
     from shellsim.world import UP
 
     if cameras is not None and camera is not None:

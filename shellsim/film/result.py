@@ -1,5 +1,5 @@
 """What a render of PNG frames did (:class:`RenderResult`): the result of
-:func:`shellsim.render.frames.render_views`, :func:`shellsim.render.frames.render_motion`,
+:func:`shellsim.film.motion_frames.render_views`, :func:`shellsim.film.motion_frames.render_motion`,
 :func:`shellsim.viz.surface.render_surface_motion` and the render job."""
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ class RenderResult:
     samples_per_pixel : mean samples evaluated per pixel (None when none was rendered, or for a motion's own
         surface drawn with pyvista)
     stage_ms : mean milliseconds per frame of each stage (``build``, ``sample``, ``map``, ``shade``,
-        ``world``: :data:`shellsim.render.renderer.STAGES`); empty when none was rendered or for a surface
+        ``world``: :data:`shellsim.film.renderer.STAGES`); empty when none was rendered or for a surface
     video : the MP4 assembled from ``frames``, None without one
     """
 

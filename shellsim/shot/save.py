@@ -1,5 +1,5 @@
-"""A :class:`~shellsim.scene.spec.SceneSpec` written back as a scene file (TOML) that
-:func:`shellsim.scene.file.read_scene` reads to the same spec: the keys each table's kind takes, values
+"""A :class:`~shellsim.shot.spec.SceneSpec` written back as a scene file (TOML) that
+:func:`shellsim.shot.file.read_scene` reads to the same spec: the keys each table's kind takes, values
 that differ from nothing (None is left out), floats written exactly (``repr``), paths absolute.
 """
 
@@ -9,7 +9,7 @@ import dataclasses
 import json
 import math
 
-from shellsim.scene.file import (
+from shellsim.shot.file import (
     ACTION_KEYS,
     ACTION_KINDS,
     BODY_KEYS,
@@ -21,7 +21,7 @@ from shellsim.scene.file import (
     LOOK_KEYS,
     WORLD_KEYS,
 )
-from shellsim.scene.spec import SceneSpec
+from shellsim.shot.spec import SceneSpec
 
 
 def _value(value) -> str:

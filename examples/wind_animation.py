@@ -1,11 +1,10 @@
 """Wind animation of a neural asset (paper Sec. 5, Fig. 12 left): analytic wind on the cage, then a clip.
 
-The asset's cage bends like a cantilever in a gusty wind (:mod:`shellsim.jobs.wind`); every frame is
-rendered by deforming the adaptive shells with the cage
-(:func:`shellsim.film.motion_frames.render_motion`), seen by a fixed camera from the side (the sway crosses
-the image). Writes ``OUT/wind.npz`` (the motion), ``OUT/frames/00000.png ...`` and ``OUT/wind.mp4``. Re-running continues the motion when it was made with
-the same wind (else it is refused, naming what changed, unless ``--overwrite``) and the render where it
-stopped.
+The asset's cage bends like a cantilever in a gusty wind (:mod:`shellsim.jobs.wind`); every frame is rendered
+by deforming the adaptive shells with the cage (:func:`shellsim.film.motion_frames.render_motion`), seen by a
+fixed camera from the side (the sway crosses the image). Writes ``OUT/wind.npz`` (the motion),
+``OUT/frames/00000.png ...`` and ``OUT/wind.mp4``. Re-running continues the motion when it was made with the
+same wind (else it is refused, naming what changed, unless ``--overwrite``) and the render where it stopped.
 
     python examples/wind_animation.py                        # the shipped lego, 48 frames, 160x160
     python examples/wind_animation.py --asset PATH --frames 12 --size 96x64

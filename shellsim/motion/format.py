@@ -5,12 +5,13 @@ plain, uncompressed ``.npz`` (``np.savez``'s layout: :func:`numpy.load` opens it
 
 - ``rest_vertices`` (V, 3) float64: the rest cage where the motion starts (world metres), ``tets`` (T, 4)
   int64, ``positions`` (F, V, 3) float32 and ``times`` (F,) float64 (seconds);
-- ``header``: a 0-d string of JSON: ``format`` ("shellsim-motion"), ``format_version`` (3), ``producer``
-  (what made it: "shellsim simulate", ...), ``settings`` (the producer's), ``asset`` (``name`` and content
+- ``header``: a 0-d string of JSON: ``format`` ("shellsim-motion"), ``format_version`` (3), ``producer`` (what
+  made it: "shellsim simulate", ...), ``settings`` (the producer's), ``asset`` (``name`` and content
   ``digest`` of the asset, or the mesh simulated), ``cage`` (the
   :func:`~shellsim.tetcage.geometry.cage_digest` of the cage in the asset's own frame: the identity
-  :meth:`Motion.check_against` compares), ``placement`` (the similarity from the asset's frame to the world, :class:`shellsim.world.Placement`; ``{}`` for none),
-  ``meta`` (facts: statistics, wall time) and ``units`` ("m");
+  :meth:`Motion.check_against` compares), ``placement`` (the similarity from the asset's frame to the world,
+  :class:`shellsim.world.Placement`; ``{}`` for none), ``meta`` (facts: statistics, wall time) and ``units``
+  ("m");
 - optionally the surface of what moves (``simulate --mesh``), embedded in the cage: ``surface_tet`` (S,)
   int64, ``surface_bary`` (S, 4) float64, ``surface_faces`` (F, 3) int64;
 - the producer's state after the last frame as arrays ``state_NAME`` (the simulator's velocities).

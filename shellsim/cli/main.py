@@ -39,6 +39,7 @@ COMMANDS = (
     "inspect",
     "export",
     "sweep",
+    "view",
 )
 
 

@@ -26,6 +26,33 @@ log = logging.getLogger(__name__)
 #: Seed of the sub-pixel offsets of :func:`pixel_offsets`: fixed, so a frame is the same every time.
 JITTER_SEED = 0
 
+#: How frames are rendered: "final" (the size, rays per pixel and shadows asked for) or "preview" (half
+#: the size, one ray per pixel through each pixel's centre, no shadow rays): a whole shot in seconds.
+QUALITIES = ("final", "preview")
+
+
+def check_quality(quality: str) -> None:
+    """ValueError naming ``quality`` unless it is one of :data:`QUALITIES`."""
+    if quality not in QUALITIES:
+        raise ValueError(f"quality: expected one of {', '.join(QUALITIES)}, got {quality!r}")
+
+
+def preview_size(width: int, height: int) -> tuple[int, int]:
+    """(W, H) of a preview of frames ``width`` x ``height``: half of each side, at least one pixel."""
+    return max(1, int(width) // 2), max(1, int(height) // 2)
+
+
+def preview_look(look):
+    """``look`` (a :class:`shellsim.world.WorldLook`, or None) of a preview: without shadow rays."""
+    return None if look is None else dataclasses.replace(look, shadows=False)
+
+
+def quality_identity(renderer: str, quality: str) -> str:
+    """The renderer digest of a frame's record (:func:`shellsim.io.png.frame_record`) for ``quality``:
+    ``renderer`` itself for "final" (frames made before there were qualities stay valid), else a digest of
+    it and the quality, so that a final render never keeps a preview's frames, whatever their settings."""
+    return renderer if quality == "final" else digest(renderer, f"quality {quality}")
+
 
 def pixel_offsets(samples: int) -> np.ndarray:
     """(samples, 2) sub-pixel offsets (dx, dy) in pixels, in [-0.5, 0.5)^2: multi-jittered sampling (Chiu,
@@ -159,24 +186,31 @@ def render_views(
     progress: bool = True,
     ray: str | None = None,
     antialias: int = 1,
+    quality: str = "final",
 ) -> RenderResult:
     """Render every camera of a ``transforms*.json``-style camera file (images may be absent) at rest to
     ``out_dir/<frame name>.png`` (the listed image's name, else ``frame_<index>``); ``size`` = (W, H)
     overrides the file's. A PNG already there is kept only when its record (:func:`frame_record`) says it
     shows this asset from this camera at this size, unless ``overwrite``; others are rendered again. With
     ``ray`` ("local" or a cluster address) each frame is a Ray task. ``antialias``: jittered rays per pixel
-    (:func:`antialiased`; 1, the default: the pixel-centre rays ``shellsim eval`` scores). Returns the
-    :class:`RenderResult` (counts, mean ms per frame and per stage)."""
+    (:func:`antialiased`; 1, the default: the pixel-centre rays ``shellsim eval`` scores); ``quality``
+    "preview" (:data:`QUALITIES`): half the size, one ray per pixel. Returns the :class:`RenderResult`
+    (counts, mean ms per frame and per stage)."""
     from neural.asset import load_asset
     from neural.data import load_camera_file
 
+    check_quality(quality)
     pixel_offsets(antialias)  # checked before the asset loads
     cameras = load_camera_file(cameras_path, *(size or (None, None)))
+    if quality == "preview":
+        antialias = 1
+        cameras = load_camera_file(cameras_path, *preview_size(cameras.width[0], cameras.height[0]))
     names = list(cameras.names)
     if len(set(names)) != len(names):
         names = [f"{i:05d}" for i in range(len(cameras))]
     asset = load_asset(asset_spec)
-    identity, settings = asset_identity(asset), renderer_identity(asset, antialias)
+    identity = asset_identity(asset)
+    settings = quality_identity(renderer_identity(asset, antialias), quality)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = []
@@ -319,6 +353,7 @@ def render_motion(
     framing=None,
     antialias: int = MOTION_ANTIALIAS,
     look=None,
+    quality: str = "final",
 ) -> RenderResult:
     """Render frames of a motion to ``out_dir/<k:05d>.png`` (``k`` the motion frame), optionally an MP4.
 
@@ -341,6 +376,8 @@ def render_motion(
         centre)
     look : :class:`shellsim.world.WorldLook` of the world behind the body (ground, light, shadows,
         sky); None: :func:`motion_world`'s default (the ground for a motion that has one)
+    quality : "final", or "preview" (:data:`QUALITIES`): half the size (of ``size``, the default or the
+        camera file's), one ray per pixel, no shadow rays; its frames' records differ from the final ones'
     The motion, ``frames`` and the camera file are checked before the asset and its field load.
     Returns the :class:`RenderResult` (counts, mean ms per frame and per stage, ``video``).
     """
@@ -354,7 +391,10 @@ def render_motion(
         raise ValueError("camera: not with cameras (a camera file)")
     if fps is not None and not (fps > 0 and math.isfinite(fps)):
         raise ValueError(f"fps: expected a positive number, got {fps}")
+    check_quality(quality)
     pixel_offsets(antialias)
+    if quality == "preview":
+        antialias = 1
     motion = read_motion_info(motion_path)
     indices = parse_frames(frames, motion.n_frames, source=str(motion_path))
     if cameras is None:  # every frame's box and centre of mass, read a batch at a time
@@ -363,14 +403,23 @@ def render_motion(
         track = motion_track(batches, weights, motion.times)
     else:
         view = load_camera_file(cameras, *(size or (None, None))).subset([0])
+        if quality == "preview":
+            view = load_camera_file(cameras, *preview_size(view.width[0], view.height[0])).subset([0])
+    if quality == "preview" and cameras is None:
+        size = preview_size(*(size or VIDEO_SIZE))
     asset = load_asset(asset_spec)
     cage = cage_for_motion(asset, motion, str(motion_path))
     if cameras is None:
         box = None if framing is None else np.stack([np.min(framing, 0), np.max(framing, 0)])
         up = UP if motion.placement else asset.up  # motions made before the world was in metres: the asset's
         shot = (camera or CameraSettings()).shot(track, *(size or VIDEO_SIZE), up=up, box=box)
+    if quality == "preview":
+        from shellsim.world import WorldLook
+
+        look = preview_look(WorldLook() if look is None else look)
     world = motion_world(motion, look)
-    identity, settings = asset_identity(asset, cage), renderer_identity(asset, antialias, world_record(world))
+    identity = asset_identity(asset, cage)
+    settings = quality_identity(renderer_identity(asset, antialias, world_record(world)), quality)
     frame_ids = motion_frame_ids(motion, (p for batch in iter_frames(motion_path, indices) for p in batch))
     out_dir = Path(out_dir)
     jobs = []

@@ -20,7 +20,16 @@ import numpy as np
 
 from shellsim.errors import SettingError
 from shellsim.film.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, MotionTrack
-from shellsim.film.motion_frames import antialiased, pixel_offsets, render_frames, with_video
+from shellsim.film.motion_frames import (
+    antialiased,
+    check_quality,
+    pixel_offsets,
+    preview_look,
+    preview_size,
+    quality_identity,
+    render_frames,
+    with_video,
+)
 from shellsim.film.result import RenderResult
 from shellsim.io.png import asset_identity, digest, frame_record
 
@@ -184,6 +193,7 @@ def render_scene(
     look=None,
     ground: bool = True,
     spec=None,
+    quality: str = "final",
 ) -> RenderResult:
     """Render frames of a scene motion to ``out_dir/<k:05d>.png`` (``k`` the motion frame), optionally an MP4.
 
@@ -200,6 +210,8 @@ def render_scene(
     ground : draw the ground where the scene has one (False: nowhere)
     spec : the :class:`~shellsim.shot.spec.SceneSpec` of the scene file as it says now, whose cameras and
         look replace those the motion recorded (they do not change the motion)
+    quality : "final", or "preview" (:data:`shellsim.film.motion_frames.QUALITIES`): half the size, one ray
+        per pixel, no shadow rays; its frames' records differ from the final ones'
     Other arguments as :func:`shellsim.film.motion_frames.render_motion`'s. Returns its :class:`RenderResult`.
     """
     from shellsim.film.cameras import scene_shot
@@ -210,6 +222,7 @@ def render_scene(
     from shellsim.shot.recorded import read_scene_motion
     from shellsim.world import WorldLook
 
+    check_quality(quality)
     pixel_offsets(antialias)
     scene = read_scene_motion(scene_path, load_assets=False)
     if spec is not None:
@@ -221,6 +234,8 @@ def render_scene(
     info = scene.info
     indices = parse_frames(frames, info.n_frames, source=str(scene.path))
     width, height = size or VIDEO_SIZE
+    if quality == "preview":
+        (width, height), antialias, look = preview_size(width, height), 1, preview_look(look)
     spec = None if camera is not None else scene_camera(scene, scene_camera_name)
     tracks = scene_tracks(scene)
     shot = (
@@ -229,7 +244,8 @@ def render_scene(
         else scene_shot(spec, tracks, width, height, {b.name: b.placement for b in scene.bodies})
     )
     scene = dataclasses.replace(read_scene_motion(scene_path), cameras=scene.cameras, look=scene.look)
-    identity, settings = scene_identity(scene), scene_renderer_identity(scene, antialias, look)
+    identity = scene_identity(scene)
+    settings = quality_identity(scene_renderer_identity(scene, antialias, look), quality)
     frame_ids = motion_frame_ids(info, (p for batch in iter_frames(scene.path, indices) for p in batch))
     out_dir = Path(out_dir)
     jobs = []

@@ -23,6 +23,7 @@ from shellsim.film.cameras import (
     camera_option,
     check_antialias,
 )
+from shellsim.film.motion_frames import QUALITIES
 from shellsim.film.result import RenderResult
 from shellsim.film.world import WorldSettings, world_option
 from shellsim.io.outputs import check_writable_dir, check_writable_file, holds_outputs, lock_output
@@ -84,6 +85,12 @@ class RenderSettings:
     ground_colors: tuple[float, ...] = world_option("ground_colors")
     light: tuple[float, ...] = world_option("light")
     sky: tuple[float, ...] = world_option("sky")
+    quality: str = option(
+        "final",
+        help="final: the frames asked for; preview: half the size, one ray per pixel, no shadows (a look at "
+        "a whole shot in seconds; a final render later renders them again)",
+        choices=QUALITIES,
+    )
     overwrite: bool = option(False, help="render frames already in OUT again")
     device: str = option("auto", help="cpu, cuda or auto")
     ray: str | None = option(
@@ -127,6 +134,9 @@ class RenderSettings:
             raise SettingError("fps", f"expected a positive number, got {self.fps}")
         if self.antialias is not None:
             check_antialias(self.antialias)
+        check_choice("quality", self.quality, QUALITIES)
+        if self.quality == "preview" and self.antialias is not None:
+            raise SettingError("antialias", "not with {quality} preview (one ray per pixel)")
         check_choice("device", self.device, DEVICES)
         if self.scene is not None:
             return
@@ -136,6 +146,8 @@ class RenderSettings:
             raise SettingError("ray", "renders an asset's frames; a motion's own surface is drawn here")
         if self.asset is None and self.antialias is not None:
             raise SettingError("antialias", "renders an asset's frames; pyvista draws a motion's own surface")
+        if self.asset is None and self.quality != "final":
+            raise SettingError("quality", "renders an asset's frames; pyvista draws a motion's own surface")
         for name in ([] if self.ground else ["ground"]) + world.changed():
             if self.asset is None:
                 raise SettingError(
@@ -185,6 +197,7 @@ def render(settings: RenderSettings) -> RenderResult:
         ray=settings.ray,
         antialias=settings.antialias or MOTION_ANTIALIAS,
         look=WorldSettings.of(settings).look(settings.ground),
+        quality=settings.quality,
         **common,
     )
     if settings.scene is not None:
@@ -218,6 +231,7 @@ def render(settings: RenderSettings) -> RenderResult:
             device=settings.device,
             ray=settings.ray,
             antialias=settings.antialias or 1,
+            quality=settings.quality,
             **common,
         )
     from shellsim.film.motion_frames import render_motion

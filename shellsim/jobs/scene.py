@@ -23,10 +23,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from shellsim.errors import SettingError
+from shellsim.film.motion_frames import QUALITIES
 from shellsim.io.outputs import check_writable_file, holds_outputs
 from shellsim.motion.format import MAX_FRAMES
 from shellsim.settings import (
     allow_stretch_option,
+    check_choice,
     check_range,
     device_setting,
     max_stretch_option,
@@ -61,6 +63,12 @@ class SceneSettings:
         shown_default="its first, or a three-quarter orbit framed to the bodies",
         metavar="NAME",
     )
+    quality: str = option(
+        "final",
+        help="with --video: final (512x512, anti-aliased, with shadows), or preview: 256x256, one ray per "
+        "pixel, no shadows (a look at the whole shot in seconds)",
+        choices=QUALITIES,
+    )
     max_stretch: float = max_stretch_option()
     allow_stretch: bool = allow_stretch_option()
     resume: bool = resume_option()
@@ -73,6 +81,9 @@ class SceneSettings:
         check_range("max_stretch", self.max_stretch, 1, math.inf, "a principal stretch", "(]")
         if self.camera is not None and self.video is None:
             raise SettingError("camera", "chooses the camera of {video}")
+        check_choice("quality", self.quality, QUALITIES)
+        if self.quality != "final" and self.video is None:
+            raise SettingError("quality", "sets how {video} is rendered")
 
     @property
     def out_dir(self) -> Path:
@@ -180,6 +191,7 @@ def _video(settings: SceneSettings, spec, out_dir: Path, frames: int, progress: 
         overwrite=settings.overwrite,
         progress=progress,
         spec=spec,
+        quality=settings.quality,
     )
 
 

@@ -257,3 +257,30 @@ def test_the_command_serves_until_sigterm_and_exits_0(shot, host, warned):
         process.kill()
     assert process.returncode == 0, err
     assert ("anyone who can reach port" in err) == warned
+
+
+def test_moving_a_collider_and_a_body_edits_only_their_poses_and_save_reopens_the_file(viewer, shot):
+    """What "Move" does when its arrows are let go: the file's position and rotation of the wall and the rod
+    change, nothing else; the page's meshes move at once, and after Save the reopened file shows them
+    there."""
+    import dataclasses
+
+    from shellsim.shot.file import read_scene
+
+    path = shot()
+    before = read_scene(path)
+    viewer.open(path)
+    rod = viewer.displayed("r").copy()
+    viewer.move("wall", (1.2, 0.1, 0.2), (0.0, 0.0, 30.0))
+    viewer.move("r", (0.0, 0.3, 0.05), (0.0, 0.0, 0.0))
+    np.testing.assert_allclose(viewer.displayed("r"), rod + [0.0, 0.3, 0.0], atol=1e-6)
+    after = viewer.save()
+    assert after == read_scene(path)
+    wall = dataclasses.replace(before.colliders[0], position=(1.2, 0.1, 0.2), rotation=(0.0, 0.0, 30.0))
+    body = dataclasses.replace(before.bodies[0], position=(0.0, 0.3, 0.05))
+    assert after.colliders == (wall,) and after.bodies == (body,)
+    assert after.actions == before.actions and after.cameras == before.cameras and after.world == before.world
+    name, vertices, _ = viewer.state.colliders[0]
+    assert name == "wall"
+    np.testing.assert_allclose(0.5 * (vertices.min(0) + vertices.max(0)), (1.2, 0.1, 0.2), atol=1e-9)
+    np.testing.assert_allclose(viewer.displayed("r").mean(0), rod.mean(0) + [0.0, 0.3, 0.0], atol=1e-3)

@@ -105,6 +105,7 @@ class Viewer:
         self._sent: dict[str, np.ndarray] = {}
         self._faces: dict[str, np.ndarray] = {}  # live mode's display faces, where they differ
         self._editor = None
+        self._moved: dict[str, tuple] = {}  # positions given by "Move" since the file was opened
         self._reported = None
 
     # -- the library API ---------------------------------------------------------------------------------
@@ -338,6 +339,81 @@ class Viewer:
             self._editor = SceneEditor(self.state.scene)
         return self._editor
 
+    def move(self, name: str, position, rotation) -> None:
+        """Set the scene file's ``position`` [m] and ``rotation`` [degrees about world x, y, z] of the body or
+        collider ``name`` (an edit, written by :meth:`save`), and move what the page shows of it rigidly to
+        match; the picture and the simulation follow the file once it is saved (it is opened again)."""
+        from scipy.spatial.transform import Rotation
+
+        spec = self._pose_of(name)
+        self.editor().set_pose(name, position, rotation)
+        turn = Rotation.from_euler("xyz", rotation, degrees=True).as_matrix()
+        turn = turn @ Rotation.from_euler("xyz", spec.rotation, degrees=True).as_matrix().T
+        old, new = (
+            np.asarray(self._moved.get(name, spec.position), np.float64),
+            np.asarray(position, np.float64),
+        )
+        self._moved[name] = tuple(new)
+        key = f"/bodies/{name}" if name in self._sent else f"/colliders/{name}"
+        handle = self._handles.get(key)
+        if name in self._sent:
+            vertices = (np.asarray(self._sent[name], np.float64) - old) @ turn.T + new
+            self._sent[name] = vertices.astype(np.float32)
+            if handle is not None and hasattr(handle, "vertices"):
+                handle.vertices = self._sent[name]
+        elif handle is not None:
+            handle.vertices = ((np.asarray(handle.vertices, np.float64) - old) @ turn.T + new).astype(
+                np.float32
+            )
+        self._note(f"Moved {name} (not saved yet)")
+
+    def save(self):
+        """Write the scene file's edits (:meth:`shellsim.view.edit.SceneEditor.save`) and open it again, so
+        that everything shown follows it; the saved :class:`~shellsim.shot.spec.SceneSpec`."""
+        spec = self.editor().save()
+        self._editor, self._moved = None, {}
+        self.open(self.state.scene, self.state.out)
+        return spec
+
+    def _pose_of(self, name: str):
+        """The spec (body or collider) called ``name`` as the file said it when opened."""
+        spec = self.state.spec
+        found = [b for b in spec.bodies if b.name == name] + [c for c in spec.colliders if c.name == name]
+        if not found:
+            raise ValueError(f"move: no body or collider named {name!r} in {self.state.scene}")
+        return found[0]
+
+    def _chose_to_move(self, name: str) -> None:
+        """Arrows and rings at the chosen body's or collider's position (a body's: the bottom centre of its
+        box); letting go of them moves it (:meth:`move`)."""
+        from scipy.spatial.transform import Rotation
+
+        old = self._handles.pop("/move", None)
+        if old is not None:
+            old.remove()
+        if name == "(nothing)":
+            return
+        spec = self._pose_of(name)
+        xyzw = Rotation.from_euler("xyz", spec.rotation, degrees=True).as_quat()
+        extent = float(np.ptp(self.state.rest, axis=0).max()) if self.state.n_vertices else 1.0
+        handle = self.server.scene.add_transform_controls(
+            "/move",
+            position=tuple(self._moved.get(name, spec.position)),
+            wxyz=(xyzw[3], xyzw[0], xyzw[1], xyzw[2]),
+            scale=max(0.05, 0.4 * extent),
+        )
+
+        @handle.on_drag_end
+        def _(event) -> None:
+            w, x, y, z = handle.wxyz
+            degrees = Rotation.from_quat([x, y, z, w]).as_euler("xyz", degrees=True)
+            try:
+                self.move(name, np.asarray(handle.position), degrees)
+            except (ValueError, ShellsimError) as err:
+                self._notify(event.client, "Move", str(err), error=True)
+
+        self._handles["/move"] = handle
+
     def _camera_from_view(self, event) -> None:
         camera = event.client.camera
         horizontal = 2.0 * np.arctan(np.tan(0.5 * camera.fov) * camera.aspect)
@@ -352,11 +428,10 @@ class Viewer:
 
     def _save(self, event) -> None:
         try:
-            self.editor().save()
+            self.save()
         except (ValueError, ShellsimError) as err:
             self._notify(event.client, "Save", str(err), error=True)
             return
-        self._editor = None
         self._note(f"Saved {self.state.scene}")
 
     def _note(self, text: str) -> None:
@@ -545,6 +620,10 @@ class Viewer:
             self._gui["release"] = release
         if state.kind == "scene":
             self._gui["record"] = gui.add_checkbox("Record pokes as pushes", initial_value=False)
+            movable = [b.name for b in state.spec.bodies] + [c.name for c in state.spec.colliders]
+            move = gui.add_dropdown("Move", options=["(nothing)", *movable], initial_value="(nothing)")
+            move.on_update(lambda event: self._chose_to_move(move.value))
+            self._gui["move"] = move
             camera = gui.add_button("Camera from this view")
             camera.on_click(lambda event: self._camera_from_view(event))
             save = gui.add_button("Save the scene file")

@@ -254,6 +254,18 @@ class DeformedRenderer:
         return _camera_image(colors, stats, cameras, index, start, build)
 
 
+@dataclasses.dataclass
+class SceneFrame:
+    """What one frame of a scene draws, whatever the camera (:meth:`SceneRenderer.frame`): ``bodies`` the
+    :class:`neural.render.bodies.FieldBody` of every neural body (and a cut body's room), ``opaque`` the
+    :class:`shellsim.film.obstacles.Meshes` of the static and mesh bodies, ``capture_sky`` a cut body's
+    environment map (or None)."""
+
+    bodies: list
+    opaque: object
+    capture_sky: object
+
+
 class SceneRenderer:
     """Renders frames of a scene in the world (metres, z up): its neural bodies, each a
     :class:`DeformedRenderer` placed by its placement, whose samples are merged by depth and composited once
@@ -285,44 +297,75 @@ class SceneRenderer:
         self.device = torch.device(device)
         self.background = torch.as_tensor(background, dtype=torch.float32, device=self.device)
 
-    def render(self, cameras, index: int, positions=(), meshes=()) -> tuple[np.ndarray, dict]:
-        """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` (world frame) with each neural
-        body's cage at ``positions[b]`` (V_b, 3) in its asset's frame (None: at rest) and the mesh bodies'
-        surfaces ``meshes`` (``(vertices (S, 3) world, faces, albedo)``), and the stats of
-        :func:`neural.render.view.render_bodies` plus ``build_ms`` (deforming the shells, refitting, the
-        opaque meshes' scene) and ``ms`` with it."""
-        from neural.data import camera_rays
-        from neural.render.view import bodies_transmittance, render_bodies
-        from shellsim.film.ground import surface_t_max, world_backdrop
+    def frame(self, positions=(), meshes=()) -> SceneFrame:
+        """What a frame draws whatever the camera (:class:`SceneFrame`): each neural body's cage at
+        ``positions[b]`` (V_b, 3) in its asset's frame (None: at rest; empty: every body at rest), the mesh
+        bodies' surfaces ``meshes`` (``(vertices (S, 3) world, faces, albedo)``) with the static meshes."""
         from shellsim.film.obstacles import Meshes
-        from shellsim.world import Placement
 
-        start = time.perf_counter()
         positions = list(positions) or [None] * len(self.bodies)
         bodies = [r.field_body(p) for r, p in zip(self.bodies, positions, strict=True)]
         bodies += [r.backdrop_body() for r in self.bodies if r.cut is not None]  # cut assets' rooms, at rest
-        opaque = Meshes([*self.statics, *meshes])
-        build = time.perf_counter() - start
-        origins, dirs = camera_rays(cameras, index, device=self.device)
-        backdrop = t_max = None
         capture_sky = next((sky for sky in (r.capture_sky() for r in self.bodies) if sky), None)
-        if self.look is not None:
-            world = Placement()  # the bodies and the cameras are in the world
+        return SceneFrame(bodies, Meshes([*self.statics, *meshes]), capture_sky)
+
+    def backdrop(self, frame: SceneFrame, look=None):
+        """What the rays of ``frame`` that leave every body meet (``backdrop(origins, dirs)``): the world of
+        ``look`` (None: the renderer's; its sky, lit ground and colliders, the bodies' shadows on them), else
+        a cut body's capture sky, else None (the background colour)."""
+        from neural.render.view import bodies_transmittance
+        from shellsim.film.ground import world_backdrop
+        from shellsim.world import Placement
+
+        look = self.look if look is None else look
+        if look is not None:
 
             def visibility(o, d):
-                return bodies_transmittance(bodies, o, d)
+                return bodies_transmittance(frame.bodies, o, d)
 
-            backdrop = world_backdrop(
-                self.look, world, visibility if bodies else None, self.obstacles, opaque, capture_sky
-            )
-            if self.look.ground or self.obstacles or opaque:
-                t_max = surface_t_max(self.look, world, self.obstacles, origins, dirs, opaque)
-        elif capture_sky is not None:
+            world = Placement()  # the bodies and the cameras are in the world
+            shadows = visibility if frame.bodies else None
+            return world_backdrop(look, world, shadows, self.obstacles, frame.opaque, frame.capture_sky)
+        if frame.capture_sky is not None:
+            sky = frame.capture_sky
 
             def backdrop(o, d):
-                return capture_sky(d)
+                return sky(d)
 
-        colors, stats = render_bodies(bodies, origins, dirs, self.background, backdrop=backdrop, t_max=t_max)
+            return backdrop
+        return None
+
+    def t_max(self, frame: SceneFrame, origins, dirs):
+        """(R,) where the world's ground, colliders and opaque meshes cut the rays ``origins``, ``dirs``
+        (R, 3), or None when nothing can."""
+        from shellsim.film.ground import surface_t_max
+        from shellsim.world import Placement
+
+        look = self.look
+        if look is None or not (look.ground or self.obstacles or frame.opaque):
+            return None
+        return surface_t_max(look, Placement(), self.obstacles, origins, dirs, frame.opaque)
+
+    def render(self, cameras, index: int, positions=(), meshes=()) -> tuple[np.ndarray, dict]:
+        """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` (world frame) of the
+        :meth:`frame` of ``positions`` and ``meshes``, and the stats of
+        :func:`neural.render.view.render_bodies` plus ``build_ms`` (deforming the shells, refitting, the
+        opaque meshes' scene) and ``ms`` with it."""
+        from neural.data import camera_rays
+        from neural.render.view import render_bodies
+
+        start = time.perf_counter()
+        frame = self.frame(positions, meshes)
+        build = time.perf_counter() - start
+        origins, dirs = camera_rays(cameras, index, device=self.device)
+        colors, stats = render_bodies(
+            frame.bodies,
+            origins,
+            dirs,
+            self.background,
+            backdrop=self.backdrop(frame),
+            t_max=self.t_max(frame, origins, dirs),
+        )
         return _camera_image(colors, stats, cameras, index, start, build)
 
 

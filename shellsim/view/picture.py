@@ -187,15 +187,17 @@ class _Request:
 
 @dataclass
 class _Frame:
-    """One set of cage positions made ready to render: the field bodies, the opaque meshes, the backdrop
-    (with and without shadows) and whether any world surface can cut the rays (``surfaces``)."""
+    """One set of cage positions made ready to render: the renderer's
+    :class:`shellsim.film.renderer.SceneFrame` and its backdrop, with and without shadows."""
 
     positions: np.ndarray | None
-    bodies: list
-    opaque: object
+    scene: object
     backdrop: object
     backdrop_moving: object
-    surfaces: bool
+
+    @property
+    def bodies(self) -> list:
+        return self.scene.bodies
 
 
 class NeuralPicture:
@@ -461,13 +463,8 @@ class NeuralPicture:
         return (image / len(offsets)).astype(np.float32), depth
 
     def _frame_of(self, positions) -> _Frame:
-        """The :class:`_Frame` of ``positions`` (the last one again when they are the same), as
-        :meth:`SceneRenderer.render` builds it."""
-        from neural.render.view import bodies_transmittance
-        from shellsim.film.ground import world_backdrop
-        from shellsim.film.obstacles import Meshes
-        from shellsim.world import Placement
-
+        """The :class:`_Frame` of ``positions`` (the last one again when they are the same): the renderer's
+        :meth:`shellsim.film.renderer.SceneRenderer.frame` and backdrops."""
         last = self._frame
         if last is not None and (
             (positions is None and last.positions is None)
@@ -491,36 +488,12 @@ class NeuralPicture:
                 surfaces.append((points, faces, albedo))
         if positions is None and self.meshes:  # mesh bodies at rest need their cages
             raise ValueError("positions: needed to draw mesh bodies (their surfaces follow their cages)")
-        bodies = [body.field_body(c) for body, c in zip(r.bodies, cages, strict=True)]
-        bodies += [body.backdrop_body() for body in r.bodies if body.cut is not None]
-        opaque = Meshes([*r.statics, *surfaces])
-        capture_sky = next((sky for sky in (b.capture_sky() for b in r.bodies) if sky), None)
-        backdrop = moving = None
-        surfaces_cut = False
-        if r.look is not None:
-
-            def visibility(o, d):
-                return bodies_transmittance(bodies, o, d)
-
-            def backdrop_of(look):
-                return world_backdrop(
-                    look, Placement(), visibility if bodies else None, r.obstacles, opaque, capture_sky
-                )
-
-            backdrop = backdrop_of(r.look)
-            moving = (
-                backdrop
-                if self.settings.moving_shadows
-                else backdrop_of(dataclasses.replace(r.look, shadows=False))
-            )
-            surfaces_cut = bool(r.look.ground or r.obstacles or opaque)
-        elif capture_sky is not None:
-
-            def backdrop(o, d):
-                return capture_sky(d)
-
-            moving = backdrop
-        self._frame = _Frame(positions, bodies, opaque, backdrop, moving, surfaces_cut)
+        scene = r.frame(cages, surfaces)
+        backdrop = r.backdrop(scene)
+        moving = backdrop
+        if r.look is not None and not self.settings.moving_shadows:
+            moving = r.backdrop(scene, dataclasses.replace(r.look, shadows=False))
+        self._frame = _Frame(positions, scene, backdrop, moving)
         return self._frame
 
     def _render_tile(self, frame: _Frame, tile, with_depth: bool, moving: bool = False):
@@ -546,13 +519,7 @@ class NeuralPicture:
         return self._depth(frame, tile, origins, dirs, self._t_max(frame, origins, dirs))
 
     def _t_max(self, frame: _Frame, origins, dirs):
-        from shellsim.film.ground import surface_t_max
-        from shellsim.world import Placement
-
-        r = self.renderer
-        if not frame.surfaces:
-            return None
-        return surface_t_max(r.look, Placement(), r.obstacles, origins, dirs, frame.opaque)
+        return self.renderer.t_max(frame.scene, origins, dirs)
 
     def _depth(self, frame: _Frame, tile, origins, dirs, t_max) -> np.ndarray:
         """(R,) float32 depth along the camera's axis of the first surface on each ray (module docstring)."""

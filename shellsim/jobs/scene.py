@@ -111,7 +111,7 @@ def scene_record(spec) -> dict:
     return record
 
 
-def _simulated(record: dict) -> dict:
+def simulated_part(record: dict) -> dict:
     """What of a :func:`scene_record` the motion depends on: all but the cameras and the look."""
     return {k: v for k, v in record.items() if k not in ("cameras", "look")}
 
@@ -139,7 +139,13 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
     record = scene_record(spec)
     names = [b.name for b in spec.bodies]
     writer = resume_or_refuse(
-        out, PRODUCER, record, s.overwrite, s.resume, compared=_simulated, changed="made from another scene"
+        out,
+        PRODUCER,
+        record,
+        s.overwrite,
+        s.resume,
+        compared=simulated_part,
+        changed="made from another scene",
     )
     if writer is not None and writer.n_frames >= frames:
         log.info("%s already holds %d frames", out, writer.n_frames)

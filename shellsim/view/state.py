@@ -482,14 +482,14 @@ def stale_reason(spec, info) -> str:
     """Why the motion ``info`` is not of the scene ``spec`` as its file says it now ("" when it is): the
     settings that changed, compared as the scene job compares them (all but the cameras and the look of
     :func:`shellsim.jobs.scene.scene_record`), or another producer."""
-    from shellsim.jobs.scene import PRODUCER, scene_record
+    from shellsim.jobs.scene import PRODUCER, scene_record, simulated_part
     from shellsim.motion.changes import describe_changes
 
     if info.producer != PRODUCER:
         return f"{info.path}: not a scene motion (made by '{info.producer}')"
 
-    def simulated(record: dict) -> dict:  # what the motion depends on (jobs.scene._simulated)
-        return {k: _keyed(v) for k, v in record.items() if k not in ("cameras", "look")}
+    def simulated(record: dict) -> dict:
+        return {k: _keyed(v) for k, v in simulated_part(record).items()}
 
     changes = describe_changes(simulated(info.settings), simulated(scene_record(spec)))
     if not changes:

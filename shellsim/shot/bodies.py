@@ -73,6 +73,12 @@ def body_placement(points: np.ndarray, up, spec: BodySpec, is_mesh: bool, lift: 
     return Placement(base.scale, turn @ base.rotation, translation)
 
 
+def lowest_start(world) -> float:
+    """The least height [m] of a body's lowest visible point at t = 0 in the world ``world``
+    (:class:`~shellsim.shot.spec.WorldSpec`): half the barrier's reach above a ground, any without one."""
+    return 0.5 * world.contact_gap if world.ground else -np.inf
+
+
 def file_digest(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 

@@ -19,7 +19,7 @@ from shellsim.physics.ipc import BodySurface, Contact, StaticSurface
 from shellsim.physics.model import Model, SolverSettings
 from shellsim.physics.solver import Solver
 from shellsim.shot.actions import Actions, BodyInfo
-from shellsim.shot.bodies import SceneBody, build_body, check_start, collider_mesh
+from shellsim.shot.bodies import SceneBody, build_body, check_start, collider_mesh, lowest_start
 from shellsim.shot.spec import SceneSpec
 from shellsim.tetcage.geometry import boundary_faces
 
@@ -63,9 +63,8 @@ class SceneSimulation:
 
     def __init__(self, spec: SceneSpec, device=None, max_stretch: float = 3.0, allow_stretch: bool = False):
         world = spec.world
-        lift = 0.5 * world.contact_gap if world.ground else -np.inf
         self.spec = spec
-        self.bodies: list[SceneBody] = [build_body(b, lift) for b in spec.bodies]
+        self.bodies: list[SceneBody] = [build_body(b, lowest_start(world)) for b in spec.bodies]
         colliders = [collider_mesh(c) for c in spec.colliders]
         check_start(spec, self.bodies, colliders)
         self.settings = SolverSettings(

@@ -302,10 +302,10 @@ def _built_bodies(spec):
     """Every body of ``spec`` built (:func:`shellsim.shot.bodies.build_body`: cages and collision surfaces
     loaded or built, cached) and placed, as the scene job places them: ``(views, bodies, n_vertices)``,
     their :class:`BodyView` and :class:`~shellsim.shot.bodies.SceneBody`."""
-    from shellsim.shot.bodies import build_body
+    from shellsim.shot.bodies import build_body, lowest_start
     from shellsim.shot.recorded import MESH_BODY_COLORS
 
-    lift = 0.5 * spec.world.contact_gap if spec.world.ground else -np.inf
+    lift = lowest_start(spec.world)
     views, built, start = [], [], 0
     for k, body_spec in enumerate(spec.bodies):
         body = build_body(body_spec, lift)

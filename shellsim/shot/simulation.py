@@ -52,16 +52,24 @@ class SceneSimulation:
     """The bodies of ``spec`` moving from t = 0 (module docstring), on the Warp ``device``.
 
     ``max_stretch`` and ``allow_stretch`` are the frame checks of
-    :class:`shellsim.physics.model.SolverSettings`. Building loads or builds every body's cage and
-    collision surface (cached) and refuses a first instant where bodies overlap each other, a collider or
-    the ground, or an action's region selects nothing.
+    :class:`shellsim.physics.model.SolverSettings`, ``newton_iterations`` its cap on a substep's Newton
+    iterations (None: its default; fewer end substeps unconverged, as a live preview may). Building loads
+    or builds every body's cage and collision surface (cached) and refuses a first instant where bodies
+    overlap each other, a collider or the ground, or an action's region selects nothing.
 
     Attributes: ``bodies`` (:class:`shellsim.shot.bodies.SceneBody`), ``starts`` (B + 1,) their first
     vertex in the concatenated cage, ``rest`` (N, 3) and ``tets`` (T, 4) the concatenated rest cage [m],
     ``settings`` the solver's, ``time`` [s] of the current state.
     """
 
-    def __init__(self, spec: SceneSpec, device=None, max_stretch: float = 3.0, allow_stretch: bool = False):
+    def __init__(
+        self,
+        spec: SceneSpec,
+        device=None,
+        max_stretch: float = 3.0,
+        allow_stretch: bool = False,
+        newton_iterations: int | None = None,
+    ):
         world = spec.world
         self.spec = spec
         self.bodies: list[SceneBody] = [build_body(b, lowest_start(world)) for b in spec.bodies]
@@ -75,6 +83,7 @@ class SceneSimulation:
             substeps=world.substeps,
             max_stretch=max_stretch,
             allow_stretch=allow_stretch,
+            **({} if newton_iterations is None else {"newton_iterations": int(newton_iterations)}),
         )
         models = [
             Model(

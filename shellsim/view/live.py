@@ -244,7 +244,9 @@ class LiveShot:
             target_tets,
             ", ".join(b.name for b in spec.bodies),
         )
-        self.simulation = SceneSimulation(self.spec, device=device, allow_stretch=True)
+        self.simulation = SceneSimulation(
+            self.spec, device=device, allow_stretch=True, newton_iterations=newton_iterations
+        )
         sim = self.simulation
         self.names = [b.name for b in sim.bodies]
         self.masses = [float(m.masses.sum()) for m in sim.driver.solver.models]
@@ -255,9 +257,6 @@ class LiveShot:
             self.spec.world.substeps,
             self.spec.world.fps,
         )
-        if newton_iterations is not None:  # a live frame may end unconverged (counted in its stats)
-            solver = sim.driver.solver
-            solver.settings = dataclasses.replace(solver.settings, newton_iterations=int(newton_iterations))
         sim.driver.schedule = _LiveSchedule(sim.driver.schedule, self)
         self._spring: _Spring | None = None
         self._display: dict[int, tuple] = {}

@@ -99,32 +99,27 @@ def main() -> None:
         f"final {by_stage.get(FINAL, math.nan):.2f} s after the request"
     )
 
-    got.clear()
-    start = time.perf_counter()
-    n = 0
-    while time.perf_counter() - start < args.seconds:
-        picture.request(view(0.02 * n), rest, on_picture)
-        n += 1
-        time.sleep(max(0.0, start + n / args.rate - time.perf_counter()))
-    moving = [t for t, shape in got if t <= start + args.seconds]
-    lows = sum(1 for t, shape in got if max(shape[:2]) == max(low))
+    def moving(positions_of) -> tuple[int, float]:
+        """(requests made, pictures delivered a second) while the camera turns ``args.rate`` times a second,
+        the cages at ``positions_of(n)`` for the n-th request."""
+        got.clear()
+        start = time.perf_counter()
+        n = 0
+        while time.perf_counter() - start < args.seconds:
+            picture.request(view(0.02 * n), positions_of(n), on_picture)
+            n += 1
+            time.sleep(max(0.0, start + n / args.rate - time.perf_counter()))
+        return n, len([t for t, _ in got if t <= start + args.seconds]) / args.seconds
+
+    n, rate = moving(lambda n: rest)
+    lows = sum(1 for _, shape in got if max(shape[:2]) == max(low))
     print(
-        f"moving ({n} requests over {args.seconds:g} s): {len(moving) / args.seconds:.1f} pictures/s, "
+        f"moving ({n} requests over {args.seconds:g} s): {rate:.1f} pictures/s, "
         f"{lows} of {len(got)} low resolution"
     )
-    got.clear()
-    start = time.perf_counter()
-    n = 0
-    while time.perf_counter() - start < args.seconds:
-        shift = np.array([0.0, 0.0, 0.002 * math.sin(0.5 * n)])  # the cages moved a little each time
-        picture.request(view(0.02 * n), rest + shift, on_picture)
-        n += 1
-        time.sleep(max(0.0, start + n / args.rate - time.perf_counter()))
-    moving = [t for t, shape in got if t <= start + args.seconds]
-    print(
-        f"moving with the bodies ({n} requests, new positions each): "
-        f"{len(moving) / args.seconds:.1f} pictures/s"
-    )
+    # the cages moved a little each time
+    n, rate = moving(lambda n: rest + np.array([0.0, 0.0, 0.002 * math.sin(0.5 * n)]))
+    print(f"moving with the bodies ({n} requests, new positions each): {rate:.1f} pictures/s")
     last = picture.generation
     while not any(g == last and s == FINAL for g, s, _ in picture.stages):
         time.sleep(0.05)

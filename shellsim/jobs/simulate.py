@@ -364,7 +364,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
             cage_digest=body.cage_digest,
         )
     else:
-        _check_source(s, writer.motion, sim)
+        _check_source(writer.motion, sim)
         sim.restore(writer.last_positions, writer.last_time, writer.motion.state, str(out))
     log.info(
         "%s: %d cage vertices, %d tets, %s (E=%.3g Pa, nu=%.3g, rho=%.4g kg/m^3), %d frames to go on %s",
@@ -450,7 +450,7 @@ def scene_of(settings: SimulateSettings) -> SceneSpec:
     return specs.SceneSpec(name, world, (body,), tuple(colliders), tuple(pins))
 
 
-def _check_source(s: SimulateSettings, motion, sim) -> None:
+def _check_source(motion, sim) -> None:
     """A :class:`SettingError` unless the motion being continued moves this cage, placed as now."""
     body = sim.bodies[0]
     motion.check_against(body.cage)

@@ -80,6 +80,7 @@ class _Part:
 
     def __init__(self, mesh, rows: slice, dof_map: sp.csr_matrix, mu: np.ndarray, plane_friction=None):
         self.mesh, self.rows, self.dof_map, self.mu = mesh, rows, dof_map, mu
+        self.dof_map_t = dof_map.T.tocsr()  # (3N, 3R)
         self.plane_friction = plane_friction
 
     def collisions(self, ipctk, u: np.ndarray, dhat: float, candidates=None):
@@ -148,6 +149,7 @@ class Contact:
         self.friction = np.concatenate(mu)
         self.dhat, self.friction_velocity = float(dhat), float(friction_velocity)
         self.ground_friction = ground_friction
+        self._moving = self.weights[:n_dynamic]  # (S_dynamic, N)
         self._ipctk = ipctk
         dof_map = sp.kron(self.weights, sp.identity(3), format="csr")  # (3S, 3N)
         self.kappa = 0.0
@@ -155,7 +157,12 @@ class Contact:
         rest = self.surface(np.asarray(rest, np.float64))
         mesh = ipctk.CollisionMesh(rest, ipctk.edges(self.faces), self.faces)  # the surfaces among themselves
         mesh.can_collide = ipctk.make_vertex_patches_filter(np.concatenate(patch).astype(np.int32))
-        self._parts = [_Part(mesh, slice(0, offset), dof_map, np.ascontiguousarray(self.friction))]
+        # the surfaces among themselves, when there are two that may touch
+        self._mesh = mesh if len(bodies) + bool(statics) >= 2 else None
+        self._parts = (
+            [] if self._mesh is None else [_Part(mesh, slice(0, offset), dof_map, self.friction.copy())]
+        )
+        self._cached: tuple[np.ndarray, list] | None = None  # (x, [(part, its vertices, collisions)])
         if ground_friction is not None:  # the bodies' surfaces and the plane, no pair among the surfaces
             own = np.concatenate(faces[:dynamic_faces]).astype(np.int32)
             ground = ipctk.CollisionMesh(np.ascontiguousarray(rest[:n_dynamic]), ipctk.edges(own), own)
@@ -168,12 +175,27 @@ class Contact:
 
     def surface(self, x: np.ndarray) -> np.ndarray:
         """(S, 3) the collision vertices for cage positions ``x`` (N, 3): the bodies' then the statics'."""
-        moving = self.weights[: self.n_dynamic] @ x
+        moving = self._moving @ x
         return np.ascontiguousarray(np.concatenate([moving, self.static]))
 
     def _each(self, u: np.ndarray):
         """(part, its vertices) for the collision vertices ``u`` (S, 3)."""
         return [(part, np.ascontiguousarray(u[part.rows])) for part in self._parts]
+
+    def _found(self, x: np.ndarray, candidates=None) -> list:
+        """[(part, its vertices, the pairs within ``dhat``)] at cage positions ``x`` (N, 3), among
+        ``candidates`` (per part, from :meth:`candidates` of a path through ``x``) or found afresh. The last
+        positions' are kept: a Newton iteration measures the barrier, its derivatives and the stiffness
+        update at the point its line search accepted."""
+        if self._cached is not None and np.array_equal(self._cached[0], x):
+            return self._cached[1]
+        ipctk = self._ipctk
+        found = [
+            (part, u, part.collisions(ipctk, u, self.dhat, None if candidates is None else candidates[k]))
+            for k, (part, u) in enumerate(self._each(self.surface(x)))
+        ]
+        self._cached = (x.copy(), found)
+        return found
 
     # ------------------------------------------------------------------------------------------------------
     # one step
@@ -187,34 +209,36 @@ class Contact:
         first step, which sets the stiffness), ``average_mass`` the mean vertex mass over ``h^2`` (the
         inertia term's scale), ``size`` the scene's bounding-box diagonal."""
         ipctk = self._ipctk
-        self._starts = self._each(self.surface(x_start))  # (part, its vertices at the step's start)
+        found = self._found(x_start)
+        self._starts = [(part, u) for part, u, _ in found]  # (part, its vertices at the step's start)
         self._size = size
         unit = ipctk.BarrierPotential(self.dhat, 1.0)
-        found = [(part, u, part.collisions(ipctk, u, self.dhat)) for part, u in self._starts]
         if self.kappa == 0.0:  # the first step; later ones keep the stiffness the gaps were balanced with
-            grad_barrier = sum(part.dof_map.T @ unit.gradient(c, part.mesh, u) for part, u, c in found)
+            grad_barrier = np.zeros(3 * self.weights.shape[1])
+            for part, u, c in found:
+                grad_barrier += part.dof_map_t @ unit.gradient(c, part.mesh, u)
             self.kappa, self._kappa_max = ipctk.initial_barrier_stiffness(
                 size, unit.barrier, self.dhat, average_mass, grad_energy().ravel(), grad_barrier
             )
         self._barrier = ipctk.BarrierPotential(self.dhat, self.kappa)
-        self._min_distance = min(self._least(part, c, u) for part, u, c in found)
+        self._min_distance = min((self._least(part, c, u) for part, u, c in found), default=math.inf)
         self._tangential = [part.tangential(ipctk, u, c, self._barrier) for part, u, c in found]
         self._friction = ipctk.FrictionPotential(self.friction_velocity * h)
 
-    def update_stiffness(self, x: np.ndarray) -> None:
-        """Raise ``kappa`` (ipctk's rule) when the least gap at ``x`` (N, 3) shrank toward zero."""
+    def update_stiffness(self, x: np.ndarray) -> bool:
+        """Raise ``kappa`` (ipctk's rule) when the least gap at ``x`` (N, 3) shrank toward zero; whether it
+        changed."""
         ipctk = self._ipctk
-        distance = min(
-            self._least(part, part.collisions(ipctk, u, self.dhat), u)
-            for part, u in self._each(self.surface(x))
-        )
+        distance = min((self._least(part, c, u) for part, u, c in self._found(x)), default=math.inf)
         kappa = ipctk.update_barrier_stiffness(
             self._min_distance, distance, self._kappa_max, self.kappa, self._size
         )
         self._min_distance = distance
-        if kappa != self.kappa:
-            self.kappa = kappa
-            self._barrier = ipctk.BarrierPotential(self.dhat, kappa)
+        if kappa == self.kappa:
+            return False
+        self.kappa = kappa
+        self._barrier = ipctk.BarrierPotential(self.dhat, kappa)
+        return True
 
     @staticmethod
     def _least(part: _Part, collisions, u: np.ndarray) -> float:
@@ -240,31 +264,37 @@ class Contact:
     def energy(self, x: np.ndarray, candidates=None) -> float:
         """``kappa B + D`` [J] at cage positions ``x`` (N, 3) (candidates: from :meth:`candidates` of a path
         through ``x``, else found afresh)."""
-        ipctk = self._ipctk
         total = 0.0
-        for k, ((part, u), (_, u0)) in enumerate(zip(self._each(self.surface(x)), self._starts, strict=True)):
-            found = part.collisions(ipctk, u, self.dhat, None if candidates is None else candidates[k])
+        for k, ((part, u, found), (_, u0)) in enumerate(
+            zip(self._found(x, candidates), self._starts, strict=True)
+        ):
             total += self._barrier(found, part.mesh, u) + self._friction(
                 self._tangential[k], part.mesh, u - u0
             )
         return float(total)
 
-    def derivatives(self, x: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
-        """The gradient (N, 3) and the PSD-projected Hessian (3N, 3N) of :meth:`energy` at ``x`` (N, 3)."""
-        ipctk = self._ipctk
-        psd = ipctk.PSDProjectionMethod.CLAMP
+    def gradient(self, x: np.ndarray) -> np.ndarray:
+        """(N, 3) the gradient of :meth:`energy` at ``x`` (N, 3)."""
         n = self.weights.shape[1]
-        grad, hess = np.zeros(3 * n), sp.csr_matrix((3 * n, 3 * n))
-        for k, ((part, u), (_, u0)) in enumerate(zip(self._each(self.surface(x)), self._starts, strict=True)):
-            found, du, m = part.collisions(ipctk, u, self.dhat), u - u0, part.dof_map
+        grad = np.zeros(3 * n)
+        for k, ((part, u, found), (_, u0)) in enumerate(zip(self._found(x), self._starts, strict=True)):
             g = self._barrier.gradient(found, part.mesh, u) + self._friction.gradient(
-                self._tangential[k], part.mesh, du
+                self._tangential[k], part.mesh, u - u0
             )
+            grad += part.dof_map_t @ g
+        return grad.reshape(-1, 3)
+
+    def hessian(self, x: np.ndarray) -> sp.csr_matrix:
+        """(3N, 3N) the Hessian of :meth:`energy` at ``x`` (N, 3), projected to PSD per contact."""
+        psd = self._ipctk.PSDProjectionMethod.CLAMP
+        n = self.weights.shape[1]
+        hess = sp.csr_matrix((3 * n, 3 * n))
+        for k, ((part, u, found), (_, u0)) in enumerate(zip(self._found(x), self._starts, strict=True)):
             h = self._barrier.hessian(found, part.mesh, u, psd) + self._friction.hessian(
-                self._tangential[k], part.mesh, du, psd
+                self._tangential[k], part.mesh, u - u0, psd
             )
-            grad, hess = grad + m.T @ g, hess + m.T @ h @ m
-        return grad.reshape(-1, 3), hess.tocsr()
+            hess = hess + part.dof_map_t @ (h @ part.dof_map)
+        return hess.tocsr()
 
     def least_distance(self, x: np.ndarray) -> float:
         """The least distance [m] between surfaces that may touch (different bodies, a body and a static
@@ -273,6 +303,6 @@ class Contact:
         ipctk = self._ipctk
         u = self.surface(x)
         below = self.ground_friction is not None and u[: self.n_dynamic, 2].min(initial=np.inf) <= 0
-        if below or ipctk.has_intersections(self._parts[0].mesh, u):
+        if below or (self._mesh is not None and ipctk.has_intersections(self._mesh, u)):
             return 0.0
-        return min(self._least(part, part.collisions(ipctk, v, self.dhat), v) for part, v in self._each(u))
+        return min((self._least(part, c, v) for part, v, c in self._found(x)), default=math.inf)

@@ -30,14 +30,12 @@ from shellsim.physics.control import Control
 from shellsim.physics.elastic import ENERGY, FORCE, HESSIAN, vec3
 from shellsim.physics.ipc import Contact
 from shellsim.physics.model import Model, SolverSettings
+from shellsim.physics.newton_systems import NewtonSystems
 from shellsim.physics.state import State
 
 #: Newton's step tolerance with contact is at most this fraction of the barrier's reach ``dhat``, so that the
 #: gaps the barrier balances are resolved.
 NEWTON_TOL_GAP = 0.01
-#: Conjugate-gradient iterations a Newton system may take with an earlier Hessian's factorisation as its
-#: preconditioner before the current Hessian is factorised.
-REUSE_ITERATIONS = 25
 #: Halvings of a step in the line search.
 LINE_SEARCH_TRIES = 16
 
@@ -57,9 +55,16 @@ class SolveStats:
 
 class Solver:
     """Backward-Euler Newton solver of several ``models`` with ``contact`` among them (None: none, then the
-    bodies are independent); ``settings`` the tolerances (``newton_tol``, ``newton_iterations``)."""
+    bodies are independent); ``settings`` the tolerances (``newton_tol``, ``newton_iterations``);
+    ``linear_solver`` how the Newton systems are solved (:class:`NewtonSystems`)."""
 
-    def __init__(self, models: Sequence[Model], contact: Contact | None, settings: SolverSettings):
+    def __init__(
+        self,
+        models: Sequence[Model],
+        contact: Contact | None,
+        settings: SolverSettings,
+        linear_solver: str = "auto",
+    ):
         self.models = list(models)
         self.bodies = [BodyTerms(m) for m in self.models]
         self.contact = contact
@@ -71,7 +76,8 @@ class Solver:
         rest = np.concatenate([m.rest_vertices for m in self.models])
         self.size = float(np.linalg.norm(rest.max(0) - rest.min(0)))
         self._tol_size = min(m.size for m in self.models)
-        self.systems = NewtonSystems()
+        self.systems = NewtonSystems(linear_solver)
+        self._pattern = _block_diagonal_pattern([t.hessian_pattern for t in self.bodies], 3 * self.starts)
 
     def split(self, x: np.ndarray) -> list[np.ndarray]:
         """The bodies' rows of global positions ``x`` (N, 3)."""
@@ -88,12 +94,26 @@ class Solver:
         return energy, min_det, force
 
     def _hessian(self, x: np.ndarray, steps) -> sp.csr_matrix:
-        blocks = []
+        """The bodies' Hessian at ``x`` (N, 3): (3N, 3N) block diagonal, on a fixed pattern."""
+        values = []
         for terms, work, part, step in zip(self.bodies, self._work, self.split(x), steps, strict=True):
             work.positions.assign(wp.array(part, dtype=vec3, device=work.positions.device))
             terms.evaluate(work.positions, step, HESSIAN)
-            blocks.append(terms.hessian_matrix())
-        return sp.block_diag(blocks, format="csr")
+            values.append(terms.hessian_matrix().data)
+        n = 3 * int(self.starts[-1])
+        indptr, indices = self._pattern
+        return sp.csr_matrix((np.concatenate(values), indices, indptr), shape=(n, n))
+
+    @staticmethod
+    def _direction(d: np.ndarray | None, rhs: np.ndarray, pinned: np.ndarray) -> np.ndarray | None:
+        """The Newton step (N, 3) from a solution ``d`` (3N,) of the system with right-hand side ``rhs``
+        (N, 3): the pinned vertices' rows are the identity, so their step is ``rhs`` exactly (not a
+        solver's approximation); None when ``d`` is None or not finite."""
+        if d is None or not np.isfinite(d).all():
+            return None
+        d = d.reshape(-1, 3)
+        d[pinned] = rhs[pinned]
+        return d
 
     def step(
         self, states_in: Sequence[State], states_out: Sequence[State], controls: Sequence[Control], h: float
@@ -106,7 +126,7 @@ class Solver:
         x_tilde = np.concatenate([terms.prediction for terms in self.bodies])
         pinned = np.concatenate([c.pinned for c in controls])
         free = (~pinned).astype(np.float64)
-        keep_free = sp.diags(np.repeat(free, 3))
+        keep_free = sp.diags(np.repeat(free, 3)) if pinned.any() else None
 
         def total(x, candidates=None, order=ENERGY):
             energy, min_det, force = self._bodies(x, steps, order)
@@ -135,25 +155,32 @@ class Solver:
         # it as the answer. The line search only lowers E, so the pins must be at their targets from the
         # start.
         x = x_tilde.copy() if start_fraction >= 1.0 else held
-        energy, min_det, _ = total(x)
+        energy, min_det, force = total(x, order=FORCE)
         if x is not held and not (min_det > 0 and math.isfinite(energy)):
             x = held
+            energy, min_det, force = total(x, order=FORCE)
         for iteration in range(1, s.newton_iterations + 1):
             stats.newton_iterations = iteration
-            energy, min_det, force = total(x, order=FORCE)
             if not math.isfinite(energy):
                 return stats
+            rhs = force if contact is None else force - contact.gradient(x) * free[:, None]
+            rhs[pinned] = x_tilde[pinned] - x[pinned]
+            if iteration > 1:
+                # the step the last factorisation gives from here: when it is below the tolerance, x has
+                # converged without a new Hessian (a step's last Hessian only confirmed it)
+                d = self._direction(self.systems.resolve(rhs.ravel()), rhs, pinned)
+                if d is not None and np.linalg.norm(d, axis=1).max(initial=0.0) <= tol:
+                    stats.converged = True
+                    break
             hessian = self._hessian(x, steps)
             if contact is not None:
-                grad, contact_hessian = contact.derivatives(x)
-                force = force - grad * free[:, None]
-                hessian = hessian + keep_free @ contact_hessian @ keep_free
+                contact_hessian = contact.hessian(x)
+                if keep_free is not None:
+                    contact_hessian = keep_free @ contact_hessian @ keep_free
+                hessian = hessian + contact_hessian
             stats.hessians += 1
-            rhs = force
-            rhs[pinned] = x_tilde[pinned] - x[pinned]
-            d = self.systems.solve(hessian, rhs.ravel()).reshape(-1, 3)
-            d[pinned] = rhs[pinned]  # their rows are the identity, apart from the rest: exact, not CG's
-            if not np.isfinite(d).all():
+            d = self._direction(self.systems.solve(hessian, rhs.ravel()), rhs, pinned)
+            if d is None:
                 return stats
             length = float(np.linalg.norm(d, axis=1).max(initial=0.0))
             if length <= tol:
@@ -166,16 +193,15 @@ class Solver:
             accepted = False
             for _ in range(LINE_SEARCH_TRIES):
                 trial = x + step_fraction * d
-                trial_energy, trial_det, _ = total(trial, candidates)
+                trial_energy, trial_det, trial_force = total(trial, candidates, FORCE)
                 if trial_energy <= energy and (trial_det > 0 or min_det <= 0):
-                    x, accepted = trial, True
+                    x, energy, min_det, force, accepted = trial, trial_energy, trial_det, trial_force, True
                     break
                 step_fraction *= 0.5
             if not accepted:
                 break
-            if contact is not None:
-                contact.update_stiffness(x)
-        energy, min_det, _ = total(x)
+            if contact is not None and contact.update_stiffness(x):
+                energy, min_det, force = total(x, order=FORCE)  # the barrier's weight changed
         velocities = (x - x_n) / h
         for state_in, state_out, part, v in zip(
             states_in, states_out, self.split(x), self.split(velocities), strict=True
@@ -186,33 +212,11 @@ class Solver:
         return stats
 
 
-class NewtonSystems:
-    """Solves a run's Newton systems ``H d = r`` (H sparse symmetric positive definite, (n, n)): conjugate
-    gradients preconditioned by the exact factorisation (SuperLU, minimum-degree ordering of ``A^T + A``,
-    symmetric pivoting) of an earlier ``H``, refactored from the current one when CG would need more than
-    :data:`REUSE_ITERATIONS`. Consecutive Hessians of a trajectory differ little, so one factorisation
-    serves many steps (a factorisation costs some 40 solves with it on cage Hessians)."""
-
-    def __init__(self, rtol: float = 1e-4):
-        self.rtol = rtol
-        self._factor = None
-        self.factorisations = 0
-
-    def solve(self, matrix: sp.spmatrix, rhs: np.ndarray) -> np.ndarray:
-        """``d`` (n,) with ``|H d - r| <= rtol |r|`` (all nan where ``H`` cannot be factorised)."""
-        from scipy.sparse.linalg import LinearOperator, cg, splu
-
-        matrix = matrix.tocsc()
-        n = len(rhs)
-        if self._factor is not None and self._factor.shape == matrix.shape:
-            preconditioner = LinearOperator((n, n), matvec=self._factor.solve)
-            d, info = cg(matrix, rhs, rtol=self.rtol, maxiter=REUSE_ITERATIONS, M=preconditioner)
-            if info == 0:
-                return d
-        try:
-            self._factor = splu(matrix, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
-        except RuntimeError:
-            self._factor = None
-            return np.full(n, np.nan)
-        self.factorisations += 1
-        return self._factor.solve(rhs)
+def _block_diagonal_pattern(patterns, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CSR ``indptr``, ``indices`` of the block diagonal of matrices of CSR ``patterns`` ((indptr, indices,
+    ...) each), the k-th at rows and columns ``starts[k]``."""
+    indptr = [np.zeros(1, np.int64)]
+    for (ptr, _, *_), nnz in zip(patterns, np.cumsum([0] + [len(p[1]) for p in patterns[:-1]]), strict=True):
+        indptr.append(ptr[1:].astype(np.int64) + nnz)
+    indices = [p[1].astype(np.int64) + start for p, start in zip(patterns, starts, strict=False)]
+    return np.concatenate(indptr), np.concatenate(indices)

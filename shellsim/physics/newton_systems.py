@@ -1,0 +1,161 @@
+"""The Newton systems ``H d = r`` of a run: ``H`` sparse symmetric positive definite (n, n), one per Newton
+iteration, their sparsity patterns mostly alike from one to the next (the cage's blocks, plus the contacts').
+
+Two ways, the faster where it is installed:
+
+- ``"cholesky"``: MKL Pardiso's supernodal sparse Cholesky (``pypardiso``'s binding, multithreaded), on the
+  upper triangle with METIS ordering. The ordering and symbolic analysis are kept while the pattern holds
+  (a contact between bodies changes it), so an iteration costs one numeric factorisation and one solve.
+- ``"cg"``: SciPy only. Conjugate gradients preconditioned by the exact factorisation (SuperLU,
+  minimum-degree ordering of ``A^T + A``, symmetric pivoting) of an earlier ``H``, refactored from the
+  current one when CG would need more than :data:`REUSE_ITERATIONS`.
+
+On the 2k- and 8k-tet cubes of ``bench/sim_bench.py`` the first takes 2 and 13 ms an iteration, the second 5.4
+and 54 (docs/measurements.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import weakref
+
+import numpy as np
+import scipy.sparse as sp
+
+log = logging.getLogger(__name__)
+
+#: Conjugate-gradient iterations a Newton system may take with an earlier Hessian's factorisation as its
+#: preconditioner before the current Hessian is factorised (``"cg"``).
+REUSE_ITERATIONS = 25
+#: The hint when ``pypardiso`` cannot be loaded.
+PARDISO_HINT = "pypardiso (MKL) is not installed: Newton systems use SciPy's SuperLU, several times slower"
+
+_hinted = False
+
+
+def pardiso_available() -> bool:
+    """Whether ``pypardiso`` and its MKL library load."""
+    try:
+        import pypardiso
+
+        pypardiso.PyPardisoSolver(mtype=2)
+    except (ImportError, OSError):
+        return False
+    return True
+
+
+class PardisoCholesky:
+    """Pardiso's Cholesky of SPD matrices given by their upper triangle (CSR, sorted indices): the analysis
+    (METIS ordering, symbolic factorisation) is redone only when the pattern changes."""
+
+    def __init__(self):
+        import pypardiso
+
+        self._solver = solver = pypardiso.PyPardisoSolver(mtype=2)  # real symmetric positive definite
+        solver.set_iparm(1, 1)  # these parameters, not the defaults
+        solver.set_iparm(2, 2)  # METIS nested dissection
+        self._error = pypardiso.pardiso_wrapper.PyPardisoError
+        self._pattern: tuple[np.ndarray, np.ndarray] | None = None
+        self._upper: sp.csr_matrix | None = None
+        self.analyses = 0
+        weakref.finalize(self, _release, solver)
+
+    def _call(self, phase: int, upper: sp.csr_matrix, rhs: np.ndarray) -> np.ndarray:
+        self._solver.set_phase(phase)
+        return self._solver._call_pardiso(upper, rhs)
+
+    def factor(self, upper: sp.csr_matrix) -> bool:
+        """Factorises the matrix whose upper triangle is ``upper`` (n, n); False when it is not positive
+        definite (or Pardiso fails otherwise)."""
+        zero = np.zeros(upper.shape[0])
+        same = self._pattern is not None and (
+            np.array_equal(self._pattern[0], upper.indptr) and np.array_equal(self._pattern[1], upper.indices)
+        )
+        try:
+            if not same:
+                self._call(11, upper, zero)
+                self._pattern = (upper.indptr.copy(), upper.indices.copy())
+                self.analyses += 1
+            self._call(22, upper, zero)
+        except self._error:
+            self._pattern = self._upper = None
+            return False
+        self._upper = upper
+        return True
+
+    @property
+    def factored(self) -> bool:
+        """Whether a factorisation is held."""
+        return self._upper is not None
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """(n,) the solution for ``rhs`` (n,) with the last factorisation."""
+        return self._call(33, self._upper, rhs)
+
+
+def _release(solver) -> None:
+    """Frees Pardiso's memory of ``solver``."""
+    solver.set_phase(-1)
+    try:
+        solver._call_pardiso(sp.csr_matrix((0, 0)), np.zeros(0))
+    except Exception:  # noqa: BLE001 - at interpreter exit the library may be gone; nothing is left to free
+        pass
+
+
+class NewtonSystems:
+    """Solves a run's Newton systems by ``method`` (module docstring): ``"auto"`` (Cholesky where
+    ``pypardiso`` loads, else CG), ``"cholesky"`` or ``"cg"``. ``factorisations`` counts the numeric
+    factorisations of either."""
+
+    def __init__(self, method: str = "auto", rtol: float = 1e-4):
+        global _hinted
+        if method not in ("auto", "cholesky", "cg"):
+            raise ValueError(f"unknown linear solver {method!r}: auto, cholesky or cg")
+        if method == "auto":
+            method = "cholesky" if pardiso_available() else "cg"
+            if method == "cg" and not _hinted:
+                log.info(PARDISO_HINT)
+                _hinted = True
+        self.method = method
+        self.rtol = rtol
+        self._cholesky = PardisoCholesky() if method == "cholesky" else None
+        self._factor = None  # "cg": the SuperLU factorisation serving as preconditioner
+        self.factorisations = 0
+
+    def solve(self, matrix: sp.spmatrix, rhs: np.ndarray) -> np.ndarray:
+        """``d`` (n,) of ``matrix`` (n, n), ``rhs`` (n,) (``"cg"``: ``|H d - r| <= rtol |r|``); all nan where
+        the matrix cannot be factorised. A matrix Cholesky refuses (not positive definite in floating point)
+        goes the ``"cg"`` way."""
+        if self._cholesky is not None:
+            upper = sp.triu(matrix, format="csr")
+            upper.sort_indices()
+            self.factorisations += 1
+            if self._cholesky.factor(upper):
+                return self._cholesky.solve(rhs)
+        return self._preconditioned_cg(matrix.tocsc(), rhs)
+
+    def resolve(self, rhs: np.ndarray) -> np.ndarray | None:
+        """(n,) the solution for ``rhs`` (n,) with the last factorisation as it stands (an earlier matrix's:
+        an approximation), None when there is none."""
+        if self._cholesky is not None and self._cholesky.factored:
+            return self._cholesky.solve(rhs)
+        if self._factor is not None and self._factor.shape[0] == len(rhs):
+            return self._factor.solve(rhs)
+        return None
+
+    def _preconditioned_cg(self, matrix: sp.csc_matrix, rhs: np.ndarray) -> np.ndarray:
+        from scipy.sparse.linalg import LinearOperator, cg, splu
+
+        n = len(rhs)
+        if self._factor is not None and self._factor.shape == matrix.shape:
+            preconditioner = LinearOperator((n, n), matvec=self._factor.solve)
+            d, info = cg(matrix, rhs, rtol=self.rtol, maxiter=REUSE_ITERATIONS, M=preconditioner)
+            if info == 0:
+                return d
+        try:
+            self._factor = splu(matrix, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+        except RuntimeError:
+            self._factor = None
+            return np.full(n, np.nan)
+        self.factorisations += 1
+        return self._factor.solve(rhs)

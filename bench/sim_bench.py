@@ -3,15 +3,18 @@
 milliseconds per implicit step against tet count, beside newton's VBD.
 
 A 0.3 m cube of structured tets (6 per cell) falls 2 cm onto the ground while spinning, so the steps timed
-include contact and friction; its boundary is its contact surface. For each size it prints the milliseconds
-per implicit step (one backward-Euler substep, Newton solve included), Newton iterations per step, the
-factorisations of the Newton systems per step (:class:`shellsim.physics.solver.NewtonSystems`) and the peak
-resident memory, then (unless ``--no-vbd``) the same scene with the ``newton`` physics package's VBD solver
-(``newton.solvers.SolverVBD``, a benchmark-only dependency: ``pip install newton``) and the time ratio. VBD
-runs a fixed number of local iterations per step and does not converge the step, so the ratio compares cost,
-not accuracy. The figures and their history are in docs/measurements.md.
+include contact and friction; its boundary is its contact surface. For each size and each ``--linear-solver``
+it prints the milliseconds per implicit step (one backward-Euler substep, Newton solve included), Newton
+iterations and factorisations of the Newton systems (:mod:`shellsim.physics.newton_systems`) per step and the
+peak resident memory; then (unless ``--no-vbd``) the same scene with the ``newton`` physics package's VBD
+solver (``newton.solvers.SolverVBD``, a benchmark-only dependency: ``pip install newton``) and the time
+ratio. VBD runs a fixed number of local iterations per step and does not converge the step, so the ratio
+compares cost; ``--accuracy`` adds how far each ends from a run of this path converged to 1e-4 of Newton's
+tolerance (VBD's contact and friction models differ too, so its figure bounds both). The figures and their
+history are in docs/measurements.md.
 
     python bench/sim_bench.py                       # ~2k, 10k, 40k tets, rubber, CPU
+    python bench/sim_bench.py --cells 7 11 --frames 3 --accuracy --linear-solver cholesky cg
     python bench/sim_bench.py --cells 12 --device cuda --material jelly
 """
 
@@ -70,14 +73,15 @@ def cube_surface(tets: np.ndarray, n_vertices: int) -> BodySurface:
     return BodySurface(weights, local.reshape(-1, 3), 0.5)
 
 
-def bench_fem(vertices, tets, material, args, **tolerances) -> dict:
-    """Times the solver users run, or the one with ``tolerances`` (SolverSettings fields) instead."""
+def bench_fem(vertices, tets, material, args, linear_solver="auto", **tolerances) -> dict:
+    """Times the solver users run, or the one with ``tolerances`` (SolverSettings fields) and
+    ``linear_solver`` (:class:`shellsim.physics.newton_systems.NewtonSystems`) instead."""
     settings = SolverSettings(dt=1.0 / args.fps, substeps=args.substeps, **tolerances)
     model = Model(vertices, tets, material, settings, device=args.device)
     contact = Contact(
         [cube_surface(tets, len(vertices))], [0], vertices, [], CONTACT_GAP, FRICTION_VELOCITY, 0.5
     )
-    solver = Solver([model], contact, settings)
+    solver = Solver([model], contact, settings, linear_solver)
     state, driver = model.state((0.3, 0.0, 0.0), (0.0, 0.0, 4.0)), FrameDriver(solver)
     driver.step([state])  # compile and warm up
     steps = newton_its = 0
@@ -96,6 +100,7 @@ def bench_fem(vertices, tets, material, args, **tolerances) -> dict:
         "factorisations_per_step": (solver.systems.factorisations - factorisations) / steps,
         "z_min": float(positions[:, 2].min()),
         "positions": positions,
+        "linear_solver": solver.systems.method,
         "tol_mm": 1e3 * settings.newton_tol * model.size * settings.dt / settings.substeps,
     }
 
@@ -144,9 +149,11 @@ def bench_vbd(vertices, tets, material, args) -> dict:
         frame()
     wp.synchronize_device(model.device)
     seconds = time.perf_counter() - start
+    positions = state0.particle_q.numpy()
     return {
         "ms_per_step": 1e3 * seconds / (args.frames * args.substeps),
-        "z_min": float(state0.particle_q.numpy()[:, 2].min()),
+        "z_min": float(positions[:, 2].min()),
+        "positions": positions,
     }
 
 
@@ -168,6 +175,13 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--vbd-iterations", type=int, default=10)
     parser.add_argument("--no-vbd", action="store_true", help="skip the newton VBD comparison")
+    parser.add_argument(
+        "--linear-solver",
+        nargs="+",
+        default=["auto"],
+        choices=["auto", "cholesky", "cg"],
+        help="how the Newton systems are solved, each timed (default auto: Cholesky where pypardiso loads)",
+    )
     parser.add_argument(
         "--accuracy",
         action="store_true",
@@ -193,32 +207,42 @@ def main() -> None:
             )
             vbd_available = False
     print(
-        f"{'tets':>7} {'verts':>6} {'ms/step':>8} {'newton/step':>11} {'LU/step':>8} "
+        f"{'tets':>7} {'verts':>6} {'linear':>8} {'ms/step':>8} {'newton/step':>11} {'factor/step':>11} "
         f"{'peak MB':>8}"
         f"{'  VBD ms/step  FEM/VBD' if vbd_available else ''}"
-        f"{'  max|x - x_tight| mm (Newton tol mm)' if args.accuracy else ''}"
+        f"{'  max|x - x_tight| mm (Newton tol mm)  VBD max|x - x_tight| mm' if args.accuracy else ''}"
     )
     for cells in args.cells:
         vertices, tets = cube_tets(cells)
-        fem = bench_fem(vertices, tets, material, args)
-        line = (
-            f"{len(tets):7d} {len(vertices):6d} {fem['ms_per_step']:8.1f} {fem['newton_per_step']:11.2f} "
-            f"{fem['factorisations_per_step']:8.2f} {peak_rss_mb():8.0f}"
-        )
-        if vbd_available:
-            try:
-                vbd = bench_vbd(vertices, tets, material, args)
-                line += f"  {vbd['ms_per_step']:11.1f}  {fem['ms_per_step'] / vbd['ms_per_step']:7.2f}"
-            except Exception as err:  # report, do not hide, a VBD failure: the FEM figures still stand
-                line += f"  VBD failed: {type(err).__name__}: {err}"
-        if args.accuracy:
-            defaults = SolverSettings()
-            tight = bench_fem(
-                vertices, tets, material, args, newton_tol=1e-4 * defaults.newton_tol, newton_iterations=80
+        vbd = None
+        for linear_solver in args.linear_solver:
+            fem = bench_fem(vertices, tets, material, args, linear_solver)
+            line = (
+                f"{len(tets):7d} {len(vertices):6d} {fem['linear_solver']:>8} {fem['ms_per_step']:8.1f} "
+                f"{fem['newton_per_step']:11.2f} {fem['factorisations_per_step']:11.2f} {peak_rss_mb():8.0f}"
             )
-            error = 1e3 * np.abs(fem["positions"] - tight["positions"]).max()
-            line += f"  {error:.4f} ({fem['tol_mm']:.4f})"
-        print(line, flush=True)
+            if vbd_available:
+                try:
+                    vbd = vbd or bench_vbd(vertices, tets, material, args)
+                    line += f"  {vbd['ms_per_step']:11.1f}  {fem['ms_per_step'] / vbd['ms_per_step']:7.2f}"
+                except Exception as err:  # report, do not hide, a VBD failure: the FEM figures still stand
+                    line += f"  VBD failed: {type(err).__name__}: {err}"
+            if args.accuracy:
+                defaults = SolverSettings()
+                tight = bench_fem(
+                    vertices,
+                    tets,
+                    material,
+                    args,
+                    linear_solver,
+                    newton_tol=1e-4 * defaults.newton_tol,
+                    newton_iterations=80,
+                )
+                error = 1e3 * np.abs(fem["positions"] - tight["positions"]).max()
+                line += f"  {error:.4f} ({fem['tol_mm']:.4f})"
+                if vbd is not None:
+                    line += f"  VBD {1e3 * np.abs(vbd['positions'] - tight['positions']).max():.2f}"
+            print(line, flush=True)
 
 
 if __name__ == "__main__":

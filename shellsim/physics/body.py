@@ -353,6 +353,11 @@ class BodyTerms:
         indptr, indices, gather = self._csr
         return csr_matrix((self._values.numpy().ravel()[gather], indices, indptr), shape=(3 * n, 3 * n))
 
+    def hessian_blocks(self) -> np.ndarray:
+        """(B, 3, 3) the last HESSIAN :meth:`evaluate`'s blocks (a view: the next evaluation overwrites it),
+        in the order :attr:`hessian_pattern` places them."""
+        return self._values.numpy()
+
     @property
     def hessian_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The CSR pattern of :meth:`hessian_matrix`: ``indptr`` (3V+1,), sorted ``indices`` (9B,) and the

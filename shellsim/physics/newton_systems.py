@@ -16,7 +16,9 @@ and 54 (docs/measurements.md).
 
 from __future__ import annotations
 
+import functools
 import logging
+import os
 import weakref
 
 import numpy as np
@@ -33,12 +35,32 @@ PARDISO_HINT = "pypardiso (MKL) is not installed: Newton systems use SciPy's Sup
 _hinted = False
 
 
+def pardiso_solver():
+    """A new ``pypardiso.PyPardisoSolver`` for real SPD matrices. Unless ``PYPARDISO_MKL_RT`` names MKL's
+    library, pypardiso looks for it by a recursive glob of the environment (a second on a full one), so it is
+    named there first: from the ``mkl`` package's file list, else as the first solver found it."""
+    import pypardiso
+
+    if "PYPARDISO_MKL_RT" not in os.environ:
+        from importlib import metadata
+
+        try:
+            files = metadata.files("mkl") or []
+        except metadata.PackageNotFoundError:
+            files = []
+        found = sorted((f for f in files if f.name.startswith("libmkl_rt.so")), key=lambda f: len(f.name))
+        if found:
+            os.environ["PYPARDISO_MKL_RT"] = str(found[0].locate())
+    solver = pypardiso.PyPardisoSolver(mtype=2)
+    os.environ.setdefault("PYPARDISO_MKL_RT", solver.libmkl._name)
+    return solver
+
+
+@functools.cache
 def pardiso_available() -> bool:
     """Whether ``pypardiso`` and its MKL library load."""
     try:
-        import pypardiso
-
-        pypardiso.PyPardisoSolver(mtype=2)
+        pardiso_solver()
     except (ImportError, OSError):
         return False
     return True
@@ -51,7 +73,7 @@ class PardisoCholesky:
     def __init__(self):
         import pypardiso
 
-        self._solver = solver = pypardiso.PyPardisoSolver(mtype=2)  # real symmetric positive definite
+        self._solver = solver = pardiso_solver()
         solver.set_iparm(1, 1)  # these parameters, not the defaults
         solver.set_iparm(2, 2)  # METIS nested dissection
         self._error = pypardiso.pardiso_wrapper.PyPardisoError
@@ -117,22 +139,27 @@ class NewtonSystems:
                 log.info(PARDISO_HINT)
                 _hinted = True
         self.method = method
+        #: the part of the symmetric matrices :meth:`solve` takes: "upper" (its upper triangle, CSR with
+        #: sorted indices) for Cholesky, "full" for CG
+        self.triangle = "upper" if method == "cholesky" else "full"
         self.rtol = rtol
         self._cholesky = PardisoCholesky() if method == "cholesky" else None
         self._factor = None  # "cg": the SuperLU factorisation serving as preconditioner
         self.factorisations = 0
 
     def solve(self, matrix: sp.spmatrix, rhs: np.ndarray) -> np.ndarray:
-        """``d`` (n,) of ``matrix`` (n, n), ``rhs`` (n,) (``"cg"``: ``|H d - r| <= rtol |r|``); all nan where
-        the matrix cannot be factorised. A matrix Cholesky refuses (not positive definite in floating point)
-        goes the ``"cg"`` way."""
-        if self._cholesky is not None:
-            upper = sp.triu(matrix, format="csr")
-            upper.sort_indices()
-            self.factorisations += 1
-            if self._cholesky.factor(upper):
-                return self._cholesky.solve(rhs)
-        return self._preconditioned_cg(matrix.tocsc(), rhs)
+        """``d`` (n,) of the symmetric matrix given by ``matrix`` (n, n; its :attr:`triangle`) and ``rhs``
+        (n,) (``"cg"``: ``|H d - r| <= rtol |r|``); all nan where it cannot be factorised. A matrix Cholesky
+        refuses (not positive definite in floating point) goes the ``"cg"`` way."""
+        if self._cholesky is None:
+            return self._preconditioned_cg(matrix.tocsc(), rhs)
+        upper = sp.csr_matrix(matrix)
+        upper.sort_indices()
+        self.factorisations += 1
+        if self._cholesky.factor(upper):
+            return self._cholesky.solve(rhs)
+        full = upper + sp.triu(upper, k=1).T
+        return self._preconditioned_cg(full.tocsc(), rhs)
 
     def resolve(self, rhs: np.ndarray) -> np.ndarray | None:
         """(n,) the solution for ``rhs`` (n,) with the last factorisation as it stands (an earlier matrix's:

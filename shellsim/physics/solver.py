@@ -34,8 +34,8 @@ from shellsim.physics.newton_systems import NewtonSystems
 from shellsim.physics.state import State
 
 #: Newton's step tolerance with contact is at most this fraction of the barrier's reach ``dhat``, so that the
-#: gaps the barrier balances are resolved: the loosest that keeps sim_bench's spinning cubes within 0.1 mm of a
-#: tightly converged run (0.03 mm at 8k tets after 4 frames; 0.01 of dhat: 0.13 mm).
+#: gaps the barrier balances are resolved: the loosest that keeps sim_bench's spinning cubes within 0.1 mm of
+#: a tightly converged run (0.03 mm at 8k tets after 4 frames; 0.01 of dhat: 0.13 mm).
 NEWTON_TOL_GAP = 0.005
 #: Halvings of a step in the line search.
 LINE_SEARCH_TRIES = 16
@@ -78,7 +78,9 @@ class Solver:
         self.size = float(np.linalg.norm(rest.max(0) - rest.min(0)))
         self._tol_size = min(m.size for m in self.models)
         self.systems = NewtonSystems(linear_solver)
-        self._pattern = _block_diagonal_pattern([t.hessian_pattern for t in self.bodies], 3 * self.starts)
+        self._pattern = _block_diagonal_pattern(
+            [t.hessian_pattern for t in self.bodies], self.starts, upper=self.systems.triangle == "upper"
+        )
 
     def split(self, x: np.ndarray) -> list[np.ndarray]:
         """The bodies' rows of global positions ``x`` (N, 3)."""
@@ -95,15 +97,16 @@ class Solver:
         return energy, min_det, force
 
     def _hessian(self, x: np.ndarray, steps) -> sp.csr_matrix:
-        """The bodies' Hessian at ``x`` (N, 3): (3N, 3N) block diagonal, on a fixed pattern."""
-        values = []
+        """The bodies' Hessian at ``x`` (N, 3): (3N, 3N) block diagonal on a fixed pattern, only its upper
+        triangle when the Newton systems take that."""
+        blocks = []
         for terms, work, part, step in zip(self.bodies, self._work, self.split(x), steps, strict=True):
             work.positions.assign(wp.array(part, dtype=vec3, device=work.positions.device))
             terms.evaluate(work.positions, step, HESSIAN)
-            values.append(terms.hessian_matrix().data)
+            blocks.append(terms.hessian_blocks().ravel())
         n = 3 * int(self.starts[-1])
-        indptr, indices = self._pattern
-        return sp.csr_matrix((np.concatenate(values), indices, indptr), shape=(n, n))
+        indptr, indices, gather = self._pattern
+        return sp.csr_matrix((np.concatenate(blocks)[gather], indices, indptr), shape=(n, n))
 
     @staticmethod
     def _direction(d: np.ndarray | None, rhs: np.ndarray, pinned: np.ndarray) -> np.ndarray | None:
@@ -180,6 +183,8 @@ class Solver:
                 contact_hessian = contact.hessian(x)
                 if keep_free is not None:
                     contact_hessian = keep_free @ contact_hessian @ keep_free
+                if self.systems.triangle == "upper":
+                    contact_hessian = sp.triu(contact_hessian, format="csr")
                 hessian = hessian + contact_hessian
             stats.hessians += 1
             d = self._direction(self.systems.solve(hessian, rhs.ravel()), rhs, pinned)
@@ -215,11 +220,20 @@ class Solver:
         return stats
 
 
-def _block_diagonal_pattern(patterns, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """CSR ``indptr``, ``indices`` of the block diagonal of matrices of CSR ``patterns`` ((indptr, indices,
-    ...) each), the k-th at rows and columns ``starts[k]``."""
-    indptr = [np.zeros(1, np.int64)]
-    for (ptr, _, *_), nnz in zip(patterns, np.cumsum([0] + [len(p[1]) for p in patterns[:-1]]), strict=True):
-        indptr.append(ptr[1:].astype(np.int64) + nnz)
-    indices = [p[1].astype(np.int64) + start for p, start in zip(patterns, starts, strict=False)]
-    return np.concatenate(indptr), np.concatenate(indices)
+def _block_diagonal_pattern(patterns, starts: np.ndarray, upper: bool) -> tuple[np.ndarray, ...]:
+    """CSR ``indptr``, ``indices`` and the entries' places ``gather`` in the bodies' concatenated flattened
+    Hessian blocks, of the block diagonal of the bodies' Hessians (their ``hessian_pattern``), the k-th at
+    vertex ``starts[k]``; only the upper triangle when ``upper``."""
+    rows, indices, gather, offset = [], [], [], 0
+    for (ptr, cols, places), start in zip(patterns, starts, strict=False):
+        rows.append(np.repeat(np.arange(len(ptr) - 1), np.diff(ptr)) + 3 * start)
+        indices.append(cols.astype(np.int64) + 3 * start)
+        gather.append(places + offset)
+        offset += len(places)
+    rows, indices, gather = np.concatenate(rows), np.concatenate(indices), np.concatenate(gather)
+    if upper:
+        keep = indices >= rows
+        rows, indices, gather = rows[keep], indices[keep], gather[keep]
+    indptr = np.zeros(3 * int(starts[-1]) + 1, np.int64)
+    np.cumsum(np.bincount(rows, minlength=len(indptr) - 1), out=indptr[1:])
+    return indptr.astype(np.int32), indices.astype(np.int32), gather

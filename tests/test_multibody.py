@@ -201,3 +201,30 @@ def test_a_stiff_block_slides_down_a_slope_at_the_coulomb_acceleration(mu):
     acceleration = 2.0 * np.polyfit(t[3:], travelled[3:], 2)[0]  # once it has settled on the slope
     expected = 9.81 * (np.sin(np.radians(30)) - mu * np.cos(np.radians(30)))
     assert acceleration == pytest.approx(expected, rel=0.03)
+
+
+def test_the_ground_barrier_is_the_closed_form_sum_over_the_vertices_within_reach():
+    """The ground's barrier is ipctk's log barrier of each surface vertex's height alone,
+    b(z) = -(z^2 - dhat^2)^2 log(z^2 / dhat^2) for z < dhat, summed (no pair among a body's own vertices,
+    however close), and the collision-free fraction of a path down to the plane is a fixed share (ipctk's
+    conservative rescaling, 0.8) of where its lowest vertex would reach z = 0."""
+    rng = np.random.default_rng(5)
+    # a strip of 40 triangles lying just above the ground, its vertices 0.2 dhat apart
+    n = 21
+    xs = np.arange(n) * 0.2 * DHAT
+    points = np.concatenate(
+        [np.stack([xs, np.zeros(n), np.zeros(n)], 1), np.stack([xs, 0.2 * DHAT + 0 * xs, 0 * xs], 1)]
+    )
+    points[:, 2] = rng.uniform(0.05, 1.6, len(points)) * DHAT
+    faces = np.array(
+        [[i, i + 1, n + i] for i in range(n - 1)] + [[i + 1, n + i + 1, n + i] for i in range(n - 1)]
+    )
+    weights = sp.identity(len(points), format="csr")
+    contact = Contact([BodySurface(weights, faces, 0.0)], [0], points, [], DHAT, 0.01, 0.0)  # frictionless
+    contact.begin_step(points, 1e-3, lambda: np.zeros_like(points), 1.0, 1.0)
+    z = points[:, 2][points[:, 2] < DHAT]
+    expected = contact.kappa * np.sum(-((z * z - DHAT**2) ** 2) * np.log(z * z / DHAT**2))
+    assert contact.energy(points) == pytest.approx(expected, rel=1e-10)
+    lowered = points - [0.0, 0.0, 2 * DHAT]
+    _, fraction = contact.candidates(points, lowered)
+    assert fraction == pytest.approx(0.8 * points[:, 2].min() / (2 * DHAT), rel=1e-3)

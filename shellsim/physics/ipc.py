@@ -29,8 +29,9 @@ Hessians are projected to positive semi-definite per contact (``CLAMP``). Contin
 (``Candidates.compute_collision_free_stepsize``, Tight-Inclusion) bounds every step the Newton solver takes,
 so no two surfaces ever pass through each other and ``B`` stays finite.
 
-The ground is a plane of its own ipctk mesh holding the bodies' surfaces only (every pair of them filtered
-out): ipctk tests a plane against every vertex of a mesh, and a collider standing on the ground must not.
+The ground is a plane of its own ipctk mesh holding the bodies' surface vertices only (no edges or faces, so
+no pair among them, and its broad phase is cheap): ipctk tests a plane against every vertex of a mesh, and a
+collider standing on the ground must not.
 
 Self-contact within one body is filtered out (``make_vertex_patches_filter``: a body's vertices share a
 patch): the surface is embedded in an elastic cage whose volume barrier already keeps it from folding
@@ -135,7 +136,6 @@ class Contact:
             mu.append(np.full(w.shape[0], body.friction))
             offset += w.shape[0]
         self.n_dynamic = n_dynamic = offset
-        dynamic_faces = len(faces)
         static_vertices = [np.zeros((0, 3))]
         for s in statics:
             static_vertices.append(np.asarray(s.vertices, np.float64))
@@ -163,9 +163,10 @@ class Contact:
             [] if self._mesh is None else [_Part(mesh, slice(0, offset), dof_map, self.friction.copy())]
         )
         self._cached: tuple[np.ndarray, list] | None = None  # (x, [(part, its vertices, collisions)])
-        if ground_friction is not None:  # the bodies' surfaces and the plane, no pair among the surfaces
-            own = np.concatenate(faces[:dynamic_faces]).astype(np.int32)
-            ground = ipctk.CollisionMesh(np.ascontiguousarray(rest[:n_dynamic]), ipctk.edges(own), own)
+        if ground_friction is not None:  # the bodies' surface vertices and the plane: plane-vertex pairs only
+            nothing = np.zeros((0, 2), np.int32), np.zeros((0, 3), np.int32)
+            ground = ipctk.CollisionMesh(np.ascontiguousarray(rest[:n_dynamic]), *nothing)
+            # its vertices are points to ipctk (codimensional): no vertex-vertex pair among them
             ground.can_collide = ipctk.make_vertex_patches_filter(np.zeros(n_dynamic, np.int32))
             ground.planes = [ipctk.Hyperplane(np.array([0.0, 0.0, 1.0]), np.zeros(3))]
             mu_dynamic = np.ascontiguousarray(self.friction[:n_dynamic])

@@ -190,3 +190,60 @@ def test_a_body_too_soft_for_its_size_is_warned_about_before_simulating(caplog):
         message = record.getMessage()
         assert message.startswith("s.toml: bunny: as jelly (youngs 10000 Pa")
         assert "sag about 13% of its 0.3 m height" in message and "youngs = 27000 holds it to 5%" in message
+
+
+@pytest.mark.slow
+def test_while_settling_pins_hold_and_other_actions_wait_for_the_shot(tmp_path):
+    """Settling with a pin from t = 0 on one ball and a push at t = 0 on another, no ground: the pinned
+    region is where it was at rest at frame 0 and the ball hangs from it (a free ball settling 0.1 s under
+    the settling drag falls about 3 cm); the push has not acted yet (the pushed ball has not moved along x at
+    frame 0) and acts once the shot starts, changing the momentum by the ball's mass times its velocity."""
+    from test_scene_job import RUBBER_DENSITY, lumped_masses
+
+    ball = tmp_path / "ball.ply"
+    trimesh.creation.icosphere(subdivisions=1, radius=0.05).export(ball)
+    scene = tmp_path / "held.toml"
+    scene.write_text(
+        f"""
+[world]
+frames = 4
+substeps = 2
+ground = false
+settle = 0.1
+
+[[body]]
+name = "held"
+mesh = "{ball}"
+
+[[body]]
+name = "pushed"
+mesh = "{ball}"
+position = [0.2, 0, 0]
+
+[[action]]
+kind = "pin"
+body = "held"
+region = "z>80%"
+
+[[action]]
+kind = "push"
+body = "pushed"
+start = 0
+end = 0
+velocity = [0.5, 0, 0]
+"""
+    )
+    assert main(["scene", str(scene), "--out", str(tmp_path / "held")]) == 0
+    motion = load_motion(tmp_path / "held" / "motion.npz")
+    (held, pushed) = (slice(*r["vertices"]) for r in motion.asset["bodies"])
+    rest = motion.rest_vertices
+    z = rest[held, 2]
+    pinned = np.flatnonzero(z > z.min() + 0.8 * np.ptp(z))
+    np.testing.assert_allclose(motion.positions[0][held][pinned], rest[held][pinned], atol=1e-6)
+    assert np.abs(motion.positions[0][held] - rest[held]).max() < 1e-4  # unheld it would fall 3 cm
+    masses = lumped_masses(
+        rest[pushed], motion.tets[motion.tets[:, 0] >= pushed.start] - pushed.start, RUBBER_DENSITY
+    )
+    velocities = motion.state["velocities"][pushed]
+    assert masses @ velocities[:, 0] == pytest.approx(0.5 * masses.sum(), rel=0.02)
+    assert abs(masses @ (motion.positions[0][pushed] - rest[pushed])[:, 0]) < 1e-9 * masses.sum()

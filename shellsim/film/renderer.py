@@ -267,6 +267,8 @@ class TintedField:
         return rgb * self.tint.to(rgb)
 
     def __getattr__(self, name):
+        if name == "field":  # not set yet (a copy being made): no field to ask
+            raise AttributeError(name)
         return getattr(self.field, name)
 
 

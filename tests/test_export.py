@@ -303,12 +303,19 @@ def test_usd_of_a_mesh_motion_takes_the_motion_up_axis(tmp_path):
     assert np.abs(points - moved(sphere.vertices, 3)).max() < 1e-5
 
 
+ORB_TINT = (0.5, 1.0, 0.25)
+BALL_COLOR = (0.2, 0.4, 0.6)
+TABLE_COLOR = (0.6, 0.0, 1.0)
+COLLIDER_COLOR = (0.25, 0.75, 0.5)
+
+
 @pytest.fixture(scope="module")
 def shot(tmp_path_factory):
     """(scene output directory, the neural body's asset directory): 3 frames of a scene made by
     ``shellsim scene``: the test asset of test_render_deformed (its collision surface a sphere between its
-    shells, so that none is extracted) as the body 'orb', a box 'crate' and a ball 'ball' (.obj meshes), and a
-    box collider 'table'."""
+    shells, so that none is extracted) as the body 'orb' tinted by :data:`ORB_TINT`, a box 'crate' and a ball
+    'ball' in :data:`BALL_COLOR` (.obj meshes), a box collider 'table' in :data:`TABLE_COLOR` and a sphere
+    collider 'shelf' in the look's :data:`COLLIDER_COLOR`."""
     pytest.importorskip("ipctk")
     from neural.asset import load_asset
     from shellsim.jobs.scene import SceneSettings, scene
@@ -332,6 +339,7 @@ name = "orb"
 asset = "{root}"
 size = 0.2
 position = [0, 0, 0.1]
+color = {list(ORB_TINT)}
 
 [[body]]
 name = "crate"
@@ -343,6 +351,7 @@ rotation = [0, 0, 30]
 name = "ball"
 mesh = "{tmp / "ball.obj"}"
 position = [-0.3, 0, 0.1]
+color = {list(BALL_COLOR)}
 
 [[collider]]
 name = "table"
@@ -350,6 +359,16 @@ shape = "box"
 position = [0, 0.4, 0.05]
 rotation = [0, 0, 20]
 half_extents = [0.1, 0.1, 0.05]
+color = {list(TABLE_COLOR)}
+
+[[collider]]
+name = "shelf"
+shape = "sphere"
+position = [0, -0.4, 0.05]
+radius = 0.05
+
+[look]
+collider_color = {list(COLLIDER_COLOR)}
 """
     )
     scene(SceneSettings(scene=str(tmp / "shot.toml"), out=str(tmp / "out"), frames=3), progress=False)
@@ -376,12 +395,13 @@ def surface_of(motion, record: dict) -> tuple[np.ndarray, np.ndarray]:
 def test_usd_of_a_scene_holds_every_body_its_cage_and_the_static_collider(shot, tmp_path):
     from pxr import Usd, UsdGeom
 
-    from neural.asset import load_asset
+    from neural.asset import load_asset, load_field
+    from shellsim.film.shell_colors import shell_colors
     from shellsim.motion.read import load_motion
     from shellsim.shot.bodies import collider_mesh
     from shellsim.shot.recorded import MESH_BODY_COLORS, read_scene_motion
     from shellsim.tetcage.store import load_or_build_cage
-    from shellsim.world import Placement, WorldLook
+    from shellsim.world import Placement
 
     out, root = shot
     motion = load_motion(out / "motion.npz")
@@ -394,7 +414,7 @@ def test_usd_of_a_scene_holds_every_body_its_cage_and_the_static_collider(shot, 
     assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
     assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, 2)
     names = [p.GetName() for p in stage.GetPrimAtPath("/Root").GetChildren()]
-    assert names == ["orb", "crate", "ball", "table", "orb_cage", "crate_cage", "ball_cage"]
+    assert names == ["orb", "crate", "ball", "table", "shelf", "orb_cage", "crate_cage", "ball_cage"]
 
     def mesh(name):
         prim = UsdGeom.Mesh(stage.GetPrimAtPath(f"/Root/{name}"))
@@ -411,10 +431,11 @@ def test_usd_of_a_scene_holds_every_body_its_cage_and_the_static_collider(shot, 
     for k in range(3):
         assert np.abs(points(k) - shell_points(motion, records["orb"], cage, k)).max() < 1e-6
     assert orb.GetDisplayColorPrimvar().GetInterpolation() == UsdGeom.Tokens.vertex
-    assert np.asarray(orb.GetDisplayColorPrimvar().Get()).shape == (len(asset.outer_mesh().vertices), 3)
+    field_colors = shell_colors(asset, load_field(asset, "cpu"))  # (V, 3): what the field shows, untinted
+    np.testing.assert_allclose(orb.GetDisplayColorPrimvar().Get(), field_colors * ORB_TINT, atol=1e-6)
     assert np.abs(points(2) - points(0)).max() > 1e-3  # it moved: it falls
 
-    for k, name in enumerate(("crate", "ball"), start=1):
+    for name, expected_color in (("crate", MESH_BODY_COLORS[1]), ("ball", BALL_COLOR)):
         prim, faces, points = mesh(name)
         index, expected = surface_of(motion, records[name])
         assert np.array_equal(faces, expected)
@@ -422,7 +443,7 @@ def test_usd_of_a_scene_holds_every_body_its_cage_and_the_static_collider(shot, 
             assert np.abs(points(frame) - motion.surface_points(frame)[index]).max() < 1e-6
         color = prim.GetDisplayColorPrimvar()
         assert color.GetInterpolation() == UsdGeom.Tokens.constant
-        np.testing.assert_allclose(np.asarray(color.Get()), [MESH_BODY_COLORS[k]], atol=1e-6)
+        np.testing.assert_allclose(np.asarray(color.Get()), [expected_color], atol=1e-6)
 
     for name, record in records.items():
         prim, faces, points = mesh(f"{name}_cage")
@@ -432,17 +453,19 @@ def test_usd_of_a_scene_holds_every_body_its_cage_and_the_static_collider(shot, 
         assert boundary.is_watertight and boundary.volume > 0
         assert np.abs(points(1)[:, None] - motion.positions[1][None, lo:hi]).sum(-1).min(1).max() < 1e-6
 
-    (spec,) = read_scene_motion(out, load_assets=False).colliders
-    vertices, expected = collider_mesh(spec)
-    table, faces, points = mesh("table")
-    assert table.GetPointsAttr().GetTimeSamples() == []  # written once, not per frame
-    assert np.array_equal(faces, expected) and np.abs(points(1) - vertices).max() < 1e-6
-    assert table.GetPurposeAttr().Get() == UsdGeom.Tokens.default_
-    np.testing.assert_allclose(table.GetDisplayColorPrimvar().Get(), [WorldLook().obstacle_color], atol=1e-6)
+    specs = read_scene_motion(out, load_assets=False).colliders
+    for spec, color in zip(specs, (TABLE_COLOR, COLLIDER_COLOR), strict=True):
+        vertices, expected = collider_mesh(spec)
+        prim, faces, points = mesh(spec.name)
+        assert prim.GetPointsAttr().GetTimeSamples() == []  # written once, not per frame
+        assert np.array_equal(faces, expected) and np.abs(points(1) - vertices).max() < 1e-6
+        assert prim.GetPurposeAttr().Get() == UsdGeom.Tokens.default_
+        np.testing.assert_allclose(prim.GetDisplayColorPrimvar().Get(), [color], atol=1e-6)
 
 
 def test_ply_of_a_scene_is_every_body_per_frame_and_each_collider_once(shot, tmp_path):
-    from neural.asset import load_asset
+    from neural.asset import load_asset, load_field
+    from shellsim.film.shell_colors import shell_colors
     from shellsim.motion.read import load_motion
     from shellsim.shot.bodies import collider_mesh
     from shellsim.shot.recorded import read_scene_motion
@@ -453,21 +476,31 @@ def test_ply_of_a_scene_is_every_body_per_frame_and_each_collider_once(shot, tmp
     records = {r["name"]: r for r in motion.asset["bodies"]}
     ply = tmp_path / "ply"
     assert main(["export", "--format", "ply", "--motion", str(out / "motion.npz"), "--out", str(ply)]) == 0
-    names = {f"{b}_{k:05d}.ply" for b in records for k in range(3)} | {"table.ply"}
+    names = {f"{b}_{k:05d}.ply" for b in records for k in range(3)} | {"table.ply", "shelf.ply"}
     assert {f.name for f in ply.iterdir()} == names
-    cage = load_or_build_cage(load_asset(root))
+    asset = load_asset(root)
+    cage = load_or_build_cage(asset)
+    orb_colors = np.round(shell_colors(asset, load_field(asset, "cpu")) * ORB_TINT * 255)
+
+    def rgb(mesh) -> np.ndarray:
+        assert mesh.visual.kind == "vertex" and (mesh.visual.vertex_colors[:, 3] == 255).all()
+        return np.asarray(mesh.visual.vertex_colors[:, :3], np.float64)
+
     for k in range(3):
         orb = trimesh.load(ply / f"orb_{k:05d}.ply", process=False)
         assert np.abs(orb.vertices - shell_points(motion, records["orb"], cage, k)).max() < 1e-6
-        assert orb.visual.kind == "vertex" and (orb.visual.vertex_colors[:, 3] == 255).all()
+        assert np.abs(rgb(orb) - orb_colors).max() <= 1
         ball = trimesh.load(ply / f"ball_{k:05d}.ply", process=False)
         index, faces = surface_of(motion, records["ball"])
         assert np.array_equal(ball.faces, faces)
         assert np.abs(ball.vertices - motion.surface_points(k)[index]).max() < 1e-6
-    (spec,) = read_scene_motion(out, load_assets=False).colliders
-    vertices, faces = collider_mesh(spec)
-    table = trimesh.load(ply / "table.ply", process=False)
-    assert np.array_equal(table.faces, faces) and np.abs(table.vertices - vertices).max() < 1e-6
+        assert (rgb(ball) == np.round(np.multiply(BALL_COLOR, 255))).all()
+    specs = read_scene_motion(out, load_assets=False).colliders
+    for spec, color in zip(specs, (TABLE_COLOR, COLLIDER_COLOR), strict=True):
+        vertices, faces = collider_mesh(spec)
+        collider = trimesh.load(ply / f"{spec.name}.ply", process=False)
+        assert np.array_equal(collider.faces, faces) and np.abs(collider.vertices - vertices).max() < 1e-6
+        assert (rgb(collider) == np.round(np.multiply(color, 255))).all()
 
 
 def test_vtu_of_a_scene_is_its_concatenated_cage(shot, tmp_path):

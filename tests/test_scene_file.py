@@ -36,6 +36,7 @@ damping = 0.001
 drag = 0.1
 contact_gap = 0.002
 friction_velocity = 0.02
+settle = 0.5
 
 [[body]]
 name = "brick"
@@ -51,6 +52,7 @@ damping = 0.01
 friction = 0.7
 velocity = [1, 0, 0]
 spin = [0, 0, 3]
+color = [1, 0.5, 0]
 [body.cage]
 target_tets = 3000
 margin = 0.01
@@ -59,6 +61,7 @@ margin = 0.01
 mesh = "parts/ball.obj"
 units = "cm"
 position = [0.5, 0, 0]
+color = [0.1, 0.2, 0.3]
 
 [[body]]
 name = "toy"
@@ -71,6 +74,7 @@ position = [1, 0, 0.1]
 rotation = [0, 20, 0]
 half_extents = [0.5, 0.3, 0.1]
 friction = 0.2
+color = [0, 1, 0.25]
 
 [[collider]]
 shape = "sphere"
@@ -208,6 +212,7 @@ def test_a_full_file_reads_into_the_spec(tmp_path):
         drag=0.1,
         contact_gap=0.002,
         friction_velocity=0.02,
+        settle=0.5,
     )
     assert spec.bodies == (
         BodySpec(
@@ -224,6 +229,7 @@ def test_a_full_file_reads_into_the_spec(tmp_path):
             friction=0.7,
             velocity=(1.0, 0.0, 0.0),
             spin=(0.0, 0.0, 3.0),
+            color=(1.0, 0.5, 0.0),
             cage=CageSpec(target_tets=3000, margin=0.01),
             where=f"{f}: [[body]] #1 (brick)",
         ),
@@ -232,6 +238,7 @@ def test_a_full_file_reads_into_the_spec(tmp_path):
             mesh=str(tmp_path.resolve() / "parts" / "ball.obj"),
             units="cm",
             position=(0.5, 0.0, 0.0),
+            color=(0.1, 0.2, 0.3),
             where=f"{f}: [[body]] #2 (body2)",
         ),
         BodySpec(name="toy", asset=toy, where=f"{f}: [[body]] #3 (toy)"),
@@ -244,6 +251,7 @@ def test_a_full_file_reads_into_the_spec(tmp_path):
             rotation=(0.0, 20.0, 0.0),
             half_extents=(0.5, 0.3, 0.1),
             friction=0.2,
+            color=(0.0, 1.0, 0.25),
             where=f"{f}: [[collider]] #1 (ramp)",
         ),
         ColliderSpec(
@@ -360,6 +368,7 @@ def test_a_full_file_reads_into_the_spec(tmp_path):
         collider_color=(0.3, 0.3, 1.0),
     )
     assert type(spec.look.collider_color[2]) is float and type(spec.look.light[0]) is float
+    assert type(spec.bodies[0].color[1]) is float and type(spec.colliders[0].color[0]) is float
     assert spec.path == str(path.resolve())
     assert spec.body("toy").asset == toy
 
@@ -799,6 +808,22 @@ MALFORMED = [
     (LOOK + "ambient = -0.1\n", "[look] ambient: must be >= 0, got -0.1"),
     (LOOK + "diffuse = 'high'\n", "[look] diffuse: expected a number, got 'high'"),
     (LOOK + "square = 0\n", "[look] square: must be > 0, got 0"),
+    ("[world]\nsettle = -0.5\n" + BODY, "[world] settle: must be in [0, 60], got -0.5"),
+    ("[world]\nsettle = '1 s'\n" + BODY, "[world] settle: expected a number, got '1 s'"),
+    (BODY + "color = [1, 1.5, 0]\n", "[[body]] #1 (lego) color: must all be in [0, 1], got [1, 1.5, 0]"),
+    (BODY + "color = [-0.1, 0, 0]\n", "[[body]] #1 (lego) color: must all be in [0, 1], got [-0.1, 0, 0]"),
+    (BODY + "color = [1, 1]\n", "[[body]] #1 (lego) color: expected [r, g, b], got [1, 1]"),
+    (BODY + "color = [1, 1, 1, 1]\n", "[[body]] #1 (lego) color: expected [r, g, b], got [1, 1, 1, 1]"),
+    (BODY + "color = 'red'\n", "[[body]] #1 (lego) color: expected [r, g, b], got 'red'"),
+    (BODY + "colour = [1, 1, 1]\n", "[[body]] #1 (lego) colour: unknown key; did you mean color?"),
+    (
+        BODY + RAMP + "color = [2, 0, 0]\n",
+        "[[collider]] #1 (ramp) color: must all be in [0, 1], got [2, 0, 0]",
+    ),
+    (
+        BODY + RAMP + "color = [0, true, 0]\n",
+        "[[collider]] #1 (ramp) color: expected [r, g, b], got [0, true, 0]",
+    ),
     (LOOK + "shadows = 1\n", "[look] shadows: expected true or false, got 1"),
 ]
 

@@ -50,6 +50,7 @@ fps = 24
 gravity = 3.5
 ground_friction = 0.25
 damping = 0.001
+settle = 0.35
 
 [[body]]
 name = "lego"
@@ -62,6 +63,7 @@ material = "jelly"
 youngs = 20000.0
 velocity = [0, 0, -1]
 spin = [0, 0, 2]
+color = [0.9, 0.8, 0.7]
 [body.cage]
 margin = 0.03
 
@@ -71,6 +73,7 @@ mesh = "cube.stl"
 units = "cm"
 position = [0.5, 0.5, 0]
 friction = 0.7
+color = [0.1, 0.25, 1]
 
 [[collider]]
 name = "tray"
@@ -82,6 +85,7 @@ half_extents = [0.2, 0.2, 0.05]
 shape = "sphere"
 position = [-1, 0, 0.2]
 radius = 0.1
+color = [0, 0.5, 0.125]
 
 [[collider]]
 shape = "mesh"
@@ -143,6 +147,10 @@ collider_color = [0.2, 0.3, 0.4]
     path.write_text(text)
     spec = read_scene(path)
     assert spec.bodies[0].up == (0.0, 1.0, 0.0) and spec.bodies[1].up is None
+    assert spec.world.settle == 0.35 and spec.bodies[1].color == (0.1, 0.25, 1.0)
+    assert spec.colliders[1].color == (0.0, 0.5, 0.125) and spec.colliders[0].color is None
+    saved = scene_toml(spec)
+    assert "settle = 0.35\n" in saved and "color = [0.9, 0.8, 0.7]\n" in saved
     assert plain(round_trip(spec, tmp_path)) == plain(spec)
 
 

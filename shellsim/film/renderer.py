@@ -254,6 +254,24 @@ class DeformedRenderer:
         return _camera_image(colors, stats, cameras, index, start, build)
 
 
+class TintedField:
+    """``field`` with its colours multiplied by ``tint`` (3,) in [0, 1] (an asset body's ``color``): its
+    ``radiance`` (N, 3) times the tint; its geometry, and everything else, the field's own."""
+
+    def __init__(self, field, tint):
+        self.field = field
+        self.tint = torch.as_tensor(tint, dtype=torch.float32)
+
+    def radiance(self, x, d, geometry):
+        rgb = self.field.radiance(x, d, geometry)
+        return rgb * self.tint.to(rgb)
+
+    def __getattr__(self, name):
+        if name == "field":  # not set yet (a copy being made): no field to ask
+            raise AttributeError(name)
+        return getattr(self.field, name)
+
+
 @dataclasses.dataclass
 class SceneFrame:
     """What one frame of a scene draws, whatever the camera (:meth:`SceneRenderer.frame`): ``bodies`` the

@@ -66,19 +66,20 @@ def scene_tracks(scene) -> dict[str, MotionTrack]:
 def scene_world(scene, look):
     """(look, obstacles, statics) of a scene's world: ``look`` (:class:`shellsim.world.WorldLook`) with
     its ground drawn only where the scene has one; its colliders as
-    :class:`shellsim.film.obstacles.Obstacles` (boxes without rotation, spheres) and as static meshes
-    ``(vertices, faces, albedo)`` (the others)."""
+    :class:`shellsim.film.obstacles.Obstacles` (boxes without rotation, spheres, in the look's
+    ``obstacle_color``) and as static meshes ``(vertices, faces, albedo)`` (the others, and every collider
+    with a ``color`` of its own)."""
     from shellsim.film.obstacles import Obstacles
     from shellsim.shot.bodies import collider_mesh
 
     boxes, spheres, statics = [], [], []
     for c in scene.colliders:
-        if c.shape == "box" and not any(c.rotation):
+        if c.color is None and c.shape == "box" and not any(c.rotation):
             boxes.append((*c.position, *c.half_extents))
-        elif c.shape == "sphere":
+        elif c.color is None and c.shape == "sphere":
             spheres.append((*c.position, c.radius))
         else:
-            statics.append((*collider_mesh(c), look.obstacle_color))
+            statics.append((*collider_mesh(c), look.obstacle_color if c.color is None else c.color))
     return scene_look(scene, look), Obstacles(boxes, spheres), statics
 
 
@@ -89,10 +90,11 @@ def scene_look(scene, look):
 
 def scene_renderer(scene, device: str, look):
     """The :class:`~shellsim.film.renderer.SceneRenderer` of ``scene``'s neural bodies (each asset's field
-    loaded once on the device picked for ``device``) in the world of ``look`` (:func:`scene_world`)."""
+    loaded once on the device picked for ``device``, its colours times the body's ``color``, a tint, when it
+    has one) in the world of ``look`` (:func:`scene_world`)."""
     from neural.asset import load_field
     from neural.device import pick_device
-    from shellsim.film.renderer import DeformedRenderer, SceneRenderer
+    from shellsim.film.renderer import DeformedRenderer, SceneRenderer, TintedField
 
     device = pick_device(device)
     fields, renderers = {}, []
@@ -102,9 +104,8 @@ def scene_renderer(scene, device: str, look):
         key = str(body.asset.root.resolve())
         if key not in fields:
             fields[key] = load_field(body.asset, device)
-        renderers.append(
-            DeformedRenderer(body.asset, fields[key], body.cage, device, placement=body.placement)
-        )
+        field = fields[key] if body.color is None else TintedField(fields[key], body.color)
+        renderers.append(DeformedRenderer(body.asset, field, body.cage, device, placement=body.placement))
     look, obstacles, statics = scene_world(scene, look)
     return SceneRenderer(renderers, look, obstacles, statics, device)
 
@@ -128,16 +129,23 @@ def _scene_frames(scene, device: str, antialias: int, look):
     return render_one
 
 
-def scene_recipe(motion_path: str, device: str, antialias: int, look):
-    """In a Ray worker: the ``render_one`` of the scene motion at ``motion_path``."""
+def scene_recipe(motion_path: str, device: str, antialias: int, look, spec=None):
+    """In a Ray worker: the ``render_one`` of the scene motion at ``motion_path`` (coloured as ``spec``
+    says, :func:`_as_file_says`)."""
     from shellsim.shot.recorded import read_scene_motion
 
-    return _scene_frames(read_scene_motion(motion_path), device, antialias, look)
+    return _scene_frames(_as_file_says(read_scene_motion(motion_path), spec), device, antialias, look)
+
+
+def _as_file_says(scene, spec):
+    """``scene`` with the cameras, look and colours of the scene file's ``spec``
+    (:meth:`shellsim.shot.recorded.SceneMotion.as_file_says`); None: as the motion recorded them."""
+    return scene if spec is None else scene.as_file_says(spec)
 
 
 def scene_identity(scene) -> str:
     """Digest of what a scene's images depend on besides its frames: each neural body's asset and cage
-    (:func:`asset_identity`), each mesh body's surface, the colliders."""
+    (:func:`asset_identity`), each mesh body's surface, the colliders (with their colours)."""
     parts = []
     for b in scene.bodies:
         if b.asset is not None:
@@ -149,12 +157,14 @@ def scene_identity(scene) -> str:
 
 
 def scene_renderer_identity(scene, antialias: int, look) -> str:
-    """Digest of the renderer's settings for ``scene``: each neural body's narrow band, the jittered rays
-    per pixel, the world's look and renderer version."""
+    """Digest of the renderer's settings for ``scene``: each neural body's narrow band, each body's colour
+    (a mesh's albedo, an asset's tint), the jittered rays per pixel, the world's look and renderer
+    version."""
     from shellsim.film.ground import WORLD_RENDERER
 
     settings = {
         "narrowband": [dataclasses.asdict(b.asset.narrowband_config()) for b in scene.bodies if b.asset],
+        "colors": [b.color for b in scene.bodies],
         "antialias": antialias,
         "world": {"renderer": WORLD_RENDERER, "look": dataclasses.asdict(scene_look(scene, look))},
     }
@@ -208,8 +218,8 @@ def render_scene(
         options set to other than their defaults replace those of the scene's ``[look]``
         (:meth:`WorldSettings.over`); None: the scene's look
     ground : draw the ground where the scene has one (False: nowhere)
-    spec : the :class:`~shellsim.shot.spec.SceneSpec` of the scene file as it says now, whose cameras and
-        look replace those the motion recorded (they do not change the motion)
+    spec : the :class:`~shellsim.shot.spec.SceneSpec` of the scene file as it says now, whose cameras, look
+        and colours replace those the motion recorded (they do not change the motion)
     quality : "final", or "preview" (:data:`shellsim.film.motion_frames.QUALITIES`): half the size, one ray
         per pixel, no shadow rays; its frames' records differ from the final ones'
     Other arguments as :func:`shellsim.film.motion_frames.render_motion`'s. Returns its :class:`RenderResult`.
@@ -224,9 +234,7 @@ def render_scene(
 
     check_quality(quality)
     pixel_offsets(antialias)
-    scene = read_scene_motion(scene_path, load_assets=False)
-    if spec is not None:
-        scene = dataclasses.replace(scene, cameras=list(spec.cameras), look=spec.look)
+    scene = _as_file_says(read_scene_motion(scene_path, load_assets=False), spec)
     if not isinstance(look, WorldLook):
         own = look_of(scene.look, ground)
         look = own if look is None else look.over(own)
@@ -236,14 +244,19 @@ def render_scene(
     width, height = size or VIDEO_SIZE
     if quality == "preview":
         (width, height), antialias, look = preview_size(width, height), 1, preview_look(look)
-    spec = None if camera is not None else scene_camera(scene, scene_camera_name)
     tracks = scene_tracks(scene)
     shot = (
         camera.shot(tracks[""], width, height)
         if camera is not None
-        else scene_shot(spec, tracks, width, height, {b.name: b.placement for b in scene.bodies})
+        else scene_shot(
+            scene_camera(scene, scene_camera_name),
+            tracks,
+            width,
+            height,
+            {b.name: b.placement for b in scene.bodies},
+        )
     )
-    scene = dataclasses.replace(read_scene_motion(scene_path), cameras=scene.cameras, look=scene.look)
+    scene = _as_file_says(read_scene_motion(scene_path), spec)
     identity = scene_identity(scene)
     settings = quality_identity(scene_renderer_identity(scene, antialias, look), quality)
     frame_ids = motion_frame_ids(info, (p for batch in iter_frames(scene.path, indices) for p in batch))
@@ -256,7 +269,7 @@ def render_scene(
     if ray is None:
         recipe = functools.partial(_scene_frames, scene, device, antialias, look)
     else:
-        recipe = functools.partial(scene_recipe, str(scene.path.resolve()), device, antialias, look)
+        recipe = functools.partial(scene_recipe, str(scene.path.resolve()), device, antialias, look, spec)
     return with_video(
         render_frames(jobs, out_dir, overwrite, progress, recipe, ray), video, fps, info, indices
     )

@@ -106,9 +106,9 @@ def _meshes(settings: ExportSettings, motion):
 
 def _scene_meshes(path: Path, motion) -> list:
     """The meshes of the scene motion ``motion`` (its file ``path``; list of AnimatedMesh), in world metres:
-    each body's visible surface (:func:`_body_meshes`) under its name, each collider (static, in the
-    obstacles' colour, :class:`shellsim.world.WorldLook`) under its name, then each body's cage
-    boundary ``<body>_cage`` (a guide). An :class:`InputError` naming ``path`` when two names would clash."""
+    each body's visible surface (:func:`_body_meshes`) under its name, each collider (static, in its
+    ``color``, else the scene's ``[look] collider_color``) under its name, then each body's cage boundary
+    ``<body>_cage`` (a guide). An :class:`InputError` naming ``path`` when two names would clash."""
     from collections import Counter
 
     from neural.errors import InputError
@@ -116,7 +116,6 @@ def _scene_meshes(path: Path, motion) -> list:
     from shellsim.shot.bodies import collider_mesh
     from shellsim.shot.recorded import read_scene_motion
     from shellsim.tetcage.geometry import boundary_faces
-    from shellsim.world import WorldLook
 
     scene = read_scene_motion(path)
     boundary, colors = boundary_faces(motion.tets), {}
@@ -124,9 +123,8 @@ def _scene_meshes(path: Path, motion) -> list:
     colliders = []
     for spec in scene.colliders:
         vertices, faces = collider_mesh(spec)
-        colliders.append(
-            AnimatedMesh(spec.name, faces, lambda k, v=vertices: v, WorldLook().obstacle_color, static=True)
-        )
+        color = scene.look.collider_color if spec.color is None else spec.color
+        colliders.append(AnimatedMesh(spec.name, faces, lambda k, v=vertices: v, color, static=True))
     meshes = [*surfaces, *colliders, *guides]
     clashes = [n for n, count in Counter(safe_name(m.name) for m in meshes).items() if count > 1]
     if clashes:
@@ -142,8 +140,9 @@ def _body_meshes(body, motion, boundary: np.ndarray, colors: dict) -> tuple:
     (:class:`shellsim.shot.recorded.MotionBody`) of ``motion``, in world metres. A neural body's surface is
     its asset's M+ deformed by its cage (barycentric in the cage's world positions: the same as in the
     asset's frame mapped to the world, a placement being affine) with its field's colours (kept in
-    ``colors`` by asset directory for the next body of that asset); a mesh body's is its own surface in its
-    colour. The guide is its share of ``boundary`` (F, 3), the boundary faces of the motion's tets."""
+    ``colors`` by asset directory for the next body of that asset) times its tint; a mesh body's is its own
+    surface in its colour. The guide is its share of ``boundary`` (F, 3), the boundary faces of the
+    motion's tets."""
     from neural.asset import load_field
     from shellsim.deform.inverse_map import deform_points
     from shellsim.film.shell_colors import shell_colors
@@ -166,7 +165,8 @@ def _body_meshes(body, motion, boundary: np.ndarray, colors: dict) -> tuple:
         if root not in colors:
             colors[root] = shell_colors(body.asset, load_field(body.asset, "cpu"))
         outer = np.asarray(body.asset.outer_mesh().faces, np.int64)
-        surface = AnimatedMesh(body.name, outer, shell, colors[root])
+        tint = np.ones(3) if body.color is None else np.asarray(body.color)
+        surface = AnimatedMesh(body.name, outer, shell, colors[root] * tint)
     lo, hi = body.vertices.start, body.vertices.stop
     used, faces = _compact(boundary[(boundary[:, 0] >= lo) & (boundary[:, 0] < hi)])
     guide = AnimatedMesh(f"{body.name}_cage", faces, lambda k: motion.positions[k][used], purpose="guide")

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from shellsim.errors import SettingError
+from shellsim.film.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, check_antialias
 from shellsim.film.motion_frames import QUALITIES
 from shellsim.io.outputs import check_writable_file, holds_outputs
 from shellsim.motion.format import MAX_FRAMES
@@ -40,6 +41,10 @@ from shellsim.settings import (
 log = logging.getLogger(__name__)
 
 PRODUCER = "shellsim scene"
+#: What a run that leaves the valid regime is told to try.
+ADVICE = "try more substeps, stiffer materials or slower bodies"
+#: [m/s] A body whose fastest vertex is faster at the end of the shot is said to be still moving.
+STILL_MOVING = 0.01
 
 
 @dataclass(frozen=True)
@@ -55,18 +60,24 @@ class SceneSettings:
         shown_default="the scene's",
     )
     video: str | None = option(
-        help="also render the shot to this MP4 (frames in OUT/frames, 512x512, anti-aliased), seen by the "
-        "scene's --camera; 'shellsim render --scene OUT' renders other cameras and sizes"
+        help="also render the shot to this MP4 (frames in OUT/frames, --width x --height, anti-aliased), "
+        "seen by the scene's --camera; 'shellsim render --scene OUT' renders other cameras"
     )
     camera: str | None = option(
         help="with --video: the scene file's [[camera]] of this name",
         shown_default="its first, or a three-quarter orbit framed to the bodies",
         metavar="NAME",
     )
+    width: int | None = option(help="with --video: image width", shown_default=f"{VIDEO_SIZE[0]}")
+    height: int | None = option(help="with --video: image height", shown_default="as --width")
+    antialias: int | None = option(
+        help="with --video: jittered rays per pixel, averaged (1: one ray through each pixel's centre)",
+        shown_default=f"{MOTION_ANTIALIAS}",
+    )
     quality: str = option(
         "final",
-        help="with --video: final (512x512, anti-aliased, with shadows), or preview: 256x256, one ray per "
-        "pixel, no shadows (a look at the whole shot in seconds)",
+        help="with --video: final (the size asked for, anti-aliased, with shadows), or preview: half the "
+        "size, one ray per pixel, no shadows (a look at the whole shot in seconds)",
         choices=QUALITIES,
     )
     max_stretch: float = max_stretch_option()
@@ -82,8 +93,22 @@ class SceneSettings:
         if self.camera is not None and self.video is None:
             raise SettingError("camera", "chooses the camera of {video}")
         check_choice("quality", self.quality, QUALITIES)
-        if self.quality != "final" and self.video is None:
-            raise SettingError("quality", "sets how {video} is rendered")
+        for name in ("quality", "width", "height", "antialias"):
+            if getattr(self, name) not in (None, "final") and self.video is None:
+                raise SettingError(name, "sets how {video} is rendered")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise SettingError(name, f"expected a positive size, got {value}")
+        if self.antialias is not None:
+            check_antialias(self.antialias)
+            if self.quality == "preview":
+                raise SettingError("antialias", "not with {quality} preview (one ray per pixel)")
+
+    def size(self) -> tuple[int, int]:
+        """(W, H) of the video's frames: a side not given is the other's, both default 512."""
+        side = self.width or self.height or VIDEO_SIZE[0]
+        return (self.width or side, self.height or side)
 
     @property
     def out_dir(self) -> Path:
@@ -112,8 +137,13 @@ def scene_record(spec) -> dict:
 
 
 def simulated_part(record: dict) -> dict:
-    """What of a :func:`scene_record` the motion depends on: all but the cameras and the look."""
-    return {k: v for k, v in record.items() if k not in ("cameras", "look")}
+    """What of a :func:`scene_record` the motion depends on: all but the cameras, the look and the colours
+    of bodies and colliders; a record made before ``[world] settle`` existed settled for 0 s."""
+    part = {k: v for k, v in record.items() if k not in ("cameras", "look")}
+    part["world"] = {"settle": 0.0, **part.get("world", {})}
+    for table in ("bodies", "colliders"):
+        part[table] = [{k: v for k, v in e.items() if k != "color"} for e in part.get(table, [])]
+    return part
 
 
 @holds_outputs
@@ -121,6 +151,7 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
     """Simulate the shot of ``settings.scene`` into ``settings.out_dir`` (module docstring)."""
     from shellsim.io.outputs import check_writable_dir, lock_output
     from shellsim.jobs.recording import record_frames, resume_or_refuse
+    from shellsim.memory import check_memory, render_bytes
     from shellsim.motion.writer import MotionWriter
     from shellsim.shot.file import read_scene
     from shellsim.shot.simulation import SceneSimulation
@@ -135,6 +166,9 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
     out_dir = lock_output(check_writable_dir(s.out_dir, "out"), "out")
     if s.video is not None:
         lock_output(check_writable_file(s.video, "video"), "video")
+        width, height = s.size()
+        frame = f"a frame of {width}x{height} pixels"
+        check_memory("width", render_bytes(width, height), frame, "to render", device)
     out = out_dir / "motion.npz"
     record = scene_record(spec)
     names = [b.name for b in spec.bodies]
@@ -163,6 +197,9 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
             settings=record,
             asset={"bodies": sim.body_records()},
         )
+        settled = _settle(sim, progress)
+        if settled:
+            writer.motion.meta["settle"] = settled
     else:
         _check_bodies(writer.motion, sim.bodies, out)
         sim.restore(writer.last_positions, writer.last_time, writer.motion.state, str(out))
@@ -172,11 +209,40 @@ def scene(settings: SceneSettings, progress: bool = True) -> SceneResult:
             frames,
             sim.advance,
             sim.snapshot,
-            advice=lambda err: f"{spec.path}: try more substeps, stiffer materials or slower bodies",
+            advice=lambda err: f"{spec.path}: {ADVICE}",
             desc="scene",
             progress=progress,
         )
+    speeds = sim.speeds()
+    fastest = max(speeds, key=speeds.get)
+    if speeds[fastest] > STILL_MOVING:
+        log.info("still moving at the end: body %s at %.3g m/s", fastest, speeds[fastest])
     return SceneResult(out, writer.n_frames, history, names, _video(s, spec, out_dir, frames, progress))
+
+
+def _settle(sim, progress: bool) -> dict:
+    """Settle ``sim`` (:meth:`shellsim.shot.simulation.SceneSimulation.settle`) with a progress bar; a frame
+    that leaves the valid regime is one :class:`SettingError` line (nothing is written yet)."""
+    from tqdm.auto import tqdm
+
+    from shellsim.physics.driver import SimulationError
+
+    if not sim.settle_frames:
+        return {}
+    with tqdm(total=sim.settle_frames, disable=not progress, unit="frame", desc="settle") as bar:
+        try:
+            settled = sim.settle(lambda stats: bar.update())
+        except SimulationError as err:
+            raise SettingError(
+                None, f"{sim.spec.path}: settling: {err}; nothing was written; {ADVICE}"
+            ) from None
+    log.info(
+        "settled for %g s before frame 0 (%d frames); fastest vertex then %.3g m/s",
+        settled["seconds"],
+        settled["frames"],
+        settled["max_speed"],
+    )
+    return settled
 
 
 def _video(settings: SceneSettings, spec, out_dir: Path, frames: int, progress: bool):
@@ -192,6 +258,8 @@ def _video(settings: SceneSettings, spec, out_dir: Path, frames: int, progress: 
         out_dir / "frames",
         settings.camera,
         frames=f"0:{frames}",
+        size=settings.size(),
+        antialias=settings.antialias or MOTION_ANTIALIAS,
         video=settings.video,
         device=settings.device,
         overwrite=settings.overwrite,

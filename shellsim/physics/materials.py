@@ -4,16 +4,21 @@ Values are typical room-temperature figures from engineering handbooks (Engineer
 Callister & Rethwisch *Materials Science and Engineering*, Gibson & Ashby *Cellular Solids* for foam,
 Czerner et al. 2015 for gelatin gels); the ranges are wide and the preset picks a representative value:
 
-========  ===================  =====================  ==========================  =======================
-name      Young's modulus E    Poisson ratio nu       density rho                 typical range of E
-========  ===================  =====================  ==========================  =======================
-jelly     10 kPa               0.45                   1050 kg/m^3                 1-30 kPa (gelatin gel)
-foam      100 kPa              0.25                   40 kg/m^3                   10 kPa-1 MPa (flexible PU)
-rubber    2 MPa                0.45                   1100 kg/m^3                 1-10 MPa (soft rubber)
-plastic   2.3 GPa              0.35                   1050 kg/m^3                 1.5-3 GPa (ABS)
-wood      10 GPa               0.35                   600 kg/m^3                  8-14 GPa (along grain)
-metal     200 GPa              0.29                   7850 kg/m^3                 190-210 GPa (steel)
-========  ===================  =====================  ==========================  =======================
+=======  =================  ================  ============  ==========================  ===========
+name     Young's modulus E  Poisson ratio nu  density rho   typical range of E          holds up to
+=======  =================  ================  ============  ==========================  ===========
+jelly    10 kPa             0.45              1050 kg/m^3   1-30 kPa (gelatin gel)      10 cm
+foam     100 kPa            0.25              40 kg/m^3     10 kPa-1 MPa (flexible PU)  25 m
+rubber   2 MPa              0.45              1100 kg/m^3   1-10 MPa (soft rubber)      18 m
+plastic  2.3 GPa            0.35              1050 kg/m^3   1.5-3 GPa (ABS)             22 km
+wood     10 GPa             0.35              600 kg/m^3    8-14 GPa (along grain)      170 km
+metal    200 GPa            0.29              7850 kg/m^3   190-210 GPa (steel)         260 km
+=======  =================  ================  ============  ==========================  ===========
+
+"Holds up to": the height ``H = 0.1 E / (rho g)`` of a block standing on the ground that sags 5% of its height
+under its own weight (:func:`shellsim.physics.sag.column_sag`: ``rho g H^2 / (2 E)``); a shape that overhangs
+(a head, ears) sags about 3.5 times as much, so it holds to 5% only up to about a third of that height
+(docs/simulation.md, "materials that hold their shape").
 
 Nearly incompressible materials (rubber, gels: nu ~ 0.49-0.5) use nu = 0.45 here: it limits the volumetric
 locking of linear tetrahedra and keeps the Newton systems well conditioned. Wood is treated as isotropic.

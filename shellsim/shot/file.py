@@ -63,6 +63,7 @@ WORLD_KEYS = (
     "drag",
     "contact_gap",
     "friction_velocity",
+    "settle",
 )
 BODY_KEYS = (
     "name",
@@ -77,10 +78,11 @@ BODY_KEYS = (
     "friction",
     "velocity",
     "spin",
+    "color",
     "cage",
 )
 BODY_KINDS = {"asset": ("asset", "up"), "mesh": ("mesh", "units")}
-COLLIDER_KEYS = ("name", "shape", "position", "rotation", "friction")
+COLLIDER_KEYS = ("name", "shape", "position", "rotation", "friction", "color")
 COLLIDER_KINDS = {"box": ("half_extents",), "sphere": ("radius",), "mesh": ("mesh", "units", "scale")}
 ACTION_KEYS = ("kind", "start", "end", "body")
 ACTION_KINDS = {
@@ -103,6 +105,7 @@ MAX_FPS = 1000.0
 MAX_FRAMES = 10000
 MAX_SUBSTEPS = 1000
 MAX_CONTACT_GAP = 0.1  # [m]
+MAX_SETTLE = 60.0  # [s]
 MIN_TARGET_TETS = 10  # shellsim.tetcage.build.CageConfig's bound
 
 
@@ -320,6 +323,7 @@ def _world(t: _Table) -> WorldSpec:
         drag=t.number("drag", d.drag, _NON_NEGATIVE),
         contact_gap=t.number("contact_gap", d.contact_gap, (0.0, MAX_CONTACT_GAP, "(]")),
         friction_velocity=t.number("friction_velocity", d.friction_velocity, _POSITIVE),
+        settle=t.number("settle", d.settle, (0.0, MAX_SETTLE, "[]")),
     )
 
 
@@ -372,6 +376,7 @@ def _body(t: _Table, world: WorldSpec, base: Path) -> BodySpec:
         velocity=t.vector("velocity", d.velocity),
         spin=t.vector("spin", d.spin),
         up=_up(t),
+        color=t.colors("color", (None,), (1,))[0],
         cage=CageSpec(
             target_tets=c.integer("target_tets", None, (MIN_TARGET_TETS, math.inf, "[)")),
             margin=c.number("margin", None, _NON_NEGATIVE),
@@ -431,6 +436,7 @@ def _collider(t: _Table, base: Path) -> ColliderSpec:
         units=t.choice("units", d.units, UNITS),
         scale=t.number("scale", d.scale, _POSITIVE),
         friction=t.number("friction", d.friction, _FRICTION),
+        color=t.colors("color", (None,), (1,))[0],
         where=t.where,
     )
 

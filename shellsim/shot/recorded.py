@@ -10,6 +10,7 @@ cage. Colliders are rebuilt from the scene's record as the solver saw them
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,8 +18,16 @@ import numpy as np
 
 from neural.errors import InputError
 
-#: Albedo of the mesh bodies of a scene, in the order of its bodies (cycled).
+#: Albedo of the mesh bodies of a scene that set no ``color``, in the order of its bodies (cycled).
 MESH_BODY_COLORS = ((0.25, 0.50, 0.80), (0.85, 0.40, 0.30), (0.40, 0.68, 0.38), (0.82, 0.70, 0.25))
+
+
+def body_color(color, k: int, mesh: bool) -> tuple | None:
+    """How the ``k``-th body of a scene is coloured: a mesh body's albedo (its ``color``, else the ``k``-th
+    of :data:`MESH_BODY_COLORS`), an asset body's tint (its ``color``; None: none)."""
+    if color is not None:
+        return tuple(float(c) for c in color)
+    return MESH_BODY_COLORS[k % len(MESH_BODY_COLORS)] if mesh else None
 
 
 @dataclass
@@ -27,7 +36,8 @@ class MotionBody:
     ``placement`` (:class:`shellsim.world.Placement`, asset frame -> world); ``asset`` and ``cage`` (asset
     frame) of a neural body, else None; ``surface_tet`` (S,), ``surface_bary`` (S, 4), ``surface_faces``
     (F, 3) its visible surface carried by its own cage's tets, whose cage vertices are ``surface_corners``
-    (S, 4); ``color`` (3,) a mesh body's albedo."""
+    (S, 4); ``mesh`` whether it is a mesh body; ``color`` (3,) a mesh body's albedo or a neural body's tint
+    (None: none), :func:`body_color`."""
 
     name: str
     vertices: slice
@@ -38,7 +48,8 @@ class MotionBody:
     surface_bary: np.ndarray
     surface_faces: np.ndarray
     surface_corners: np.ndarray
-    color: tuple
+    mesh: bool
+    color: tuple | None
 
     def surface_points(self, positions: np.ndarray) -> np.ndarray:
         """(S, 3) its surface's vertices where its cage vertices are ``positions`` (V_b, 3)."""
@@ -64,6 +75,19 @@ class SceneMotion:
     def body_positions(self, positions: np.ndarray) -> list[np.ndarray]:
         """Each body's share (V_b, 3) of a frame's world ``positions`` (V, 3)."""
         return [positions[b.vertices] for b in self.bodies]
+
+    def as_file_says(self, spec) -> SceneMotion:
+        """This scene with the cameras, the look and the colours (of bodies and colliders) of ``spec``, the
+        :class:`~shellsim.shot.spec.SceneSpec` of its scene file as it is now: none of them changes the
+        motion."""
+        colors = {b.name: b.color for b in spec.bodies}
+        bodies = [
+            dataclasses.replace(b, color=body_color(colors.get(b.name), k, b.mesh))
+            for k, b in enumerate(self.bodies)
+        ]
+        return dataclasses.replace(
+            self, bodies=bodies, colliders=list(spec.colliders), cameras=list(spec.cameras), look=spec.look
+        )
 
 
 def motion_path(path) -> Path:
@@ -121,10 +145,21 @@ def read_scene_motion(path, load_assets: bool = True) -> SceneMotion:
                     f"({record['cage'][:12]}; rebuilt since?); make the scene again"
                 )
         corners = (info.tets[t_lo:t_hi] - lo)[tet]
-        color = MESH_BODY_COLORS[k % len(MESH_BODY_COLORS)]
+        mesh = "name" not in source
+        color = body_color(specs.get(name, {}).get("color"), k, mesh)
         bodies.append(
             MotionBody(
-                name, slice(lo, hi), placement, asset, cage, tet, surface.bary[mine], faces, corners, color
+                name,
+                slice(lo, hi),
+                placement,
+                asset,
+                cage,
+                tet,
+                surface.bary[mine],
+                faces,
+                corners,
+                mesh,
+                color,
             )
         )
     colliders = [ColliderSpec(**_tuples(c)) for c in settings.get("colliders", [])]

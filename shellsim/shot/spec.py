@@ -37,6 +37,7 @@ class WorldSpec:
     drag: float = 0.0  # velocity drag [1/s]
     contact_gap: float = CONTACT_GAP  # the barrier's activation distance dhat [m]
     friction_velocity: float = FRICTION_VELOCITY  # sliding speed below which friction is smoothed [m/s]
+    settle: float = 0.0  # [s] simulated before frame 0 with gravity, contact and pins only, strongly damped
 
     @property
     def duration(self) -> float:
@@ -62,7 +63,9 @@ class BodySpec:
     (degrees about the world x, y, then z axes, through its bounding-box centre), and moved so the bottom
     centre of its bounding box is at ``position``. ``material`` is a preset of
     :mod:`shellsim.physics.materials`; ``youngs`` [Pa], ``poisson``, ``density`` [kg/m^3] override it.
-    ``velocity`` [m/s] and ``spin`` [rad/s, about the centre of mass] start it moving.
+    ``velocity`` [m/s] and ``spin`` [rad/s, about the centre of mass] start it moving. ``color`` is a mesh
+    body's albedo (None: :data:`shellsim.shot.recorded.MESH_BODY_COLORS`) and an asset body's tint, which
+    multiplies its field's colours (None: none).
     """
 
     name: str
@@ -81,6 +84,7 @@ class BodySpec:
     velocity: Vec3 = (0.0, 0.0, 0.0)
     spin: Vec3 = (0.0, 0.0, 0.0)
     up: Vec3 | None = None  # an asset's up axis in its own frame; None: the asset's
+    color: RGB | None = None  # a mesh's albedo, an asset's tint; None: the palette's, no tint
     cage: CageSpec = field(default_factory=CageSpec)
     where: str = ""  # "FILE: [[body]] #k (NAME)"
 
@@ -91,7 +95,8 @@ class ColliderSpec:
 
     box: ``half_extents`` [m]; sphere: ``radius`` [m]; mesh: ``mesh`` (resolved path), ``units`` and ``scale``
     (a factor on top of the units). Each is rotated by ``rotation`` (degrees about world x, y, z through its
-    centre) and its centre put at ``position`` [m] (a mesh's centre is its bounding-box centre).
+    centre) and its centre put at ``position`` [m] (a mesh's centre is its bounding-box centre). ``color``:
+    its albedo (None: the look's ``collider_color``).
     """
 
     name: str
@@ -104,6 +109,7 @@ class ColliderSpec:
     units: str = "m"
     scale: float = 1.0
     friction: float = 0.5
+    color: RGB | None = None
     where: str = ""
 
 

@@ -280,7 +280,7 @@ class NeuralPicture:
         from neural.asset import load_asset
         from shellsim.film.shot_frames import scene_renderer
         from shellsim.film.world import look_of
-        from shellsim.shot.recorded import MESH_BODY_COLORS
+        from shellsim.shot.recorded import body_color
 
         look = look_of(spec.look, True) if look is None else look
         start, records, neural, meshes = 0, [], [], []
@@ -288,12 +288,15 @@ class NeuralPicture:
             rows = slice(start, start + len(body.rest))
             start = rows.stop
             asset = None if body.spec.asset is None else load_asset(body.spec.asset)
-            records.append(SimpleNamespace(asset=asset, cage=body.cage, placement=body.placement))
+            color = body_color(body.spec.color, k, asset is None)
+            records.append(
+                SimpleNamespace(asset=asset, cage=body.cage, placement=body.placement, color=color)
+            )
             if asset is not None:
                 neural.append((rows, body.placement))
             else:
                 s = body.surface
-                meshes.append((rows, s.bary, s.corners, s.faces, MESH_BODY_COLORS[k % len(MESH_BODY_COLORS)]))
+                meshes.append((rows, s.bary, s.corners, s.faces, color))
         scene = SimpleNamespace(bodies=records, colliders=list(spec.colliders), ground=spec.world.ground)
         return cls(scene_renderer(scene, device, look), neural, meshes, settings)
 

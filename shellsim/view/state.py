@@ -41,8 +41,8 @@ class BodyView:
     vertex's tet, ``bary`` (P, 4) its barycentric coordinates; ``faces`` (F, 3) of the displayed mesh;
     ``color`` (3,) albedo in [0, 1]; ``tets`` (T_b, 4) its cage's tets (into its own vertices);
     ``placement`` (:class:`shellsim.world.Placement`, asset frame -> world); ``colors`` (P, 3) float32
-    per-vertex colours (an asset's M+ from its field, :func:`shellsim.film.shell_colors.shell_colors`) or
-    None; ``asset`` the neural asset or None (a mesh body)."""
+    per-vertex colours (an asset's M+ from its field, :func:`shellsim.film.shell_colors.shell_colors`, times
+    its ``tint`` (3,) when it has one) or None; ``asset`` the neural asset or None (a mesh body)."""
 
     name: str
     vertices: slice
@@ -55,6 +55,7 @@ class BodyView:
     placement: object = None
     colors: np.ndarray | None = None
     asset: object = None
+    tint: tuple | None = None
 
     def displayed(self, positions: np.ndarray) -> np.ndarray:
         """(P, 3) float64 the displayed vertices where the body's cage vertices are ``positions`` (V_b, 3)."""
@@ -192,6 +193,8 @@ class ViewState:
                     log.warning("%s: shown in one colour: %s", b.name, err)
                     done[key] = None
             b.colors = done[key]
+            if b.colors is not None and b.tint is not None:
+                b.colors = (b.colors * np.asarray(b.tint, np.float32)).astype(np.float32)
 
     def ground(self):
         """The ground checker as two meshes ``((vertices, faces), (vertices, faces))``, one per colour of
@@ -303,7 +306,7 @@ def _built_bodies(spec):
     loaded or built, cached) and placed, as the scene job places them: ``(views, bodies, n_vertices)``,
     their :class:`BodyView` and :class:`~shellsim.shot.bodies.SceneBody`."""
     from shellsim.shot.bodies import build_body, lowest_start
-    from shellsim.shot.recorded import MESH_BODY_COLORS
+    from shellsim.shot.recorded import MESH_BODY_COLORS, body_color
 
     lift = lowest_start(spec.world)
     views, built, start = [], [], 0
@@ -318,7 +321,7 @@ def _built_bodies(spec):
         else:
             asset, s = None, body.surface
             corners, bary, faces = s.corners, s.bary, np.asarray(s.faces, np.int64)
-        color = MESH_BODY_COLORS[k % len(MESH_BODY_COLORS)]
+        color = body_color(body_spec.color, k, asset is None)
         views.append(
             BodyView(
                 body.name,
@@ -327,10 +330,11 @@ def _built_bodies(spec):
                 np.asarray(corners, np.int64),
                 np.asarray(bary, np.float64),
                 faces,
-                color,
+                color or MESH_BODY_COLORS[k % len(MESH_BODY_COLORS)],
                 body.tets,
                 body.placement,
                 asset=asset,
+                tint=None if asset is None else color,
             )
         )
         start += n
@@ -406,7 +410,7 @@ def motion_state(target) -> ViewState:
     """A motion file's :class:`ViewState`: a scene motion's bodies (:mod:`shellsim.shot.recorded`), else one
     body shown by the motion's surface (or its cage's boundary)."""
     from shellsim.motion.read import read_motion_info
-    from shellsim.shot.recorded import is_scene_motion, motion_path, read_scene_motion
+    from shellsim.shot.recorded import MESH_BODY_COLORS, is_scene_motion, motion_path, read_scene_motion
     from shellsim.world import WorldLook
 
     path = motion_path(target)
@@ -419,7 +423,7 @@ def motion_state(target) -> ViewState:
         return state
     scene = read_scene_motion(path)
     bodies = []
-    for b, record in zip(scene.bodies, info.asset["bodies"], strict=True):
+    for k, (b, record) in enumerate(zip(scene.bodies, info.asset["bodies"], strict=True)):
         rest = np.asarray(info.rest_vertices[b.vertices], np.float64)
         t_lo, t_hi = record["tets"]
         tets = np.asarray(info.tets[t_lo:t_hi], np.int64) - b.vertices.start
@@ -431,7 +435,17 @@ def motion_state(target) -> ViewState:
             corners, bary, faces = b.surface_corners, b.surface_bary, b.surface_faces
         bodies.append(
             BodyView(
-                b.name, b.vertices, rest, corners, bary, faces, b.color, tets, b.placement, asset=b.asset
+                b.name,
+                b.vertices,
+                rest,
+                corners,
+                bary,
+                faces,
+                b.color or MESH_BODY_COLORS[k % len(MESH_BODY_COLORS)],
+                tets,
+                b.placement,
+                asset=b.asset,
+                tint=None if b.asset is None else b.color,
             )
         )
     colliders = []

@@ -3,8 +3,8 @@ iteration, their sparsity patterns mostly alike from one to the next (the cage's
 
 Two ways, the faster where it is installed:
 
-- ``"cholesky"``: MKL Pardiso's supernodal sparse Cholesky (``pypardiso``'s binding, multithreaded), on the
-  upper triangle with METIS ordering. The ordering and symbolic analysis are kept while the pattern holds
+- ``"cholesky"``: MKL Pardiso's supernodal sparse Cholesky (``pypardiso``'s binding; sequential MKL, see
+  :func:`pardiso_solver`), on the upper triangle with METIS ordering. The ordering and symbolic analysis are kept while the pattern holds
   (a contact between bodies changes it), so an iteration costs one numeric factorisation and one solve.
 - ``"cg"``: SciPy only. Conjugate gradients preconditioned by the exact factorisation (SuperLU,
   minimum-degree ordering of ``A^T + A``, symmetric pivoting) of an earlier ``H``, refactored from the
@@ -41,6 +41,10 @@ def pardiso_solver():
     named there first: from the ``mkl`` package's file list, else as the first solver found it."""
     import pypardiso
 
+    # one thread: on 2 cores shared with Warp, ipctk (TBB) and torch (GNU OpenMP), MKL's own OpenMP runtime
+    # ran 2-3x slower than sequential whenever another thread was busy, and two OpenMP runtimes in one
+    # process can hang (docs/measurements.md)
+    os.environ.setdefault("MKL_THREADING_LAYER", "SEQUENTIAL")
     if "PYPARDISO_MKL_RT" not in os.environ:
         from importlib import metadata
 
@@ -112,7 +116,7 @@ class PardisoCholesky:
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """(n,) the solution for ``rhs`` (n,) with the last factorisation."""
-        return self._call(33, self._upper, rhs)
+        return self._call(33, self._upper, np.ascontiguousarray(rhs, dtype=np.float64).ravel())
 
 
 def _release(solver) -> None:

@@ -4,8 +4,9 @@ iteration, their sparsity patterns mostly alike from one to the next (the cage's
 Two ways, the faster where it is installed:
 
 - ``"cholesky"``: MKL Pardiso's supernodal sparse Cholesky (``pypardiso``'s binding; sequential MKL, see
-  :func:`pardiso_solver`), on the upper triangle with METIS ordering. The ordering and symbolic analysis are kept while the pattern holds
-  (a contact between bodies changes it), so an iteration costs one numeric factorisation and one solve.
+  :func:`pardiso_solver`), on the upper triangle with METIS ordering. The ordering and symbolic analysis are
+  kept while the pattern holds (a contact between bodies changes it), so an iteration costs one numeric
+  factorisation and one solve.
 - ``"cg"``: SciPy only. Conjugate gradients preconditioned by the exact factorisation (SuperLU,
   minimum-degree ordering of ``A^T + A``, symmetric pivoting) of an earlier ``H``, refactored from the
   current one when CG would need more than :data:`REUSE_ITERATIONS`.

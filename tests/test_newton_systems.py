@@ -62,6 +62,34 @@ def test_cholesky_keeps_its_analysis_while_the_pattern_holds():
     assert systems.factorisations == 3
 
 
+def coupling(n: int, i: int, j: int, stiffness: float) -> sp.csr_matrix:
+    """(n, n) a spring between unknowns ``i`` and ``j``: a contact's PSD term."""
+    matrix = sp.lil_matrix((n, n))
+    matrix[i, i] = matrix[j, j] = stiffness
+    matrix[i, j] = matrix[j, i] = -stiffness
+    return matrix.tocsr()
+
+
+@pytest.mark.parametrize("method", [pytest.param("cholesky", marks=needs_pardiso), "cg"])
+def test_contacts_that_come_and_go_are_solved_with_the_cages_and_analysed_once_each(method):
+    """The cages' part keeps its pattern, the contacts' changes: each system is solved exactly, and Cholesky
+    analyses again only when a coupling it has not seen appears (its pattern is the union seen so far)."""
+    systems = NewtonSystems(method, rtol=1e-12)
+    base = grid_stiffness(5, 0.5)
+    rng = np.random.default_rng(4)
+    contacts = [coupling(125, 0, 124, 2.0), None, coupling(125, 3, 77, 1.0), coupling(125, 0, 124, 5.0)]
+    analyses = []
+    for extra in contacts:
+        rhs = rng.normal(size=125)
+        whole = base if extra is None else base + extra
+        got = systems.solve(given(systems, base), rhs, None if extra is None else given(systems, extra))
+        np.testing.assert_allclose(got, np.linalg.solve(whole.toarray(), rhs), rtol=1e-8, atol=1e-12)
+        if systems._cholesky is not None:
+            analyses.append(systems._cholesky.analyses)
+    if method == "cholesky":
+        assert analyses == [1, 1, 2, 2]
+
+
 @pytest.mark.parametrize("method", [pytest.param("cholesky", marks=needs_pardiso), "cg"])
 def test_resolve_reuses_the_last_factorisation(method):
     systems = NewtonSystems(method, rtol=1e-12)

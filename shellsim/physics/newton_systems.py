@@ -30,6 +30,9 @@ log = logging.getLogger(__name__)
 #: Conjugate-gradient iterations a Newton system may take with an earlier Hessian's factorisation as its
 #: preconditioner before the current Hessian is factorised (``"cg"``).
 REUSE_ITERATIONS = 25
+#: The analysed pattern of :class:`PardisoCholesky` restarts from the current matrix's when it holds more
+#: than this many times the current matrix's entries.
+UNION_GROWTH = 1.2
 #: The hint when ``pypardiso`` cannot be loaded.
 PARDISO_HINT = "pypardiso (MKL) is not installed: Newton systems use SciPy's SuperLU, several times slower"
 
@@ -71,9 +74,18 @@ def pardiso_available() -> bool:
     return True
 
 
+def _keys(upper: sp.csr_matrix) -> np.ndarray:
+    """(nnz,) ``row * n + column`` of each entry stored in ``upper`` (n, n), ascending (sorted CSR)."""
+    rows = np.repeat(np.arange(upper.shape[0], dtype=np.int64), np.diff(upper.indptr))
+    return rows * upper.shape[0] + upper.indices
+
+
 class PardisoCholesky:
-    """Pardiso's Cholesky of SPD matrices given by their upper triangle (CSR, sorted indices): the analysis
-    (METIS ordering, symbolic factorisation) is redone only when the pattern changes."""
+    """Pardiso's Cholesky of SPD matrices given by their upper triangle (CSR, sorted indices) as a ``base``
+    part, whose pattern is fixed over many matrices (the cages'), and an ``extra`` part with a few entries
+    that come and go (the contacts'). The analysis (METIS ordering, symbolic factorisation) is of the union of
+    the patterns seen since the base's last changed, the missing entries stored as zeros: it is redone only
+    when an extra entry is new, and the union restarts when it outgrows the matrix by :data:`UNION_GROWTH`."""
 
     def __init__(self):
         import pypardiso
@@ -82,7 +94,11 @@ class PardisoCholesky:
         solver.set_iparm(1, 1)  # these parameters, not the defaults
         solver.set_iparm(2, 2)  # METIS nested dissection
         self._error = pypardiso.pardiso_wrapper.PyPardisoError
-        self._pattern: tuple[np.ndarray, np.ndarray] | None = None
+        self._base: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # indptr, indices, keys
+        self._union: np.ndarray | None = None  # keys of the analysed pattern
+        self._pattern: tuple[np.ndarray, np.ndarray, np.ndarray] | None = (
+            None  # its indptr, indices; base's places
+        )
         self._upper: sp.csr_matrix | None = None
         self.analyses = 0
         weakref.finalize(self, _release, solver)
@@ -91,21 +107,49 @@ class PardisoCholesky:
         self._solver.set_phase(phase)
         return self._solver._call_pardiso(upper, rhs)
 
-    def factor(self, upper: sp.csr_matrix) -> bool:
-        """Factorises the matrix whose upper triangle is ``upper`` (n, n); False when it is not positive
-        definite (or Pardiso fails otherwise)."""
-        zero = np.zeros(upper.shape[0])
-        same = self._pattern is not None and (
-            np.array_equal(self._pattern[0], upper.indptr) and np.array_equal(self._pattern[1], upper.indices)
-        )
+    def factor(self, base: sp.csr_matrix, extra: sp.csr_matrix | None = None) -> bool:
+        """Factorises the matrix whose upper triangle is ``base + extra`` (n, n); False when it is not
+        positive definite (or Pardiso fails otherwise)."""
+        n = base.shape[0]
+        if self._base is None or not (
+            np.array_equal(self._base[0], base.indptr) and np.array_equal(self._base[1], base.indices)
+        ):
+            self._base = (base.indptr.copy(), base.indices.copy(), _keys(base))
+            self._union = None
+        base_keys = self._base[2]
+        extra_keys = _keys(extra) if extra is not None and extra.nnz else np.zeros(0, np.int64)
+        union = self._union
+        if union is not None and len(extra_keys):
+            places = np.minimum(np.searchsorted(union, extra_keys), len(union) - 1)
+            if not np.array_equal(union[places], extra_keys):
+                union = np.union1d(union, extra_keys)
+                if len(union) > UNION_GROWTH * (len(base_keys) + len(extra_keys)):
+                    union = None
+        if union is None:
+            union = np.union1d(base_keys, extra_keys)
+        if union is not self._union:
+            rows, columns = np.divmod(union, n)
+            indptr = np.zeros(n + 1, np.int64)
+            np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+            self._pattern = (
+                indptr.astype(np.int32),
+                columns.astype(np.int32),
+                np.searchsorted(union, base_keys),
+            )
+        data = np.zeros(len(union))
+        data[self._pattern[2]] = base.data
+        if len(extra_keys):
+            data[np.searchsorted(union, extra_keys)] += extra.data
+        upper = sp.csr_matrix((data, self._pattern[1], self._pattern[0]), shape=(n, n))
+        zero = np.zeros(n)
         try:
-            if not same:
+            if union is not self._union:
                 self._call(11, upper, zero)
-                self._pattern = (upper.indptr.copy(), upper.indices.copy())
+                self._union = union
                 self.analyses += 1
             self._call(22, upper, zero)
         except self._error:
-            self._pattern = self._upper = None
+            self._union = self._upper = None
             return False
         self._upper = upper
         return True
@@ -152,17 +196,24 @@ class NewtonSystems:
         self._factor = None  # "cg": the SuperLU factorisation serving as preconditioner
         self.factorisations = 0
 
-    def solve(self, matrix: sp.spmatrix, rhs: np.ndarray) -> np.ndarray:
-        """``d`` (n,) of the symmetric matrix given by ``matrix`` (n, n; its :attr:`triangle`) and ``rhs``
-        (n,) (``"cg"``: ``|H d - r| <= rtol |r|``); all nan where it cannot be factorised. A matrix Cholesky
-        refuses (not positive definite in floating point) goes the ``"cg"`` way."""
+    def solve(self, matrix: sp.spmatrix, rhs: np.ndarray, extra: sp.spmatrix | None = None) -> np.ndarray:
+        """``d`` (n,) of the symmetric matrix ``matrix + extra`` (n, n; each given by its :attr:`triangle`;
+        ``extra`` a few entries whose pattern changes, the contacts') and ``rhs`` (n,) (``"cg"``:
+        ``|H d - r| <= rtol |r|``); all nan where it cannot be factorised. A matrix Cholesky refuses (not
+        positive definite in floating point) goes the ``"cg"`` way."""
         if self._cholesky is None:
-            return self._preconditioned_cg(matrix.tocsc(), rhs)
+            full = matrix if extra is None else matrix + extra
+            return self._preconditioned_cg(full.tocsc(), rhs)
         upper = sp.csr_matrix(matrix)
         upper.sort_indices()
+        if extra is not None:
+            extra = sp.csr_matrix(extra)
+            extra.sort_indices()
         self.factorisations += 1
-        if self._cholesky.factor(upper):
+        if self._cholesky.factor(upper, extra):
             return self._cholesky.solve(rhs)
+        if extra is not None:
+            upper = upper + extra
         full = upper + sp.triu(upper, k=1).T
         return self._preconditioned_cg(full.tocsc(), rhs)
 

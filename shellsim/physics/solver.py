@@ -178,16 +178,15 @@ class Solver:
                 if chord is not None and np.linalg.norm(chord, axis=1).max(initial=0.0) <= tol:
                     stats.converged = True
                     break
-            hessian = self._hessian(x, steps)
+            hessian, contact_hessian = self._hessian(x, steps), None
             if contact is not None:
                 contact_hessian = contact.hessian(x)
                 if keep_free is not None:
                     contact_hessian = keep_free @ contact_hessian @ keep_free
                 if self.systems.triangle == "upper":
                     contact_hessian = sp.triu(contact_hessian, format="csr")
-                hessian = hessian + contact_hessian
             stats.hessians += 1
-            d = self._direction(self.systems.solve(hessian, rhs.ravel()), rhs, pinned)
+            d = self._direction(self.systems.solve(hessian, rhs.ravel(), contact_hessian), rhs, pinned)
             if d is None:
                 return stats
             length = float(np.linalg.norm(d, axis=1).max(initial=0.0))

@@ -144,6 +144,12 @@ class PardisoCholesky:
         zero = np.zeros(n)
         try:
             if union is not self._union:
+                # METIS's ordering of the base's first pattern serves the unions that grow from it
+                # (Pardiso then skips the ordering, the costlier half of an analysis)
+                reorder = self._union is None or self._solver.perm.shape != (n,)
+                if reorder:
+                    self._solver.perm = np.zeros(n, np.int32)
+                self._solver.set_iparm(5, 2 if reorder else 1)  # return the ordering, or use it
                 self._call(11, upper, zero)
                 self._union = union
                 self.analyses += 1

@@ -4,6 +4,7 @@ marked, and "Simulate in place" streaming frames into the timeline."""
 
 from __future__ import annotations
 
+import logging
 import time
 import urllib.request
 
@@ -284,3 +285,29 @@ def test_moving_a_collider_and_a_body_edits_only_their_poses_and_save_reopens_th
     assert name == "wall"
     np.testing.assert_allclose(0.5 * (vertices.min(0) + vertices.max(0)), (1.2, 0.1, 0.2), atol=1e-9)
     np.testing.assert_allclose(viewer.displayed("r").mean(0), rod.mean(0) + [0.0, 0.3, 0.0], atol=1e-3)
+
+
+def test_a_hostile_message_from_a_page_is_dropped_with_a_log_line_and_the_server_goes_on(
+    shot, viewer, caplog
+):
+    """Messages the page's controls deliver (through the callbacks viser holds for them) carrying what no
+    honest page sends: a frame number that is not a number, a body to move that the scene does not have.
+    Each is dropped with one warning, and the viewer still serves its page and shows frames."""
+    from types import SimpleNamespace
+
+    viewer.open(shot())
+    for key, value, what in (("frame", float("nan"), "timeline"), ("move", "../../etc/passwd", "move")):
+        handle = viewer._gui[key]
+        handle._impl.value = value  # what a page's malformed update leaves in the handle
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="shellsim.view.viewer"):
+            for callback in handle._impl.update_cb:
+                callback(SimpleNamespace(client=None, target=handle))
+        dropped = [
+            r.getMessage() for r in caplog.records if "dropped a message from a page" in r.getMessage()
+        ]
+        assert len(dropped) == 1 and f"({what})" in dropped[0]
+    viewer._gui["frame"]._impl.value = 0
+    viewer.frame(0)
+    with urllib.request.urlopen(viewer.url, timeout=10) as response:
+        assert "<html" in response.read().decode().lower()

@@ -271,6 +271,20 @@ class Viewer:
                     best = (distance, body.name, hit)
         return None if best is None else (best[1], best[2])
 
+    @staticmethod
+    def _from_page(what: str, handler):
+        """``handler`` of a page's message (``what``), made safe: whatever it raises drops the message with
+        one log line, and the server keeps running (a page may be malformed or hostile)."""
+
+        def guarded(*args):
+            try:
+                return handler(*args)
+            except Exception as err:  # noqa: BLE001 - no message from a page may stop the server
+                log.warning("dropped a message from a page (%s): %s: %s", what, type(err).__name__, err)
+                return None
+
+        return guarded
+
     def _clicked_scene(self, event) -> None:
         """In live mode a click on a body starts a poke there: arrows at the picked point drag its target."""
         if self.live is None or self._stop.is_set():
@@ -284,7 +298,12 @@ class Viewer:
         handle = self.server.scene.add_transform_controls(
             "/poke/target", position=tuple(point), disable_rotations=True, scale=max(0.05, 0.4 * extent)
         )
-        handle.on_update(lambda update: self.live is not None and self.live.move(np.asarray(handle.position)))
+        handle.on_update(
+            self._from_page(
+                "poke target",
+                lambda update: self.live is not None and self.live.move(np.asarray(handle.position)),
+            )
+        )
         self._handles["/poke/target"] = handle
         if "release" in self._gui:
             self._gui["release"].disabled = False
@@ -403,8 +422,7 @@ class Viewer:
             scale=max(0.05, 0.4 * extent),
         )
 
-        @handle.on_drag_end
-        def _(event) -> None:
+        def moved(event) -> None:
             w, x, y, z = handle.wxyz
             degrees = Rotation.from_quat([x, y, z, w]).as_euler("xyz", degrees=True)
             try:
@@ -412,6 +430,7 @@ class Viewer:
             except (ValueError, ShellsimError) as err:
                 self._notify(event.client, "Move", str(err), error=True)
 
+        handle.on_drag_end(self._from_page("move", moved))
         self._handles["/move"] = handle
 
     def _camera_from_view(self, event) -> None:
@@ -516,8 +535,8 @@ class Viewer:
         with contextlib.redirect_stdout(io.StringIO()):  # viser prints a banner; the log says the URL
             self.server = viser.ViserServer(host=self.host, port=self.port, verbose=False)
         self.server.scene.set_up_direction("+z")
-        self.server.on_client_connect(self._client_connected)
-        self.server.scene.on_click()(self._clicked_scene)
+        self.server.on_client_connect(self._from_page("connect", self._client_connected))
+        self.server.scene.on_click()(self._from_page("click", self._clicked_scene))
         if self.host not in LOCAL_HOSTS:
             log.warning(
                 "serving on %s: anyone who can reach port %d can see the shot and drive the viewer "
@@ -602,32 +621,34 @@ class Viewer:
         self._gui["title"] = gui.add_markdown(f"**{title}**")
         n = state.n_frames
         slider = gui.add_slider("Frame", min=0, max=max(n - 1, 1), step=1, initial_value=0, disabled=n <= 1)
-        slider.on_update(lambda event: self._slid(int(slider.value)))
+        slider.on_update(self._from_page("timeline", lambda event: self._slid(int(slider.value))))
         self._gui["frame"] = slider
         play = gui.add_button("Play", disabled=n <= 1)
-        play.on_click(lambda event: self.play(not self._playing.is_set()))
+        play.on_click(self._from_page("play", lambda event: self.play(not self._playing.is_set())))
         self._gui["play"] = play
         if state.kind == "scene":
             button = gui.add_button("Simulate")
-            button.on_click(lambda event: self._clicked_simulate(event, overwrite=False))
+            button.on_click(
+                self._from_page("simulate", lambda event: self._clicked_simulate(event, overwrite=False))
+            )
             self._gui["simulate"] = button
         if state.spec is not None and state.kind in ("scene", "asset"):
             live = gui.add_checkbox("Live (click a body, drag the arrows)", initial_value=False)
-            live.on_update(lambda event: self._toggled_live(event, bool(live.value)))
+            live.on_update(self._from_page("live", lambda event: self._toggled_live(event, bool(live.value))))
             self._gui["live"] = live
             release = gui.add_button("Release the poke", disabled=True)
-            release.on_click(lambda event: self._released(event))
+            release.on_click(self._from_page("release", self._released))
             self._gui["release"] = release
         if state.kind == "scene":
             self._gui["record"] = gui.add_checkbox("Record pokes as pushes", initial_value=False)
             movable = [b.name for b in state.spec.bodies] + [c.name for c in state.spec.colliders]
             move = gui.add_dropdown("Move", options=["(nothing)", *movable], initial_value="(nothing)")
-            move.on_update(lambda event: self._chose_to_move(move.value))
+            move.on_update(self._from_page("move", lambda event: self._chose_to_move(move.value)))
             self._gui["move"] = move
             camera = gui.add_button("Camera from this view")
-            camera.on_click(lambda event: self._camera_from_view(event))
+            camera.on_click(self._from_page("camera from view", self._camera_from_view))
             save = gui.add_button("Save the scene file")
-            save.on_click(lambda event: self._save(event))
+            save.on_click(self._from_page("save", self._save))
             self._gui["save"] = save
         self._gui["status"] = gui.add_markdown("")
         self._status()
@@ -673,7 +694,9 @@ class Viewer:
             button.disabled = sim is not None and sim.poll() is None
         if state.stale and state.kind == "scene" and "anew" not in self._gui:
             anew = self.server.gui.add_button("Simulate anew (replaces the stale motion)")
-            anew.on_click(lambda event: self._clicked_simulate(event, overwrite=True))
+            anew.on_click(
+                self._from_page("simulate anew", lambda event: self._clicked_simulate(event, overwrite=True))
+            )
             self._gui["anew"] = anew
         elif not state.stale and "anew" in self._gui:
             self._gui.pop("anew").remove()
@@ -783,7 +806,7 @@ class Viewer:
             return
         self.picture = picture
         box = self.server.gui.add_checkbox("Meshes only", initial_value=False)
-        box.on_update(lambda event: self._set_meshes_only(box.value))
+        box.on_update(self._from_page("meshes only", lambda event: self._set_meshes_only(box.value)))
         self._gui["meshes_only"] = box
         self._ask_pictures()
 
@@ -803,7 +826,7 @@ class Viewer:
 
     def _client_connected(self, client) -> None:
         self._frame_camera(client)
-        client.camera.on_update(lambda camera: self._ask_picture(client))
+        client.camera.on_update(self._from_page("camera", lambda camera: self._ask_picture(client)))
 
     def _frame_camera(self, client) -> None:
         """Start a new page looking at the bodies from behind the scene file's first camera (its frustum in

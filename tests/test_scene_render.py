@@ -20,7 +20,7 @@ from test_render_deformed import CENTER, camera, make_asset, rotation
 from neural.data import camera_rays
 from neural.metrics import psnr
 from neural.render.bodies import FieldBody
-from neural.render.view import bodies_transmittance, render_bodies
+from neural.render.view import SHADOW_CUTOFF, bodies_transmittance, render_bodies
 from shellsim.world import Placement
 
 FAR = 3.0
@@ -141,14 +141,17 @@ def test_a_ray_costs_only_the_bodies_whose_box_it_crosses():
 
 
 def test_shadow_rays_multiply_the_bodies_transmittance():
-    """A ray through both spheres lets through the product of what each lets through alone."""
+    """A ray through both spheres lets through the product of what each lets through alone (every sample
+    taken: ``cutoff`` 0); stopped once below the cutoff, it stays below it."""
     origins = torch.tensor([[0.0, -1.0, 0.02], [0.5, -1.0, 0.9]], dtype=torch.float32)
     dirs = torch.nn.functional.normalize(torch.tensor([[0.1, 2.0, 0.0], [0.0, 1.0, 0.0]]), dim=1)
     red, blue = body_of(RED, FRAMES[0]), body_of(BLUE, FRAMES[1])
-    both = bodies_transmittance([red, blue], origins, dirs)
-    alone = bodies_transmittance([red], origins, dirs) * bodies_transmittance([blue], origins, dirs)
-    assert torch.allclose(both, alone, atol=1e-6)
+    both = bodies_transmittance([red, blue], origins, dirs, cutoff=0)
+    alone = [bodies_transmittance([b], origins, dirs, cutoff=0) for b in (red, blue)]
+    assert torch.allclose(both, alone[0] * alone[1], atol=1e-6)
     assert both[0] < 1e-3 and both[1] > 0.999  # through both spheres; above them
+    stopped = bodies_transmittance([red, blue], origins, dirs)
+    assert stopped[0] < SHADOW_CUTOFF and stopped[1] == both[1]
 
 
 @pytest.fixture(scope="module")

@@ -332,26 +332,27 @@ def project(
 
 
 def camera_rays(
-    cameras: Cameras, i: int, *, device=None, dtype: torch.dtype = torch.float32
+    cameras: Cameras, i: int, *, device=None, dtype: torch.dtype = torch.float32, pixels=None
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Rays through every pixel centre of camera ``i``, row-major (row 0 first, left to right).
+    """Rays through every pixel centre of camera ``i``, row-major (row 0 first, left to right), or through
+    those of ``pixels`` (P,) int64, their row-major indices (each ray the same as among all).
 
     Returns:
-        origins (H*W, 3), dirs (H*W, 3) unit vectors, torch ``dtype`` on ``device`` (default cpu).
+        origins (H*W or P, 3), dirs (H*W or P, 3) unit vectors, torch ``dtype`` on ``device`` (default cpu).
     """
     if not 0 <= i < len(cameras):
         raise ValueError(f"i: camera index {i} out of range for {len(cameras)} cameras")
     device = torch.device("cpu") if device is None else torch.device(device)
     w, h = int(cameras.width[i]), int(cameras.height[i])
-    rows, cols = torch.meshgrid(
-        torch.arange(h, dtype=torch.float64, device=device),
-        torch.arange(w, dtype=torch.float64, device=device),
-        indexing="ij",
-    )
-    idx = torch.full((h * w,), i, dtype=torch.long, device=device)
-    return pixel_to_ray(
-        cameras, idx, cols.reshape(-1) + 0.5, rows.reshape(-1) + 0.5, device=device, dtype=dtype
-    )
+    if pixels is None:
+        pixels = torch.arange(h * w, device=device)
+    pixels = torch.as_tensor(pixels, device=device)
+    if pixels.ndim != 1 or (len(pixels) and not (0 <= int(pixels.min()) and int(pixels.max()) < h * w)):
+        raise ValueError(f"pixels: expected (P,) indices in [0, {h * w}), got {tuple(pixels.shape)}")
+    rows = torch.div(pixels, w, rounding_mode="floor").double()
+    cols = (pixels % w).double()
+    idx = torch.full((len(pixels),), i, dtype=torch.long, device=device)
+    return pixel_to_ray(cameras, idx, cols + 0.5, rows + 0.5, device=device, dtype=dtype)
 
 
 def _packed_rows(cameras: Cameras, idx: torch.Tensor, device) -> torch.Tensor:

@@ -28,8 +28,8 @@ to rest space. :class:`DeformedRenderer`
    :data:`~neural.render.view.SHADOW_CUTOFF`); the obstacles hide the body's samples behind them, and the
    ground hides the shells below z = 0 (each ray's ``t_max``, the layer's nearest surface).
 
-A frame is built once (:meth:`DeformedRenderer.tracer`: steps 1 and the box of the deformed cage, outside
-which no ray is cast) and traced for any pixels of any view: the passes of anti-aliasing
+A frame is built once (:meth:`DeformedRenderer.tracer`: step 1 and the box of the deformed outer shell,
+outside which no ray is cast) and traced for any pixels of any view: the passes of anti-aliasing
 (:mod:`shellsim.film.antialias`).
 
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
@@ -150,12 +150,12 @@ class DeformedRenderer:
     def field_body(self, positions=None, framed: bool = True):
         """The :class:`neural.render.bodies.FieldBody` of this asset with its cage at ``positions`` (V, 3)
         in the asset's frame (None: at rest): its sampler, map to rest space, placement in the world and the
-        world box of its (deformed) cage, or of its rest outer shell; not ``framed``: in the asset's frame,
-        its box there."""
+        world box of its outer shell (deformed: every sample lies inside it); not ``framed``: in the asset's
+        frame, its box there."""
         from neural.render.bodies import FieldBody
 
         sampler, to_rest = self._frame(positions)
-        points = self.outer.vertices if positions is None else np.asarray(positions, np.float64)
+        points = self.outer.vertices if positions is None else self._deformed.outer_points()
         placed = self.world.to_world(points) if framed else points
         lo, hi = placed.min(0), placed.max(0)
         pad = 1e-6 * (np.linalg.norm(hi - lo) + 1.0)  # a ray grazing the box's face is cast
@@ -202,9 +202,9 @@ class DeformedRenderer:
         """``trace(view, pixels=None) -> (colors (P, 3) float32 in [0, 1], stats)``: the pixels ``pixels``
         (P,) int64 (row-major; None: all) of the one-camera ``view`` (the asset's frame) with the cage at
         ``positions`` (V, 3) (None: at rest), the frame built once for every trace (shells deformed, their
-        BVHs refitted, the inverse map updated). Only rays that cross the (deformed) cage's box are cast
-        against the shells. With a ``look`` the world is behind the body (:func:`trace_world`), its static
-        part kept per view (:class:`~shellsim.film.static.StaticWorld`); a cut asset's room is drawn
+        BVHs refitted, the inverse map updated). Only rays that cross the (deformed) outer shell's box are
+        cast against the shells. With a ``look`` the world is behind the body (:func:`trace_world`), its
+        static part kept per view (:class:`~shellsim.film.static.StaticWorld`); a cut asset's room is drawn
         with it. Stats: :func:`trace_world`'s, the first trace's with ``build_ms``."""
         from neural.render.fullray import ray_background
 

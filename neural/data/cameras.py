@@ -287,16 +287,19 @@ def pixel_to_ray(
             f"cam_idx, px, py: expected three (M,) arrays, got {tuple(idx.shape)}, {tuple(px.shape)}, "
             f"{tuple(py.shape)}"
         )
-    cam = _packed_rows(cameras, idx, device)
+    cam = _packed_rows(cameras, idx, device)  # (M, 20), or (1, 20) for one camera
     x = (px - cam[:, 14]) / cam[:, 12]
     y = (py - cam[:, 15]) / cam[:, 13]
     if cameras.has_distortion:
         x, y = _undistort(x, y, cam[:, 16:20])
     rot = cam[:, :12].reshape(-1, 3, 4)
     local = torch.stack([x, -y, -torch.ones_like(x)], dim=-1)  # OpenCV -> OpenGL camera axes
-    dirs = torch.einsum("mij,mj->mi", rot[:, :, :3], local)
+    if len(cam) == 1:
+        dirs = local @ rot[0, :, :3].T
+    else:
+        dirs = torch.einsum("mij,mj->mi", rot[:, :, :3], local)
     dirs = dirs / dirs.norm(dim=-1, keepdim=True)
-    return rot[:, :, 3].to(dtype), dirs.to(dtype)
+    return rot[:, :, 3].expand(len(dirs), 3).to(dtype).contiguous(), dirs.to(dtype)
 
 
 def project(
@@ -356,8 +359,10 @@ def camera_rays(
 
 
 def _packed_rows(cameras: Cameras, idx: torch.Tensor, device) -> torch.Tensor:
-    """(M, 20) packed camera rows for ``idx`` (M,), range-checked."""
+    """(M, 20) packed camera rows for ``idx`` (M,), range-checked; (1, 20) when there is one camera (the rows
+    would all be its own)."""
     n = len(cameras)
     if idx.numel() and (int(idx.min()) < 0 or int(idx.max()) >= n):
         raise ValueError(f"cam_idx: indices must lie in [0, {n}), got [{int(idx.min())}, {int(idx.max())}]")
-    return cameras._packed(torch.device(device))[idx]
+    packed = cameras._packed(torch.device(device))
+    return packed if n == 1 and idx.numel() else packed[idx]

@@ -79,8 +79,8 @@ def refine_mask(colors: np.ndarray, entered: np.ndarray, threshold: float = ADAP
         pool = torch.nn.functional.max_pool2d
         return pool(x[None], 3, 1, 1)[0] + pool(-x[None], 3, 1, 1)[0]
 
-    rgb = torch.as_tensor(np.ascontiguousarray(colors.transpose(2, 0, 1)), dtype=torch.float64)
-    inside = torch.as_tensor(entered, dtype=torch.float64)[None]
+    rgb = torch.as_tensor(np.ascontiguousarray(colors.transpose(2, 0, 1)), dtype=torch.float32)
+    inside = torch.as_tensor(entered, dtype=torch.float32)[None]
     return ((span(rgb).amax(dim=0) > threshold) | (span(inside)[0] > 0)).numpy()
 
 

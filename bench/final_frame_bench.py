@@ -8,7 +8,8 @@ where its time goes, and what each of the issue's changes gives.
    ``--work``), its frames rendered as ``shellsim render --asset lego --motion M --out D`` renders them
    (``--size`` square, 4 rays per pixel where a pixel's neighbourhood varies, the orbit camera, the ground
    and the body's shadow), through the job's own renderer: ms per frame over ``--frames`` frames spread over
-   the clip, each the least of ``--repeats`` renders (the host's load only adds to a time), and the split of
+   the clip, each the least of ``--repeats`` sweeps over them in order (the host's load only adds to a time;
+   an orbit's views never repeat, so nothing of the static world is kept), and the split of
    a frame: building it (shells deformed, BVHs refitted, inverse map), casting camera rays against the
    shells, mapping samples to rest space, shading and compositing them, the world's static layer, the
    world behind the body, the shadow rays through it, and the anti-aliasing rays (every pass after the
@@ -161,6 +162,19 @@ def best_of(repeats: int, render):
     return min(times), out
 
 
+def sweeps(repeats: int, jobs, render) -> list:
+    """Per job, (the least wall ms of ``render(job)`` over ``repeats`` sweeps over every job, the result of
+    that render): the frames in order, as a shot renders them (an orbit's views never repeat)."""
+    best = [(np.inf, None)] * len(jobs)
+    for _ in range(repeats):
+        for j, job in enumerate(jobs):
+            start = time.perf_counter()
+            out = render(*job)
+            ms = 1000.0 * (time.perf_counter() - start)
+            best[j] = min(best[j], (ms, out), key=lambda pair: pair[0])
+    return best
+
+
 def main_shot(motion: Path, size: int, count: int, repeats: int) -> None:
     """Sections 1 and 2 of the module docstring."""
     import neural.render.view as view_module
@@ -170,48 +184,45 @@ def main_shot(motion: Path, size: int, count: int, repeats: int) -> None:
 
     renderer, jobs = motion_frames(motion, size, count)
     renderer.tracer(jobs[0][1])(jobs[0][0])  # builds the Warp meshes and the inverse map, compiles kernels
+
+    def final(view, positions):
+        timed = Timed(renderer.tracer(positions))
+        image, stats = adaptive(timed, MOTION_ANTIALIAS)(view)
+        return image, stats, timed
+
+    def full(view, positions):
+        trace = renderer.tracer(positions)
+
+        def render(v):
+            colors, stats = trace(v)
+            return colors.numpy().reshape(size, size, 3), stats
+
+        return antialiased(render, MOTION_ANTIALIAS)(view)[0]
+
+    adaptive_runs, full_runs = sweeps(repeats, jobs, final), sweeps(repeats, jobs, full)
+    uncut = functools.partial(view_module.bodies_transmittance, cutoff=0.0)
+    kept, view_module.bodies_transmittance = view_module.bodies_transmittance, uncut
+    try:
+        uncut_runs = sweeps(repeats, jobs, full)
+    finally:
+        view_module.bodies_transmittance = kept
     stages = ("build", "sample", "map", "shade", "static", "world", "shadow")
-    rows = {"adaptive": [], "full": [], "full, shadows uncut": []}
-    split = {s: [] for s in (*stages, "antialias")}
-    quality = []
-    for view, positions in jobs:
-
-        def final(view=view, positions=positions):
-            timed = Timed(renderer.tracer(positions))
-            image, stats = adaptive(timed, MOTION_ANTIALIAS)(view)
-            return image, stats, timed
-
-        def full(view=view, positions=positions):
-            trace = renderer.tracer(positions)
-
-            def render(v):
-                colors, stats = trace(v)
-                return colors.numpy().reshape(size, size, 3), stats
-
-            return antialiased(render, MOTION_ANTIALIAS)(view)
-
-        ms, (image, stats, timed) = best_of(repeats, final)
-        rows["adaptive"].append(ms)
-        for s in stages:
-            split[s].append(timed.first[f"{s}_ms"])
-        split["antialias"].append(timed.more_ms)
-        ms, (whole, _) = best_of(repeats, full)
-        rows["full"].append(ms)
-        uncut = functools.partial(view_module.bodies_transmittance, cutoff=0.0)
-        kept, view_module.bodies_transmittance = view_module.bodies_transmittance, uncut
-        try:
-            rows["full, shadows uncut"].append(best_of(repeats, full)[0])
-        finally:
-            view_module.bodies_transmittance = kept
-        quality.append((psnr(image, whole), stats["refined"], stats["rays_per_pixel"]))
+    split = {s: [timed.first[f"{s}_ms"] for _, (_, _, timed) in adaptive_runs] for s in stages}
+    split["antialias"] = [timed.more_ms for _, (_, _, timed) in adaptive_runs]
     print(f"the main shot, {size}x{size}, {MOTION_ANTIALIAS} rays per pixel, {len(jobs)} frames:")
-    for label, times in rows.items():
+    rows = {"adaptive": adaptive_runs, "full": full_runs, "full, shadows uncut": uncut_runs}
+    for label, runs in rows.items():
+        times = [ms for ms, _ in runs]
         spread = f"{min(times):.0f}-{max(times):.0f}"
         print(f"  {label}: {statistics.median(times):.0f} ms a frame (median; {spread})")
     total = sum(statistics.median(v) for v in split.values())
     print("  where an adaptive frame's time goes (medians; the first pass's stages, then the other passes):")
     for s, v in split.items():
         print(f"    {s}: {statistics.median(v):.0f} ms ({statistics.median(v) / total:.0%})")
+    quality = [
+        (psnr(image, whole), stats["refined"], stats["rays_per_pixel"])
+        for (_, (image, stats, _)), (_, whole) in zip(adaptive_runs, full_runs, strict=True)
+    ]
     psnrs, refined, rays = (np.array(q) for q in zip(*quality, strict=True))
     print(
         f"  adaptive against full supersampling: {psnrs.min():.1f}-{psnrs.max():.1f} dB, "

@@ -63,9 +63,10 @@ def antialiased(render, samples: int):
 
 
 #: :func:`refine_mask`'s bound on the span of colours ([0, 1], each channel) in a pixel's 3x3 neighbourhood of
-#: first rays, above which the pixel gets all its rays: a few 8-bit steps, so that what stays unrefined
-#: differs from full supersampling by less than the eye sees (measured on real frames in
-#: ``bench/scene_render_bench.py --final``).
+#: first rays, above which the pixel gets all its rays: 4 8-bit steps. On a frame of the README's main shot
+#: (512x512, 4 rays) 2/255 refines 36.2% of the pixels, 4/255 36.0%, 8/255 35.6%, 16/255 34.9% (all within
+#: 46.2-46.3 dB of full supersampling): edges, texture and the distant checker span far more; 64/255 leaves
+#: the ground's squares aliased (1.4% of it refined). ``bench/final_frame_bench.py`` measures it.
 ADAPTIVE_THRESHOLD = 4 / 255
 
 

@@ -154,6 +154,27 @@ def test_shadow_rays_multiply_the_bodies_transmittance():
     assert stopped[0] < SHADOW_CUTOFF and stopped[1] == both[1]
 
 
+def test_a_shadow_ray_stops_only_in_the_dark():
+    """Shadow rays through a sphere from its rim to its centre: a ray whose light never falls below the
+    cutoff is what taking every sample gives; one that does stops there, within the cutoff of it, and its
+    later samples are never evaluated."""
+    heights = np.linspace(-0.3, 0.3, 61)  # across the red sphere's silhouette (radius 0.25)
+    origins = torch.tensor([[0.0, -1.0, z] for z in RED[0][2] + heights], dtype=torch.float32)
+    origins[:, 0] += float(RED[0][0])
+    dirs = torch.tensor([[0.0, 1.0, 0.0]]).expand(len(origins), 3).contiguous()
+    full_body = body_of(RED, FRAMES[0], RecordingSphereField, box=True)
+    full = bodies_transmittance([full_body], origins, dirs, cutoff=0)
+    stopped_body = body_of(RED, FRAMES[0], RecordingSphereField, box=True)
+    stopped = bodies_transmittance([stopped_body], origins, dirs)
+    lit = full > SHADOW_CUTOFF
+    assert 10 < int(lit.sum()) < len(full) - 10 and (full[lit] < 0.99).any()  # a soft rim, a dark core
+    assert torch.allclose(stopped[lit], full[lit], atol=1e-6)
+    dark = ~lit
+    assert ((stopped[dark] - full[dark]).abs() < SHADOW_CUTOFF).all()
+    assert (stopped[dark] < SHADOW_CUTOFF).all()
+    assert sum(stopped_body.field.geometry_calls) < 0.8 * sum(full_body.field.geometry_calls)  # measured 0.71
+
+
 @pytest.fixture(scope="module")
 def ball(tmp_path_factory):
     from neural.asset import load_asset, load_field

@@ -76,6 +76,8 @@ class StaticWorld:
         (P,) int64 (row-major; None: all) of the one-camera ``view``: kept from an earlier frame, else drawn
         for every pixel of the view when the frame before asked for it too (and kept while the budget
         allows), else drawn for these rays alone."""
+        import torch
+
         from neural.data import camera_rays
 
         key = view_key(view)
@@ -86,7 +88,8 @@ class StaticWorld:
                 self._layers[key] = self.layer(*camera_rays(view, 0, device=origins.device))
         if key in self._layers:
             self.kept += 1
-            return self._layers[key].select(None if pixels is None else pixels.to(origins.device))
+            rows = None if pixels is None else torch.as_tensor(pixels, device=origins.device)
+            return self._layers[key].select(rows)
         return self.layer(origins, dirs)
 
     def next_frame(self) -> None:

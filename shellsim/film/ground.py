@@ -178,6 +178,13 @@ class StaticLayer:
             return self
         return StaticLayer(*(getattr(self, f.name).index_select(0, rays) for f in fields(self)))
 
+    @classmethod
+    def cat(cls, layers) -> StaticLayer:
+        """The layers ``layers`` of consecutive rays as one."""
+        import torch
+
+        return cls(*(torch.cat([getattr(layer, f.name) for layer in layers]) for f in fields(cls)))
+
     @property
     def nbytes(self) -> int:
         return sum(getattr(self, f.name).nbytes for f in fields(self))

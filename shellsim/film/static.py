@@ -29,6 +29,10 @@ if TYPE_CHECKING:
 LAYER_BUDGET = 256 * 2**20
 
 
+#: Rays a static layer is drawn for at once.
+LAYER_CHUNK = 65536
+
+
 def view_key(view: Cameras) -> str:
     """Digest of what the rays of a one-camera ``view`` depend on: camera-to-world, intrinsics, size and
     distortion."""
@@ -65,11 +69,22 @@ class StaticWorld:
         self.kept = self.drawn = 0
 
     def layer(self, origins, dirs) -> StaticLayer:
-        """The :class:`StaticLayer` of rays ``origins``, ``dirs`` (R, 3) of the renderer's frame, drawn."""
+        """The :class:`StaticLayer` of rays ``origins``, ``dirs`` (R, 3) of the renderer's frame, drawn
+        :data:`LAYER_CHUNK` rays at a time (its float64 work stays that small)."""
         self.drawn += 1
-        return static_layer(
-            self.look, self.frame, origins, dirs, self.obstacles, self.meshes, self.sky_colors
-        )
+        parts = [
+            static_layer(
+                self.look,
+                self.frame,
+                origins[i : i + LAYER_CHUNK],
+                dirs[i : i + LAYER_CHUNK],
+                self.obstacles,
+                self.meshes,
+                self.sky_colors,
+            )
+            for i in range(0, max(len(origins), 1), LAYER_CHUNK)
+        ]
+        return parts[0] if len(parts) == 1 else StaticLayer.cat(parts)
 
     def view_layer(self, view: Cameras, pixels, origins, dirs) -> StaticLayer:
         """The :class:`StaticLayer` of the rays ``origins``, ``dirs`` (P, 3) through the pixels ``pixels``

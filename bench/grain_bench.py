@@ -1,6 +1,6 @@
 """Grain at the size users render: an asset's held-out views rendered at SIZE x SIZE (its narrow-band
 renderer, what ``shellsim render`` draws at rest) with one ray through each pixel centre and with K jittered
-rays per pixel (:func:`shellsim.film.motion_frames.antialiased`), against the photos area-resized to that size
+rays per pixel (:func:`shellsim.film.antialias.antialiased`), against the photos area-resized to that size
 (the dataset loader's box filter).
 
 With ``--full-ray`` it also renders the field along whole rays (one per pixel), which tells grain of the
@@ -102,7 +102,7 @@ def main() -> None:
     from neural.data import load_dataset
     from neural.device import processor
     from neural.render.view import asset_sampler, full_ray_sampler, render_camera
-    from shellsim.film.motion_frames import antialiased
+    from shellsim.film.antialias import antialiased
 
     asset = load_asset(args.asset)
     field = load_field(asset, args.device)

@@ -29,9 +29,11 @@ TETWILD_PER_TET = 1050
 LOAD_PER_FACE = 430
 #: fTetWild, per face of its input: its envelope and AABB tree, measured (between 1,280 and 81,920 faces).
 TETWILD_PER_FACE = 500
-#: Rendering, per pixel of a frame: the camera's rays (float64) and their float32 tensors, colours and
-#: sample counts per chunk and concatenated, the frame as float32 and as 8-bit, the PNG encoder's rows:
-#: 300 B measured between 512x512 and 1536x1536 (a LEGO frame on a CPU).
+#: Rendering, per pixel of a frame: the camera's rays, colours and sample counts per chunk and concatenated,
+#: the world's static layer of each view (kept for a fixed camera's 4 anti-aliasing views), the sums of the
+#: anti-aliasing rays, the frame as float32 and as 8-bit, the PNG encoder's rows: 291 B measured between
+#: 512x512 and 1536x1536 (the LEGO drawn in the world, 4 rays, two frames of one view; 2026-12-07; 510 B
+#: before the static layer was drawn in chunks and a camera's rows were gathered for every ray).
 RENDER_PER_PIXEL = 300
 #: Rendering, fixed: the field, the shells' BVH and one chunk of samples through the networks (measured).
 RENDER_BASE = 400_000_000

@@ -126,7 +126,7 @@ def test_render_from_python_writes_the_cli_frames(ball, tmp_path):
     assert result.out == out and result.frames == tuple(sorted(out.iterdir()))
     assert (result.rendered, result.skipped, result.replaced, result.video) == (3, 0, 0, None)
     assert result.ms > 0 and result.samples_per_pixel > 0
-    assert set(result.stage_ms) == {"build", "sample", "map", "shade", "world"}
+    assert set(result.stage_ms) == {"build", "sample", "map", "shade", "world", "static", "shadow"}
     again = shellsim.render(settings)
     assert (again.rendered, again.skipped, again.replaced) == (0, 3, 0)
     assert (again.ms, again.samples_per_pixel, again.stage_ms) == (None, None, {})

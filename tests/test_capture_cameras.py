@@ -86,12 +86,13 @@ def rendered_rays(monkeypatch, tmp_path, cameras, *size) -> list[tuple[np.ndarra
     """Per camera, in file order, the (origins, dirs) (H*W, 3) that ``shellsim render --cameras`` renders."""
     seen = []
 
-    def spy(field, origins, dirs, *args, **kwargs):
+    def spy(bodies, origins, dirs, *args, **kwargs):
         seen.append((origins.double().numpy(), dirs.double().numpy()))
         n = len(origins)
-        return torch.zeros(n, 3), {"counts": np.zeros(n, np.int64), "samples_per_pixel": 0.0}
+        stats = {f"{stage}_ms": 0.0 for stage in neural.render.view.STAGES}
+        return torch.zeros(n, 3), {**stats, "counts": np.zeros(n, np.int64), "samples_per_pixel": 0.0}
 
-    monkeypatch.setattr(neural.render.view, "render_pixels", spy)
+    monkeypatch.setattr(neural.render.view, "render_bodies", spy)
     asset = make_asset(tmp_path / "asset")
     args = ["render", "--asset", str(asset), "--cameras", str(cameras), "--out", str(tmp_path / "out")]
     assert main([*args, *size, "--device", "cpu"]) == 0

@@ -20,7 +20,7 @@ from test_render_deformed import CENTER, camera, make_asset, rotation
 from neural.data import camera_rays
 from neural.metrics import psnr
 from neural.render.bodies import FieldBody
-from neural.render.view import bodies_transmittance, render_bodies
+from neural.render.view import SHADOW_CUTOFF, bodies_transmittance, render_bodies
 from shellsim.world import Placement
 
 FAR = 3.0
@@ -141,14 +141,38 @@ def test_a_ray_costs_only_the_bodies_whose_box_it_crosses():
 
 
 def test_shadow_rays_multiply_the_bodies_transmittance():
-    """A ray through both spheres lets through the product of what each lets through alone."""
+    """A ray through both spheres lets through the product of what each lets through alone (every sample
+    taken: ``cutoff`` 0); stopped once below the cutoff, it stays below it."""
     origins = torch.tensor([[0.0, -1.0, 0.02], [0.5, -1.0, 0.9]], dtype=torch.float32)
     dirs = torch.nn.functional.normalize(torch.tensor([[0.1, 2.0, 0.0], [0.0, 1.0, 0.0]]), dim=1)
     red, blue = body_of(RED, FRAMES[0]), body_of(BLUE, FRAMES[1])
-    both = bodies_transmittance([red, blue], origins, dirs)
-    alone = bodies_transmittance([red], origins, dirs) * bodies_transmittance([blue], origins, dirs)
-    assert torch.allclose(both, alone, atol=1e-6)
+    both = bodies_transmittance([red, blue], origins, dirs, cutoff=0)
+    alone = [bodies_transmittance([b], origins, dirs, cutoff=0) for b in (red, blue)]
+    assert torch.allclose(both, alone[0] * alone[1], atol=1e-6)
     assert both[0] < 1e-3 and both[1] > 0.999  # through both spheres; above them
+    stopped = bodies_transmittance([red, blue], origins, dirs)
+    assert stopped[0] < SHADOW_CUTOFF and stopped[1] == both[1]
+
+
+def test_a_shadow_ray_stops_only_in_the_dark():
+    """Shadow rays through a sphere from its rim to its centre: a ray whose light never falls below the
+    cutoff is what taking every sample gives; one that does stops there, within the cutoff of it, and its
+    later samples are never evaluated."""
+    heights = np.linspace(-0.3, 0.3, 61)  # across the red sphere's silhouette (radius 0.25)
+    origins = torch.tensor([[0.0, -1.0, z] for z in RED[0][2] + heights], dtype=torch.float32)
+    origins[:, 0] += float(RED[0][0])
+    dirs = torch.tensor([[0.0, 1.0, 0.0]]).expand(len(origins), 3).contiguous()
+    full_body = body_of(RED, FRAMES[0], RecordingSphereField, box=True)
+    full = bodies_transmittance([full_body], origins, dirs, cutoff=0)
+    stopped_body = body_of(RED, FRAMES[0], RecordingSphereField, box=True)
+    stopped = bodies_transmittance([stopped_body], origins, dirs)
+    lit = full > SHADOW_CUTOFF
+    assert 10 < int(lit.sum()) < len(full) - 10 and (full[lit] < 0.99).any()  # a soft rim, a dark core
+    assert torch.allclose(stopped[lit], full[lit], atol=1e-6)
+    dark = ~lit
+    assert ((stopped[dark] - full[dark]).abs() < SHADOW_CUTOFF).all()
+    assert (stopped[dark] < SHADOW_CUTOFF).all()
+    assert sum(stopped_body.field.geometry_calls) < 0.8 * sum(full_body.field.geometry_calls)  # measured 0.71
 
 
 @pytest.fixture(scope="module")

@@ -86,7 +86,7 @@ def test_the_refined_picture_equals_the_scene_renderer_anti_aliased(ball):
     tiles, equals :func:`antialiased` of :meth:`SceneRenderer.render` (every channel within 2e-3), and the
     refined size keeps the camera's aspect under the cap."""
     from neural.metrics import psnr
-    from shellsim.film.motion_frames import antialiased
+    from shellsim.film.antialias import antialiased
     from shellsim.film.renderer import DeformedRenderer, SceneRenderer
     from shellsim.world import WorldLook
 

@@ -287,16 +287,19 @@ def pixel_to_ray(
             f"cam_idx, px, py: expected three (M,) arrays, got {tuple(idx.shape)}, {tuple(px.shape)}, "
             f"{tuple(py.shape)}"
         )
-    cam = _packed_rows(cameras, idx, device)
+    cam = _packed_rows(cameras, idx, device)  # (M, 20), or (1, 20) for one camera
     x = (px - cam[:, 14]) / cam[:, 12]
     y = (py - cam[:, 15]) / cam[:, 13]
     if cameras.has_distortion:
         x, y = _undistort(x, y, cam[:, 16:20])
     rot = cam[:, :12].reshape(-1, 3, 4)
     local = torch.stack([x, -y, -torch.ones_like(x)], dim=-1)  # OpenCV -> OpenGL camera axes
-    dirs = torch.einsum("mij,mj->mi", rot[:, :, :3], local)
+    if len(cam) == 1:
+        dirs = local @ rot[0, :, :3].T
+    else:
+        dirs = torch.einsum("mij,mj->mi", rot[:, :, :3], local)
     dirs = dirs / dirs.norm(dim=-1, keepdim=True)
-    return rot[:, :, 3].to(dtype), dirs.to(dtype)
+    return rot[:, :, 3].expand(len(dirs), 3).to(dtype).contiguous(), dirs.to(dtype)
 
 
 def project(
@@ -332,31 +335,34 @@ def project(
 
 
 def camera_rays(
-    cameras: Cameras, i: int, *, device=None, dtype: torch.dtype = torch.float32
+    cameras: Cameras, i: int, *, device=None, dtype: torch.dtype = torch.float32, pixels=None
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Rays through every pixel centre of camera ``i``, row-major (row 0 first, left to right).
+    """Rays through every pixel centre of camera ``i``, row-major (row 0 first, left to right), or through
+    those of ``pixels`` (P,) int64, their row-major indices (each ray the same as among all).
 
     Returns:
-        origins (H*W, 3), dirs (H*W, 3) unit vectors, torch ``dtype`` on ``device`` (default cpu).
+        origins (H*W or P, 3), dirs (H*W or P, 3) unit vectors, torch ``dtype`` on ``device`` (default cpu).
     """
     if not 0 <= i < len(cameras):
         raise ValueError(f"i: camera index {i} out of range for {len(cameras)} cameras")
     device = torch.device("cpu") if device is None else torch.device(device)
     w, h = int(cameras.width[i]), int(cameras.height[i])
-    rows, cols = torch.meshgrid(
-        torch.arange(h, dtype=torch.float64, device=device),
-        torch.arange(w, dtype=torch.float64, device=device),
-        indexing="ij",
-    )
-    idx = torch.full((h * w,), i, dtype=torch.long, device=device)
-    return pixel_to_ray(
-        cameras, idx, cols.reshape(-1) + 0.5, rows.reshape(-1) + 0.5, device=device, dtype=dtype
-    )
+    if pixels is None:
+        pixels = torch.arange(h * w, device=device)
+    pixels = torch.as_tensor(pixels, device=device)
+    if pixels.ndim != 1 or (len(pixels) and not (0 <= int(pixels.min()) and int(pixels.max()) < h * w)):
+        raise ValueError(f"pixels: expected (P,) indices in [0, {h * w}), got {tuple(pixels.shape)}")
+    rows = torch.div(pixels, w, rounding_mode="floor").double()
+    cols = (pixels % w).double()
+    idx = torch.full((len(pixels),), i, dtype=torch.long, device=device)
+    return pixel_to_ray(cameras, idx, cols + 0.5, rows + 0.5, device=device, dtype=dtype)
 
 
 def _packed_rows(cameras: Cameras, idx: torch.Tensor, device) -> torch.Tensor:
-    """(M, 20) packed camera rows for ``idx`` (M,), range-checked."""
+    """(M, 20) packed camera rows for ``idx`` (M,), range-checked; (1, 20) when there is one camera (the rows
+    would all be its own)."""
     n = len(cameras)
     if idx.numel() and (int(idx.min()) < 0 or int(idx.max()) >= n):
         raise ValueError(f"cam_idx: indices must lie in [0, {n}), got [{int(idx.min())}, {int(idx.max())}]")
-    return cameras._packed(torch.device(device))[idx]
+    packed = cameras._packed(torch.device(device))
+    return packed if n == 1 and idx.numel() else packed[idx]

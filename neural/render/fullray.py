@@ -271,7 +271,7 @@ def render_samples(
     return out
 
 
-def _rounds(samples: RaySamples, first_round: int, last_round_samples: int, alive: torch.Tensor):
+def sample_rounds(samples: RaySamples, first_round: int, last_round_samples: int, alive: torch.Tensor):
     """Front-to-back rounds over packed samples, by their rank along their ray: ``[0, first_round)``, then
     each round as long as all before it (``[r, 2 r)``), and every rank left in one round once at most
     ``last_round_samples`` samples of live rays remain. From the second round on only rays where ``alive``
@@ -324,7 +324,7 @@ def visible_samples(
     alive = torch.ones(samples.n_rays, dtype=torch.bool, device=rays.device)
     keep = torch.zeros(len(rays), dtype=torch.bool, device=rays.device)
     log_min = math.log(min_transmittance)
-    for index in _rounds(samples, VISIBLE_FIRST_ROUND, VISIBLE_LAST_ROUND_SAMPLES, alive):
+    for index in sample_rounds(samples, VISIBLE_FIRST_ROUND, VISIBLE_LAST_ROUND_SAMPLES, alive):
         round_samples = samples.select(index)
         part = round_samples.ray_indices
         located = field_space(field, round_samples.points(origins, dirs), *_sections(dirs, round_samples))
@@ -375,7 +375,7 @@ def shade_samples(
     field: Any,
     samples: RaySamples,
     locate: Callable[[torch.Tensor], tuple[torch.Tensor, ...]],
-    background: torch.Tensor | None = None,
+    background: torch.Tensor | Callable[[torch.Tensor], torch.Tensor] | None = None,
     tolerance: float = WEIGHT_TOLERANCE,
     first_round: int = FIRST_ROUND,
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -397,6 +397,11 @@ def shade_samples(
     ``field.geometry`` returns a NamedTuple of per-sample tensors with ``sdf``, ``inv_s`` and ``normal``.
     With a sequence of fields for ``field`` (several bodies in one image, :mod:`neural.render.bodies`),
     ``locate`` also returns, sixth, the index (K',) int64 of each sample's field in it.
+
+    ``background``: (3,), (R, 3), None (black), or ``background(rays (K,) int64) -> (K, 3)``, asked only for
+    the rays whose transmittance is still above ``tolerance / 2`` after the last round (a lit ground's shadow
+    rays are not cast behind an opaque body): the light it would add to the others is less than that, within
+    what termination leaves out.
     """
     if not tolerance >= 0:
         raise ValueError(f"tolerance: expected >= 0, got {tolerance}")
@@ -408,7 +413,7 @@ def shade_samples(
     located = torch.zeros_like(per_ray)
     color = opacity = None
     alive = torch.ones_like(per_ray, dtype=torch.bool)
-    for index in _rounds(samples, first_round, LAST_ROUND_SAMPLES, alive):
+    for index in sample_rounds(samples, first_round, LAST_ROUND_SAMPLES, alive):
         located += torch.bincount(ray_indices.index_select(0, index), minlength=n_rays)
         index, points, unit_dirs, deltas, fronts, *which = locate(index)
         rays = ray_indices.index_select(0, index)
@@ -425,9 +430,14 @@ def shade_samples(
         color = part["color"] if color is None else color + part["color"]
         opacity = part["opacity"] if opacity is None else opacity + part["opacity"]
     if color is None:  # nothing located: every ray shows the background
-        dtype = torch.float32 if background is None else background.dtype
+        dtype = background.dtype if isinstance(background, torch.Tensor) else torch.float32
         color = torch.zeros(n_rays, 3, dtype=dtype, device=ray_indices.device)
         opacity = torch.zeros(n_rays, dtype=dtype, device=ray_indices.device)
-    if background is not None:
+    if callable(background):
+        seen = torch.nonzero(alive).squeeze(1)
+        if len(seen):
+            behind = background(seen).to(color.dtype)
+            color = color.index_add(0, seen, (1.0 - opacity.index_select(0, seen))[:, None] * behind)
+    elif background is not None:
         color = color + (1.0 - opacity)[:, None] * background.to(color.dtype).expand(n_rays, 3)
     return color, located

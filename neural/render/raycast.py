@@ -559,6 +559,10 @@ class WarpCaster(ShellCaster):
             moved[which] = wp.array(vertices - self.center, dtype=wp.vec3, device=self.device)
         self._refit_each(lambda which, points: points.assign(moved[which]))
 
+    def outer_points(self) -> np.ndarray:
+        """(V+, 3) float64 the outer shell's vertices as last refitted (as cast: float32 about the centre)."""
+        return self._scenes["outer"].points.numpy().astype(np.float64) + self.center
+
     def set_blend(self, outer: tuple, inner: tuple) -> None:
         """Make every shell vertex a weighted sum of control points, for :meth:`refit_blended`: per shell
         ``(corners (V, 4) int, weights (V, 4) float)``, vertex ``i`` = ``sum_k weights[i, k] *

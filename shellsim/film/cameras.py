@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 
 #: (W, H) of a motion's frames when neither a size nor a camera file gives one.
 VIDEO_SIZE = (512, 512)
-#: Jittered rays per pixel of a motion's frames by default (:func:`shellsim.film.motion_frames.antialiased`);
+#: Jittered rays per pixel of a motion's frames by default (:func:`shellsim.film.antialias.adaptive`);
 #: rest views take 1, the pixel-centre rays that ``shellsim eval`` scores.
 MOTION_ANTIALIAS = 4
 MAX_ANTIALIAS = 64  # jittered rays per pixel at most

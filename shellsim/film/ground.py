@@ -23,12 +23,21 @@ samples with their transmittance, Eq. 2):
 ``eps`` = :data:`SHADOW_OFFSET`, met in closed form; obstacles are opaque). An obstacle hides the body's
 samples behind it, and the ground those below z = 0: :func:`surface_t_max` (the ground and the obstacles)
 is the ``t_max`` of :func:`neural.render.view.render_pixels`.
+
+**What stands still and what moves.** The ground, the obstacles and the static meshes (a scene's colliders),
+lit as far as they let the light through, look the same in every frame: :func:`static_layer` computes what a
+set of rays sees of them (a :class:`StaticLayer`, ``base + lit V``), which
+:class:`shellsim.film.static.StaticWorld` keeps per camera view, and :func:`world_colors` adds, each frame,
+what moves: a scene's mesh bodies (drawn where nearer, casting shadows) and the fields' transmittance ``V``.
+:func:`world_backdrop` does both for rays of any view (``shellsim/film/_reference.py`` keeps the drawing of
+everything in one pass, the twin the tests compare it with).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -59,26 +68,13 @@ def to_world(frame: Placement, origins: torch.Tensor, dirs: torch.Tensor):
     return frame.scale * origins.double() @ rotation.T + translation, frame.scale * dirs.double() @ rotation.T
 
 
-def ground_hits(frame: Placement, origins: torch.Tensor, dirs: torch.Tensor):
-    """Where rays ``origins``, ``dirs`` (R, 3) of the renderer's frame meet the ground z = 0 of the world:
-    ``hit`` (R,) bool (from above it, going down), ``t`` (R,) ray parameter (inf without a hit),
-    ``points`` (R, 3) world hit points and the world directions ``dirs_w`` (R, 3) (``scale R d``)."""
-    import torch
-
-    o_w, d_w = to_world(frame, origins, dirs)
-    hit = (o_w[:, 2] > 0) & (d_w[:, 2] < 0)
-    t = torch.where(hit, -o_w[:, 2] / torch.where(hit, d_w[:, 2], -1.0), math.inf)
-    points = o_w + torch.where(hit, t, 0.0)[:, None] * d_w
-    return hit, t, points, d_w
-
-
 def surface_t_max(
     look: WorldLook,
     frame: Placement,
     obstacles: Obstacles | None,
     origins,
     dirs,
-    meshes: Meshes | None = None,
+    meshes: Meshes | Sequence[Meshes] = (),
 ):
     """(R,) float64 ray parameter of the nearest opaque world surface in front of rays ``origins``, ``dirs``
     (R, 3) of the renderer's frame: the ground (when drawn), the obstacles and the ``meshes`` (inf where
@@ -86,30 +82,53 @@ def surface_t_max(
     below z = 0, and an obstacle hides what is behind it."""
     import torch
 
-    t = (
-        ground_hits(frame, origins, dirs)[1]
-        if look.ground
-        else torch.full_like(origins[:, 0], math.inf).double()
-    )
-    if obstacles or meshes:
-        t = torch.minimum(t, _surface_hits(look, obstacles, meshes, *to_world(frame, origins, dirs))[0])
+    o_w, d_w = to_world(frame, origins, dirs)
+    t = _ground_t(look, o_w, d_w)
+    if obstacles or _meshes(meshes):
+        t = torch.minimum(t, _surface_hits(look, obstacles, meshes, o_w, d_w)[0])
     return t
 
 
-def _surface_hits(look: WorldLook, obstacles: Obstacles | None, meshes: Meshes | None, origins_w, dirs_w):
-    """The nearest obstacle or mesh in front of world rays ``origins_w``, ``dirs_w`` (R, 3) float64: ``t``
-    (R,) (inf where none), the unit normal ``normals`` (R, 3) facing the ray and the ``albedo`` (R, 3) there
-    (the obstacles': ``look.obstacle_color``)."""
+def _ground_t(look: WorldLook, origins_w, dirs_w):
+    """(R,) float64 ray parameter where world rays ``origins_w``, ``dirs_w`` (R, 3) float64 meet the drawn
+    ground from above (inf where they do not, or without ``look.ground``)."""
+    import torch
+
+    hit = (origins_w[:, 2] > 0) & (dirs_w[:, 2] < 0) & look.ground
+    return torch.where(hit, -origins_w[:, 2] / torch.where(hit, dirs_w[:, 2], -1.0), math.inf)
+
+
+def _meshes(meshes: Meshes | Sequence[Meshes] | None) -> tuple[Meshes, ...]:
+    """The non-empty :class:`~shellsim.film.obstacles.Meshes` of ``meshes`` (one, several or None)."""
+    if meshes is None:
+        return ()
+    return tuple(m for m in ((meshes,) if isinstance(meshes, Meshes) else meshes) if m)
+
+
+def _surface_hits(look: WorldLook, obstacles: Obstacles | None, meshes, origins_w, dirs_w):
+    """The nearest obstacle or mesh (of ``meshes``: one :class:`~shellsim.film.obstacles.Meshes` or
+    several) in front of world rays ``origins_w``, ``dirs_w`` (R, 3) float64: ``t`` (R,) (inf where none),
+    the unit normal ``normals`` (R, 3) facing the ray and the ``albedo`` (R, 3) there (the obstacles':
+    ``look.obstacle_color``)."""
     import torch
 
     t, normals = obstacle_hits(obstacles or Obstacles(), origins_w, dirs_w)
     albedo = torch.tensor(look.obstacle_color, dtype=torch.float64, device=dirs_w.device).expand(len(t), 3)
-    if meshes:
-        t_mesh, mesh_normals, mesh_albedo = meshes.hits(origins_w, dirs_w)
+    for mesh in _meshes(meshes):
+        t_mesh, mesh_normals, mesh_albedo = mesh.hits(origins_w, dirs_w)
         nearer = (t_mesh < t)[:, None]
         t = torch.minimum(t, t_mesh)
         normals, albedo = torch.where(nearer, mesh_normals, normals), torch.where(nearer, mesh_albedo, albedo)
     return t, normals, albedo
+
+
+def _blocked(obstacles: Obstacles | None, meshes, origins_w, dirs_w):
+    """(R,) bool: world rays ``origins_w``, ``dirs_w`` (R, 3) float64 cross an obstacle or one of
+    ``meshes`` at some t > 0."""
+    hit = blocked(obstacles or Obstacles(), origins_w, dirs_w)
+    for mesh in _meshes(meshes):
+        hit |= mesh.blocked(origins_w, dirs_w)
+    return hit
 
 
 def checker(look: WorldLook, points: torch.Tensor) -> torch.Tensor:
@@ -133,77 +152,158 @@ def sky(look: WorldLook, dirs_w: torch.Tensor) -> torch.Tensor:
     return horizon + (zenith - horizon) * up
 
 
+@dataclass
+class StaticLayer:
+    """What the static world (ground, obstacles, static meshes, light, sky) shows along R rays, whatever moves
+    in front of it (:func:`static_layer`): the colour of each ray's nearest static surface is ``base + lit
+    V``, ``V`` the light's visibility through what moves (the fields, the moving meshes; 1 without them).
+
+    t : (R,) float64 ray parameter of that surface (inf: none, the sky)
+    base : (R, 3) ``albedo * ambient`` there, or the sky's colour; without the look's shadows, all of it
+    lit : (R, 3) ``albedo * diffuse * max(n.l, 0)`` where no obstacle or static mesh blocks the light, else
+        zero (zero on the sky and without the look's shadows: nothing dims it then)
+    normal : (R, 3) its outward unit normal (zeros on the sky)
+
+    ``base``, ``lit`` and ``normal`` in the rays' dtype.
+    """
+
+    t: torch.Tensor
+    base: torch.Tensor
+    lit: torch.Tensor
+    normal: torch.Tensor
+
+    def select(self, rays) -> StaticLayer:
+        """The layer of the rays ``rays`` (K,) int64 among its R (None: all)."""
+        if rays is None:
+            return self
+        return StaticLayer(*(getattr(self, f.name).index_select(0, rays) for f in fields(self)))
+
+    @classmethod
+    def cat(cls, layers) -> StaticLayer:
+        """The layers ``layers`` of consecutive rays as one."""
+        import torch
+
+        return cls(*(torch.cat([getattr(layer, f.name) for layer in layers]) for f in fields(cls)))
+
+    @property
+    def nbytes(self) -> int:
+        return sum(getattr(self, f.name).nbytes for f in fields(self))
+
+
+def static_layer(
+    look: WorldLook,
+    frame: Placement,
+    origins,
+    dirs,
+    obstacles: Obstacles | None = None,
+    meshes: Meshes | Sequence[Meshes] = (),
+    sky_colors: Callable[[torch.Tensor], torch.Tensor] | None = None,
+) -> StaticLayer:
+    """The :class:`StaticLayer` of rays ``origins``, ``dirs`` (R, 3) of the renderer's frame (``frame``
+    places it in the world): the nearest of the ground (``look.ground``), the ``obstacles`` and the
+    ``meshes`` (one or several :class:`~shellsim.film.obstacles.Meshes`, in their own albedo), lit by
+    Lambert's law (module docstring), its shadow ray from ``p + eps n`` met with the obstacles and meshes
+    (with ``look.shadows``); the look's sky, or ``sky_colors(dirs_w (K, 3)) -> (K, 3)`` (a capture's
+    environment map), where a ray meets none."""
+    import torch
+
+    o_w, d_w = to_world(frame, origins, dirs)
+    t = _ground_t(look, o_w, d_w)
+    ground = torch.isfinite(t)
+    normal = torch.zeros_like(o_w)
+    normal[:, 2] = ground.double()
+    albedo = torch.zeros_like(o_w)
+    solid = bool(obstacles or _meshes(meshes))
+    if solid:
+        t_solid, n_solid, a_solid = _surface_hits(look, obstacles, meshes, o_w, d_w)
+        nearer = t_solid < t
+        t = torch.where(nearer, t_solid, t)
+        normal = torch.where(nearer[:, None], n_solid, normal)
+        albedo = torch.where(nearer[:, None], a_solid, albedo)
+        ground &= ~nearer
+    seen = torch.isfinite(t)
+    points = o_w + torch.where(seen, t, 0.0)[:, None] * d_w
+    on_ground = torch.nonzero(ground).squeeze(1)
+    albedo[on_ground] = checker(look, points.index_select(0, on_ground))
+    light = torch.as_tensor(look.light_unit(), device=d_w.device)
+    cos = look.diffuse * (normal @ light).clamp_min(0.0)
+    if look.shadows and solid:
+        lit = torch.nonzero(cos > 0).squeeze(1)
+        starts = points[lit] + SHADOW_OFFSET * normal[lit]
+        cos[lit] = torch.where(_blocked(obstacles, meshes, starts, light.expand(len(lit), 3)), 0.0, cos[lit])
+    base, lit = albedo * look.ambient, albedo * cos[:, None]
+    if not look.shadows:
+        base, lit = base + lit, torch.zeros_like(lit)
+    empty = torch.nonzero(~seen).squeeze(1)
+    if len(empty):
+        d_sky = d_w.index_select(0, empty)
+        base[empty] = sky(look, d_sky) if sky_colors is None else sky_colors(d_sky).to(base.dtype)
+    return StaticLayer(t, base.to(dirs.dtype), lit.to(dirs.dtype), normal.to(dirs.dtype))
+
+
+def world_colors(
+    look: WorldLook,
+    frame: Placement,
+    layer: StaticLayer,
+    origins,
+    dirs,
+    visibility: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
+    moving: Meshes | None = None,
+    obstacles: Obstacles | None = None,
+    meshes: Meshes | Sequence[Meshes] = (),
+):
+    """Colours (R, 3) that rays ``origins``, ``dirs`` (R, 3) of the renderer's frame see behind the fields:
+    their static ``layer`` (:func:`static_layer` of the same rays with ``obstacles`` and the static
+    ``meshes``) and what moves in front of it: the ``moving`` meshes, drawn where nearer (lit and shadowed
+    as the static ones, by everything) and casting shadows; the light's visibility through the fields,
+    ``visibility(origins (G, 3), dirs (G, 3)) -> (G,)`` along the shadow rays of the renderer's frame (e.g.
+    :func:`neural.render.view.bodies_transmittance`), asked once for every lit point (None: the fields
+    block no light; nothing does without ``look.shadows``)."""
+    import torch
+
+    t, base, lit, normal = layer.t, layer.base, layer.lit, layer.normal
+    visible = torch.ones(len(t), dtype=torch.float64, device=dirs.device)
+    if moving:
+        o_w, d_w = to_world(frame, origins, dirs)
+        near = torch.nonzero(moving.hits(o_w, d_w)[0] < t).squeeze(1)
+        if len(near):  # the moving mesh in front: drawn as a static one, all of it
+            mine = static_layer(look, frame, origins[near], dirs[near], obstacles, (*_meshes(meshes), moving))
+            t, base, lit, normal = (x.clone() for x in (t, base, lit, normal))
+            t[near], base[near], lit[near], normal[near] = mine.t, mine.base, mine.lit, mine.normal
+        if look.shadows:  # its shadow on the static surfaces
+            shaded = lit.amax(dim=1) > 0
+            shaded[near] = False
+            rays = torch.nonzero(shaded).squeeze(1)
+            starts_w = o_w[rays] + t[rays, None] * d_w[rays] + SHADOW_OFFSET * normal[rays].double()
+            light_w = torch.as_tensor(look.light_unit(), device=dirs.device).expand(len(rays), 3)
+            visible[rays] = (~moving.blocked(starts_w, light_w)).double()
+    if look.shadows and visibility is not None:
+        rays = torch.nonzero((lit.amax(dim=1) > 0) & (visible > 0)).squeeze(1)
+        if len(rays):
+            light_here = torch.as_tensor(np.asarray(frame.rotation).T @ look.light_unit())
+            starts = origins[rays] + t[rays, None].to(dirs.dtype) * dirs[rays]
+            visible[rays] *= visibility(starts, light_here.to(starts).expand(len(rays), 3)).double()
+    return (base + lit * visible[:, None].to(lit.dtype)).to(dirs.dtype)
+
+
 def world_backdrop(
     look: WorldLook,
     frame: Placement,
     visibility: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
     obstacles: Obstacles | None = None,
-    meshes: Meshes | None = None,
+    meshes: Meshes | Sequence[Meshes] = (),
     sky_colors: Callable[[torch.Tensor], torch.Tensor] | None = None,
+    moving: Meshes | None = None,
 ):
-    """``backdrop(origins (R, 3), dirs (R, 3)) -> (R, 3)`` of :func:`neural.render.view.render_pixels`: the
-    sky, with ``look.ground`` the lit checkered ground and the lit ``obstacles`` (module docstring) behind
-    rays of the renderer's frame (``frame`` places it in the world), the nearest surface of each ray.
-    ``visibility(origins (G, 3), dirs (G, 3)) -> (G,)``: the light's visibility along shadow rays of the
-    renderer's frame (the field's transmittance, e.g. :func:`neural.render.view.transmittance`); None: the
-    field blocks no light. With ``look.shadows`` False nothing blocks it. ``meshes``: opaque triangle meshes
-    (:class:`~shellsim.film.obstacles.Meshes`), drawn and casting shadows as the obstacles do, in their own
-    albedo. ``sky_colors(dirs_w (R, 3)) -> (R, 3)``: what rays that meet nothing see along world directions
-    instead of the look's sky (a capture's environment map)."""
-    import torch
+    """``backdrop(origins (R, 3), dirs (R, 3), rays=None) -> (R, 3)`` of
+    :func:`neural.render.view.render_bodies`: what rays of the renderer's frame (``frame`` places it in the
+    world) see behind the fields, :func:`world_colors` of their :func:`static_layer` computed for them (the
+    ground of ``look``, the ``obstacles``, the static ``meshes``, the sky or ``sky_colors``) with the light's
+    ``visibility`` through the fields and the ``moving`` meshes. ``rays``, their indices among the
+    renderer's, are not needed: :class:`shellsim.film.static.StaticWorld` keeps the layers of a view."""
 
-    obstacles = Obstacles() if obstacles is None else obstacles
-    meshes = Meshes() if meshes is None else meshes
-    solid = bool(obstacles or meshes)
-    light = look.light_unit()
-    light_here = torch.as_tensor(np.asarray(frame.rotation).T @ light)  # toward the light, renderer's frame
-
-    def backdrop(origins: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
-        light_w = torch.as_tensor(light, device=dirs.device)
-
-        def shade(rays, t, points_w, normals_w):
-            """Lambert shade (K,) float64 of the world ``points_w`` (K, 3) with outward ``normals_w`` (K, 3)
-            that rays ``rays`` (K,) meet at ``t`` (K,): ``ambient + diffuse * max(n.l, 0) * V``."""
-            cos = look.diffuse * (normals_w @ light_w).clamp_min(0.0)
-            value = look.ambient + cos
-            lit = torch.nonzero(cos > 0).squeeze(1)
-            if not look.shadows or not len(lit) or (visibility is None and not solid):
-                return value
-            visible = torch.ones(len(lit), dtype=torch.float64, device=dirs.device)
-            if solid:
-                starts_w = points_w[lit] + SHADOW_OFFSET * normals_w[lit]
-                towards = light_w.expand(len(lit), 3)
-                visible = visible * ~(
-                    blocked(obstacles, starts_w, towards) | meshes.blocked(starts_w, towards)
-                )
-            if visibility is not None:
-                on = rays[lit]
-                starts = origins.index_select(0, on) + t[lit, None].to(dirs.dtype) * dirs.index_select(0, on)
-                visible = visible * visibility(starts, light_here.to(starts).expand(len(lit), 3)).double()
-            value[lit] = look.ambient + cos[lit] * visible
-            return value
-
-        hit, t, points, dirs_w = ground_hits(frame, origins, dirs)
-        color = sky(look, dirs_w) if sky_colors is None else sky_colors(dirs_w).to(dirs_w.dtype).clone()
-        t_obstacle = None
-        if solid:
-            o_w = to_world(frame, origins, dirs)[0]
-            t_obstacle, normals, albedo = _surface_hits(look, obstacles, meshes, o_w, dirs_w)
-            hit = hit & (t < t_obstacle)
-        if look.ground:
-            ground = torch.nonzero(hit).squeeze(1)
-            up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64, device=dirs.device).expand(len(ground), 3)
-            ground_points = points.index_select(0, ground)
-            shades = shade(ground, t[ground], ground_points, up)
-            color[ground] = checker(look, ground_points) * shades[:, None]
-        else:
-            t = torch.full_like(t, math.inf)
-        if t_obstacle is not None:
-            seen = torch.nonzero(torch.isfinite(t_obstacle) & (t_obstacle < t)).squeeze(1)
-            t_seen = t_obstacle[seen]
-            points_w = o_w[seen] + t_seen[:, None] * dirs_w[seen]
-            shades = shade(seen, t_seen, points_w, normals[seen])
-            color[seen] = albedo[seen] * shades[:, None]
-        return color.to(dirs.dtype)
+    def backdrop(origins: torch.Tensor, dirs: torch.Tensor, rays=None) -> torch.Tensor:
+        layer = static_layer(look, frame, origins, dirs, obstacles, meshes, sky_colors)
+        return world_colors(look, frame, layer, origins, dirs, visibility, moving, obstacles, meshes)
 
     return backdrop

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from neural.errors import write_failures
+from shellsim.film.antialias import ADAPTIVE_THRESHOLD, adaptive, pixel_offsets
 from shellsim.film.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, CameraSettings, mass_weights, motion_track
 from shellsim.film.result import RenderResult
 from shellsim.io.png import asset_identity, digest, frame_record, renderer_identity, save_png, stale_reason
@@ -22,9 +23,6 @@ from shellsim.io.video import write_video
 from shellsim.settings import parse_frames
 
 log = logging.getLogger(__name__)
-
-#: Seed of the sub-pixel offsets of :func:`pixel_offsets`: fixed, so a frame is the same every time.
-JITTER_SEED = 0
 
 #: How frames are rendered: "final" (the size, rays per pixel and shadows asked for) or "preview" (half
 #: the size, one ray per pixel through each pixel's centre, no shadow rays): a whole shot in seconds.
@@ -52,45 +50,6 @@ def quality_identity(renderer: str, quality: str) -> str:
     ``renderer`` itself for "final" (frames made before there were qualities stay valid), else a digest of
     it and the quality, so that a final render never keeps a preview's frames, whatever their settings."""
     return renderer if quality == "final" else digest(renderer, f"quality {quality}")
-
-
-def pixel_offsets(samples: int) -> np.ndarray:
-    """(samples, 2) sub-pixel offsets (dx, dy) in pixels, in [-0.5, 0.5)^2: multi-jittered sampling (Chiu,
-    Shirley and Wang 1994, its canonical arrangement): one point in each cell (a, b) of a g x h grid (g h =
-    ``samples``, g the largest divisor <= sqrt(samples)) and in each of the ``samples`` columns and rows,
-    ``dx + 0.5 = (a + (b + u) / h) / g``, ``dy + 0.5 = (b + (a + v) / g) / h`` with u, v uniform in [0, 1)
-    drawn with :data:`JITTER_SEED`; ``samples`` = 1 is the pixel centre (0, 0)."""
-    if not (isinstance(samples, int) and samples >= 1):
-        raise ValueError(f"samples: expected a positive integer, got {samples!r}")
-    if samples == 1:
-        return np.zeros((1, 2))
-    g = max(d for d in range(1, math.isqrt(samples) + 1) if samples % d == 0)
-    h = samples // g
-    a, b = (c.reshape(-1) for c in np.meshgrid(np.arange(g), np.arange(h), indexing="ij"))
-    u, v = np.random.default_rng(JITTER_SEED).random((2, samples))
-    return np.stack([(a + (b + u) / h) / g, (b + (a + v) / g) / h], -1) - 0.5
-
-
-def antialiased(render, samples: int):
-    """``render_one(view) -> (image, stats)`` averaging ``samples`` renders of the one-camera ``Cameras``
-    ``view`` by ``render(view) -> (image (H, W, 3), stats)``, each with its principal point moved so that
-    pixel (i, j) casts its ray through (j + 0.5 + dx, i + 0.5 + dy) for the offsets of
-    :func:`pixel_offsets` (jittered supersampling with a box filter: a pixel approaches the mean colour
-    over its square). Stats are summed over the passes (``ms``, ``<stage>_ms``, ``samples_per_pixel``:
-    field samples per pixel of the frame, ``counts``). ``samples`` = 1 is ``render`` itself."""
-    offsets = pixel_offsets(samples)
-    if samples == 1:
-        return render
-
-    def render_one(view):
-        total, stats = None, {}
-        for dx, dy in offsets:  # px + dx - cx = px - (cx - dx)
-            image, pass_stats = render(dataclasses.replace(view, cx=view.cx - dx, cy=view.cy - dy))
-            total = image.astype(np.float64) if total is None else total + image
-            stats = {k: stats.get(k, 0) + v for k, v in pass_stats.items()}
-        return (total / samples).astype(np.float32), stats
-
-    return render_one
 
 
 def render_frames(
@@ -193,7 +152,8 @@ def render_views(
     overrides the file's. A PNG already there is kept only when its record (:func:`frame_record`) says it
     shows this asset from this camera at this size, unless ``overwrite``; others are rendered again. With
     ``ray`` ("local" or a cluster address) each frame is a Ray task. ``antialias``: jittered rays per pixel
-    (:func:`antialiased`; 1, the default: the pixel-centre rays ``shellsim eval`` scores); ``quality``
+    where a pixel's neighbourhood varies (:func:`shellsim.film.antialias.adaptive`; 1, the default: the
+    pixel-centre rays ``shellsim eval`` scores); ``quality``
     "preview" (:data:`QUALITIES`): half the size, one ray per pixel. Returns the :class:`RenderResult`
     (counts, mean ms per frame and per stage)."""
     from neural.asset import load_asset
@@ -210,7 +170,7 @@ def render_views(
         names = [f"{i:05d}" for i in range(len(cameras))]
     asset = load_asset(asset_spec)
     identity = asset_identity(asset)
-    settings = quality_identity(renderer_identity(asset, antialias), quality)
+    settings = quality_identity(renderer_identity(asset, antialias, adaptive=ADAPTIVE_THRESHOLD), quality)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = []
@@ -226,20 +186,19 @@ def render_views(
 
 def _view_frames(asset, cage, device: str, antialias: int, frame=None, world=None):
     """``render_one(view)`` of :func:`render_frames`: ``view`` (a one-camera ``Cameras``) -> (image, stats)
-    with ``antialias`` jittered rays per pixel (:func:`antialiased`), at rest, or with ``cage`` and
-    ``frame`` (k -> (V, 3) cage positions of frame k, :func:`motion_frames`) for payloads ``(view, k)``;
-    ``world``: (look, placement, obstacles) of :func:`motion_world` around the body (None: the asset's
-    background)."""
+    with ``antialias`` jittered rays per pixel where its neighbourhood varies
+    (:func:`shellsim.film.antialias.adaptive`), at rest, or with ``cage`` and ``frame`` (k -> (V, 3) cage
+    positions of frame k, :func:`motion_frames`) for payloads ``(view, k)``; ``world``: (look, placement,
+    obstacles) of :func:`motion_world` around the body (None: the asset's background)."""
     device, field = _field(asset, device)
     from shellsim.film.renderer import DeformedRenderer
 
     renderer = DeformedRenderer(asset, field, cage, device, None, *(world or (None, None, None)))
     if frame is None:
-        return antialiased(lambda view: renderer.render(view, 0), antialias)
+        return lambda view: adaptive(renderer.tracer(), antialias)(view)
 
     def render_one(job):
-        positions = frame(job[1])
-        return antialiased(lambda view: renderer.render(view, 0, positions), antialias)(job[0])
+        return adaptive(renderer.tracer(frame(job[1])), antialias)(job[0])
 
     return render_one
 
@@ -372,8 +331,8 @@ def render_motion(
     ray : "local" or a Ray cluster address: each frame a Ray task (:func:`render_frames`)
     framing : (N, 3) world points whose box an orbit or preset ``camera`` keeps in view (default: the box of
         every frame), so that several motions can be seen by the same camera
-    antialias : jittered rays per pixel, averaged (:func:`antialiased`; 1: one ray through each pixel's
-        centre)
+    antialias : jittered rays per pixel, averaged, where a pixel's neighbourhood varies
+        (:func:`shellsim.film.antialias.adaptive`; 1: one ray through each pixel's centre)
     look : :class:`shellsim.world.WorldLook` of the world behind the body (ground, light, shadows,
         sky); None: :func:`motion_world`'s default (the ground for a motion that has one)
     quality : "final", or "preview" (:data:`QUALITIES`): half the size (of ``size``, the default or the
@@ -419,7 +378,8 @@ def render_motion(
         look = preview_look(WorldLook() if look is None else look)
     world = motion_world(motion, look)
     identity = asset_identity(asset, cage)
-    settings = quality_identity(renderer_identity(asset, antialias, world_record(world)), quality)
+    identity_of = renderer_identity(asset, antialias, world_record(world), ADAPTIVE_THRESHOLD)
+    settings = quality_identity(identity_of, quality)
     frame_ids = motion_frame_ids(motion, (p for batch in iter_frames(motion_path, indices) for p in batch))
     out_dir = Path(out_dir)
     jobs = []

@@ -19,13 +19,18 @@ to rest space. :class:`DeformedRenderer`
    cage (``inside = False``) are dropped: the cage contains everything the field shows;
 4. **shades** the rest-space samples with the field and composites them along the deformed rays (Eq. 2-3),
    over the asset's background, or, given a :class:`~shellsim.world.WorldLook` and the body's
-   :class:`~shellsim.world.Placement`, over the world's lit ground and sky
-   (:func:`~shellsim.film.ground.world_backdrop`), its shadow rays cast through the same deformed shells,
+   :class:`~shellsim.world.Placement`, over the world's lit ground, obstacles and sky
+   (:func:`trace_world`): their static part (lit as far as the obstacles let the light through) drawn once
+   per camera view (:class:`~shellsim.film.static.StaticWorld`), the body's shadow added each frame
+   (:func:`~shellsim.film.ground.world_colors`) by shadow rays cast through the same deformed shells,
    mapped to rest space alike and attenuated by the field's transmittance
-   (:func:`~neural.render.view.transmittance`); the world's static obstacles
-   (:class:`~shellsim.film.obstacles.Obstacles`) are drawn there too, and hide the body's samples behind
-   them, and the ground hides the shells below z = 0 (each ray's ``t_max``,
-   :func:`~shellsim.film.ground.surface_t_max`).
+   (:func:`~neural.render.view.bodies_transmittance`, each stopped once below
+   :data:`~neural.render.view.SHADOW_CUTOFF`); the obstacles hide the body's samples behind them, and the
+   ground hides the shells below z = 0 (each ray's ``t_max``, the layer's nearest surface).
+
+A frame is built once (:meth:`DeformedRenderer.tracer`: step 1 and the box of the deformed outer shell,
+outside which no ray is cast) and traced for any pixels of any view: the passes of anti-aliasing
+(:mod:`shellsim.film.antialias`).
 
 With no cage positions it renders the rest shells directly (plain narrow-band rendering, Sec. 3.4): the
 pipeline without a map, with the asset's rest sampler, exactly what ``shellsim eval`` measures.
@@ -40,8 +45,10 @@ import numpy as np
 import torch
 
 #: Stages of a frame, in :meth:`DeformedRenderer.render`'s ``stats`` as ``<stage>_ms``: building the
-#: deformed frame, then the stages of :data:`neural.render.view.STAGES`.
-STAGES = ("build", "sample", "map", "shade", "world")
+#: deformed frame, then the stages of :data:`neural.render.view.STAGES` ("world": what the rays see behind the
+#: fields, drawn each frame), the world's ``static`` layer (drawn, or kept from an earlier frame:
+#: :class:`shellsim.film.static.StaticWorld`) and its ``shadow`` rays through the fields (out of "world").
+STAGES = ("build", "sample", "map", "shade", "world", "static", "shadow")
 
 
 class DeformedRenderer:
@@ -72,6 +79,7 @@ class DeformedRenderer:
         from neural.device import warp_device
         from neural.render.view import asset_sampler
         from shellsim.film.obstacles import Obstacles
+        from shellsim.film.static import StaticWorld
         from shellsim.world import Placement
 
         self.outer, self.inner = asset.outer_mesh(), asset.inner_mesh()
@@ -99,6 +107,9 @@ class DeformedRenderer:
         self.world = Placement() if placement is None else placement  # the asset's frame in the world
         self._deformed = None  # WarpCaster, built for the first deformed frame
         self._inverse = None  # the InverseMap, built for the first deformed frame and updated for the next
+        self.static = None  # the world's static part, drawn once per view
+        if look is not None:
+            self.static = StaticWorld(look, self.world, self.obstacles, sky_colors=self.capture_sky())
 
     def _frame(self, positions):
         """The sampler and the map to rest space (None at rest) of cage vertices ``positions`` (V, 3)."""
@@ -136,17 +147,20 @@ class DeformedRenderer:
         self._inverse = inverse_map() if future is None else future.result()
         return narrow_band_sampler(self._deformed, self.config), self._inverse
 
-    def field_body(self, positions=None):
+    def field_body(self, positions=None, framed: bool = True):
         """The :class:`neural.render.bodies.FieldBody` of this asset with its cage at ``positions`` (V, 3)
         in the asset's frame (None: at rest): its sampler, map to rest space, placement in the world and the
-        world box of its (deformed) cage, or of its rest outer shell."""
+        world box of its outer shell (deformed: every sample lies inside it); not ``framed``: in the asset's
+        frame, its box there."""
         from neural.render.bodies import FieldBody
 
         sampler, to_rest = self._frame(positions)
-        points = self.outer.vertices if positions is None else positions
-        placed = self.world.to_world(points)
-        box = np.stack([placed.min(0), placed.max(0)])
-        return FieldBody(self.field, sampler, self._cut_away(to_rest), self.world, box)
+        points = self.outer.vertices if positions is None else self._deformed.outer_points()
+        placed = self.world.to_world(points) if framed else points
+        lo, hi = placed.min(0), placed.max(0)
+        pad = 1e-6 * (np.linalg.norm(hi - lo) + 1.0)  # a ray grazing the box's face is cast
+        frame = self.world if framed else None
+        return FieldBody(self.field, sampler, self._cut_away(to_rest), frame, np.stack([lo - pad, hi + pad]))
 
     def _cut_away(self, to_rest):
         """``to_rest`` followed, for a cut asset, by keeping only the samples inside the cut (the field's
@@ -184,74 +198,102 @@ class DeformedRenderer:
 
         return sky
 
-    def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
-        """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
-        (V, 3) (None: at rest, exactly :func:`neural.render.view.render_camera` with the asset's sampler),
-        and the stats of ``render_camera`` plus ``build_ms`` (shell deformation, refitting their BVHs and
-        updating the inverse map; both built on the first deformed frame) and ``ms`` with it. With a ``look``
-        the world is behind the body, its shadow rays sampled and mapped as the camera rays are, and its
-        obstacles hide what is behind them."""
-        from neural.data import camera_rays
-        from neural.render.view import render_camera, transmittance
-        from shellsim.film.ground import surface_t_max, world_backdrop
+    def tracer(self, positions=None):
+        """``trace(view, pixels=None) -> (colors (P, 3) float32 in [0, 1], stats)``: the pixels ``pixels``
+        (P,) int64 (row-major; None: all) of the one-camera ``view`` (the asset's frame) with the cage at
+        ``positions`` (V, 3) (None: at rest), the frame built once for every trace (shells deformed, their
+        BVHs refitted, the inverse map updated). Only rays that cross the (deformed) outer shell's box are
+        cast against the shells. With a ``look`` the world is behind the body (:func:`trace_world`), its
+        static part kept per view (:class:`~shellsim.film.static.StaticWorld`); a cut asset's room is drawn
+        with it. Stats: :func:`trace_world`'s, the first trace's with ``build_ms``."""
+        from neural.render.fullray import ray_background
 
         start = time.perf_counter()
-        sampler, to_rest = self._frame(positions)
-        build = time.perf_counter() - start
+        bodies = [self.field_body(positions, framed=False)]
         if self.cut is not None:
-            return self._render_cut(cameras, index, sampler, to_rest, start, build)
-        backdrop = t_max = None
-        hidden = 0.0  # seconds of the surfaces' t_max, a part of the world's stage
-        if self.look is not None:
+            bodies.append(self.backdrop_body(framed=False))
+        build = [time.perf_counter() - start]
+        if self.static is not None:
+            self.static.next_frame()
+        sky = None
+        if self.cut is not None and self.look is None:
 
-            def visibility(origins, dirs):
-                return transmittance(self.field, origins, dirs, sampler, to_rest)
+            def sky(dirs):
+                return ray_background(self.field, dirs, self.background).expand(len(dirs), 3)
 
-            backdrop = world_backdrop(self.look, self.world, visibility, self.obstacles)
-            if self.look.ground or self.obstacles:
-                tick = time.perf_counter()
-                rays = camera_rays(cameras, index, device=self.device)
-                t_max = surface_t_max(self.look, self.world, self.obstacles, *rays)
-                hidden = time.perf_counter() - tick
-        image, stats = render_camera(
-            self.field, cameras, index, sampler, self.background, to_rest, backdrop=backdrop, t_max=t_max
-        )
-        stats["build_ms"] = 1000.0 * build
-        if t_max is not None:
-            stats["world_ms"] += 1000.0 * hidden
-        stats["ms"] = 1000.0 * (time.perf_counter() - start)
-        return image, stats
-
-    def _render_cut(self, cameras, index: int, sampler, to_rest, start: float, build: float):
-        """:meth:`render` of a cut asset: the body (``sampler``, ``to_rest``) and its backdrop, both in the
-        asset's frame, merged by depth (:func:`neural.render.view.render_bodies`) over the field's
-        environment map or the world of the ``look`` (under the same environment map, :meth:`capture_sky`)."""
-        from neural.data import camera_rays
-        from neural.render.bodies import FieldBody
-        from neural.render.fullray import ray_background
-        from neural.render.view import bodies_transmittance, render_bodies
-        from shellsim.film.ground import surface_t_max, world_backdrop
-
-        bodies = [FieldBody(self.field, sampler, self._cut_away(to_rest)), self.backdrop_body(framed=False)]
-        origins, dirs = camera_rays(cameras, index, device=self.device)
-        t_max = None
-        if self.look is None:
-
-            def behind(o, d):
-                return ray_background(self.field, d, self.background).expand(len(d), 3)
-
-        else:
-
-            def visibility(o, d):
-                return bodies_transmittance(bodies, o, d)
-
-            behind = world_backdrop(
-                self.look, self.world, visibility, self.obstacles, sky_colors=self.capture_sky()
+        def trace(view, pixels=None):
+            colors, stats = trace_world(
+                bodies, view, pixels, self.background, self.device, self.static, sky=sky
             )
-            if self.look.ground or self.obstacles:
-                t_max = surface_t_max(self.look, self.world, self.obstacles, origins, dirs)
-        colors, stats = render_bodies(bodies, origins, dirs, self.background, backdrop=behind, t_max=t_max)
-        return _camera_image(colors, stats, cameras, index, start, build)
+            stats["build_ms"] = 1000.0 * build.pop() if build else 0.0
+            return colors, stats
+
+        return trace
+
+    def render(self, cameras, index: int, positions=None) -> tuple[np.ndarray, dict]:
+        """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` with the cage at ``positions``
+        (V, 3) (None: at rest, :func:`neural.render.view.render_camera` with the asset's sampler), and the
+        stats of :meth:`tracer` (``counts`` (H, W); ``ms`` with the build). With a ``look`` the world is
+        behind the body, its shadow rays sampled and mapped as the camera rays are, and its obstacles hide
+        what is behind them."""
+        start = time.perf_counter()
+        colors, stats = self.tracer(positions)(cameras.subset([index]))
+        return _camera_image(colors, stats, cameras, index, start)
+
+
+def trace_world(bodies, view, pixels, background, device, static=None, moving=None, sky=None):
+    """Colours (P, 3) float32 in [0, 1] of the pixels ``pixels`` (P,) int64 (row-major; None: all) of the
+    one-camera ``view`` through the fields of ``bodies`` (:class:`neural.render.bodies.FieldBody`,
+    :func:`neural.render.view.render_bodies`) over what lies behind them: with ``static`` (a
+    :class:`~shellsim.film.static.StaticWorld`) its layer of these pixels (kept per view), the ``moving``
+    meshes (:class:`~shellsim.film.obstacles.Meshes`) and the bodies' shadows
+    (:func:`~shellsim.film.ground.world_colors`; shadow rays through every body,
+    :func:`neural.render.view.bodies_transmittance`), the nearest surface of each ray hiding the fields
+    behind it; else ``sky(dirs (P, 3)) -> (P, 3)`` (None: ``background`` (3,)). Stats: those of
+    ``render_bodies`` with ``static_ms`` (the layer and the surfaces' ``t_max``), ``shadow_ms`` (the shadow
+    rays, out of ``world_ms``) and ``ms`` with the rays."""
+    from neural.data import camera_rays
+    from neural.render.view import bodies_transmittance, render_bodies
+    from shellsim.film.ground import surface_t_max, world_colors
+
+    start = time.perf_counter()
+    origins, dirs = camera_rays(view, 0, device=device, pixels=pixels)
+    backdrop = t_max = None
+    static_s, shadow_s = 0.0, [0.0]
+    if static is not None:
+        tick = time.perf_counter()
+        layer = static.view_layer(view, pixels, origins, dirs)
+        look = static.look
+        if look.ground or static.obstacles or static.meshes or moving:
+            t_max = layer.t
+            if moving:
+                t_max = torch.minimum(t_max, surface_t_max(look, static.frame, None, origins, dirs, moving))
+        static_s = time.perf_counter() - tick
+
+        def visibility(o, d):
+            tick = time.perf_counter()
+            seen = bodies_transmittance(bodies, o, d)
+            shadow_s[0] += time.perf_counter() - tick
+            return seen
+
+        shadows = visibility if bodies else None
+
+        def backdrop(o, d, rays):
+            return world_colors(
+                look, static.frame, layer.select(rays), o, d, shadows, moving, static.obstacles, static.meshes
+            )
+
+    elif sky is not None:
+
+        def backdrop(o, d, rays):
+            return sky(d)
+
+    colors, stats = render_bodies(bodies, origins, dirs, background, backdrop=backdrop, t_max=t_max)
+    stats["static_ms"] = 1000.0 * static_s
+    stats["shadow_ms"] = 1000.0 * shadow_s[0]
+    stats["world_ms"] -= stats["shadow_ms"]
+    stats["ms"] = 1000.0 * (time.perf_counter() - start)
+    return colors.clamp(0, 1), stats
 
 
 class TintedField:
@@ -275,12 +317,12 @@ class TintedField:
 @dataclasses.dataclass
 class SceneFrame:
     """What one frame of a scene draws, whatever the camera (:meth:`SceneRenderer.frame`): ``bodies`` the
-    :class:`neural.render.bodies.FieldBody` of every neural body (and a cut body's room), ``opaque`` the
-    :class:`shellsim.film.obstacles.Meshes` of the static and mesh bodies, ``capture_sky`` a cut body's
-    environment map (or None)."""
+    :class:`neural.render.bodies.FieldBody` of every neural body (and a cut body's room), ``moving`` the
+    :class:`shellsim.film.obstacles.Meshes` of the mesh bodies, ``capture_sky`` a cut body's environment map
+    (or None)."""
 
     bodies: list
-    opaque: object
+    moving: object
     capture_sky: object
 
 
@@ -290,13 +332,15 @@ class SceneRenderer:
     (:func:`neural.render.view.render_bodies`); the surfaces of its mesh bodies and its static colliders as
     opaque meshes (:class:`shellsim.film.obstacles.Meshes`) and ``obstacles``; the world's ground, light,
     sky and shadows of ``look`` (:class:`shellsim.world.WorldLook`; shadow rays through every body's field,
-    :func:`neural.render.view.bodies_transmittance`). A body cut out of a capture
-    (:mod:`neural.shell.cutout`) brings its room, the backdrop of its asset, drawn at rest where the asset is
-    placed, and the world's ground is not drawn: the body stands on its own table; the environment map of
-    its capture is the sky (:meth:`DeformedRenderer.capture_sky`).
+    :func:`neural.render.view.bodies_transmittance`), its static part (ground, colliders, their shadows on
+    each other) drawn once per camera view (:class:`shellsim.film.static.StaticWorld`). A body cut out of a
+    capture (:mod:`neural.shell.cutout`) brings its room, the backdrop of its asset, drawn at rest where the
+    asset is placed, and the world's ground is not drawn: the body stands on its own table; the environment
+    map of its capture is the sky (:meth:`DeformedRenderer.capture_sky`).
 
     bodies : one :class:`DeformedRenderer` per neural body (made with its ``placement``, without a look)
-    statics : ``(vertices (N, 3) world, faces (F, 3), albedo (3,))`` of the static meshes
+    statics : ``(vertices (N, 3) world, faces (F, 3), albedo (3,))`` of the static meshes (one Embree scene,
+        built here)
     obstacles : :class:`shellsim.film.obstacles.Obstacles` (boxes and spheres met in closed form)
     background : RGB behind everything without a ``look`` (with a cut body: its capture's environment map)
     """
@@ -304,33 +348,39 @@ class SceneRenderer:
     def __init__(
         self, bodies, look=None, obstacles=None, statics=(), device: str = "cpu", background=(1, 1, 1)
     ):
-        from shellsim.film.obstacles import Obstacles
+        from shellsim.film.obstacles import Meshes, Obstacles
+        from shellsim.film.static import StaticWorld
+        from shellsim.world import Placement
 
         self.bodies = list(bodies)
         if any(r.cut is not None for r in self.bodies):
             look = _without_ground(look)  # a cut-out body stands on its own room's table
         self.look = look
         self.obstacles = Obstacles() if obstacles is None else obstacles
-        self.statics = list(statics)
+        self.statics = Meshes(statics)
         self.device = torch.device(device)
         self.background = torch.as_tensor(background, dtype=torch.float32, device=self.device)
+        self.capture_sky = next((sky for sky in (r.capture_sky() for r in self.bodies) if sky), None)
+        self.static = None  # the world's static part, drawn once per view
+        if look is not None:  # the bodies and the cameras are in the world
+            self.static = StaticWorld(look, Placement(), self.obstacles, (self.statics,), self.capture_sky)
 
     def frame(self, positions=(), meshes=()) -> SceneFrame:
         """What a frame draws whatever the camera (:class:`SceneFrame`): each neural body's cage at
         ``positions[b]`` (V_b, 3) in its asset's frame (None: at rest; empty: every body at rest), the mesh
-        bodies' surfaces ``meshes`` (``(vertices (S, 3) world, faces, albedo)``) with the static meshes."""
+        bodies' surfaces ``meshes`` (``(vertices (S, 3) world, faces, albedo)``)."""
         from shellsim.film.obstacles import Meshes
 
         positions = list(positions) or [None] * len(self.bodies)
         bodies = [r.field_body(p) for r, p in zip(self.bodies, positions, strict=True)]
         bodies += [r.backdrop_body() for r in self.bodies if r.cut is not None]  # cut assets' rooms, at rest
-        capture_sky = next((sky for sky in (r.capture_sky() for r in self.bodies) if sky), None)
-        return SceneFrame(bodies, Meshes([*self.statics, *meshes]), capture_sky)
+        return SceneFrame(bodies, Meshes(meshes), self.capture_sky)
 
     def backdrop(self, frame: SceneFrame, look=None):
-        """What the rays of ``frame`` that leave every body meet (``backdrop(origins, dirs)``): the world of
-        ``look`` (None: the renderer's; its sky, lit ground and colliders, the bodies' shadows on them), else
-        a cut body's capture sky, else None (the background colour)."""
+        """What the rays of ``frame`` that leave every body meet (``backdrop(origins, dirs, rays=None)``): the
+        world of ``look`` (None: the renderer's; its sky, lit ground and colliders, the mesh bodies, the
+        shadows of all on them), drawn whole for any rays, else a cut body's capture sky, else None (the
+        background colour)."""
         from neural.render.view import bodies_transmittance
         from shellsim.film.ground import world_backdrop
         from shellsim.world import Placement
@@ -341,61 +391,73 @@ class SceneRenderer:
             def visibility(o, d):
                 return bodies_transmittance(frame.bodies, o, d)
 
-            world = Placement()  # the bodies and the cameras are in the world
             shadows = visibility if frame.bodies else None
-            return world_backdrop(look, world, shadows, self.obstacles, frame.opaque, frame.capture_sky)
+            return world_backdrop(
+                look, Placement(), shadows, self.obstacles, self.statics, frame.capture_sky, frame.moving
+            )
         if frame.capture_sky is not None:
             sky = frame.capture_sky
 
-            def backdrop(o, d):
+            def backdrop(o, d, rays=None):
                 return sky(d)
 
             return backdrop
         return None
 
     def t_max(self, frame: SceneFrame, origins, dirs):
-        """(R,) where the world's ground, colliders and opaque meshes cut the rays ``origins``, ``dirs``
+        """(R,) where the world's ground, colliders and mesh bodies cut the rays ``origins``, ``dirs``
         (R, 3), or None when nothing can."""
         from shellsim.film.ground import surface_t_max
         from shellsim.world import Placement
 
         look = self.look
-        if look is None or not (look.ground or self.obstacles or frame.opaque):
+        if look is None or not (look.ground or self.obstacles or self.statics or frame.moving):
             return None
-        return surface_t_max(look, Placement(), self.obstacles, origins, dirs, frame.opaque)
+        return surface_t_max(look, Placement(), self.obstacles, origins, dirs, (self.statics, frame.moving))
+
+    def tracer(self, positions=(), meshes=()):
+        """``trace(view, pixels=None) -> (colors (P, 3) float32 in [0, 1], stats)``: the pixels ``pixels``
+        (P,) int64 (row-major; None: all) of the one-camera ``view`` (world frame) of the :meth:`frame` of
+        ``positions`` and ``meshes``, built once for every trace (:func:`trace_world`; the static world kept
+        per view). Stats: :func:`trace_world`'s, the first trace's with ``build_ms``."""
+        start = time.perf_counter()
+        frame = self.frame(positions, meshes)
+        build = [time.perf_counter() - start]
+        if self.static is not None:
+            self.static.next_frame()
+
+        def trace(view, pixels=None):
+            colors, stats = trace_world(
+                frame.bodies,
+                view,
+                pixels,
+                self.background,
+                self.device,
+                self.static,
+                frame.moving,
+                frame.capture_sky,
+            )
+            stats["build_ms"] = 1000.0 * build.pop() if build else 0.0
+            return colors, stats
+
+        return trace
 
     def render(self, cameras, index: int, positions=(), meshes=()) -> tuple[np.ndarray, dict]:
         """Image (H, W, 3) float32 in [0, 1] of camera ``index`` of ``cameras`` (world frame) of the
-        :meth:`frame` of ``positions`` and ``meshes``, and the stats of
-        :func:`neural.render.view.render_bodies` plus ``build_ms`` (deforming the shells, refitting, the
-        opaque meshes' scene) and ``ms`` with it."""
-        from neural.data import camera_rays
-        from neural.render.view import render_bodies
-
+        :meth:`frame` of ``positions`` and ``meshes``, and the stats of :meth:`tracer` (``counts`` (H, W),
+        ``ms`` with the build)."""
         start = time.perf_counter()
-        frame = self.frame(positions, meshes)
-        build = time.perf_counter() - start
-        origins, dirs = camera_rays(cameras, index, device=self.device)
-        colors, stats = render_bodies(
-            frame.bodies,
-            origins,
-            dirs,
-            self.background,
-            backdrop=self.backdrop(frame),
-            t_max=self.t_max(frame, origins, dirs),
-        )
-        return _camera_image(colors, stats, cameras, index, start, build)
+        colors, stats = self.tracer(positions, meshes)(cameras.subset([index]))
+        return _camera_image(colors, stats, cameras, index, start)
 
 
-def _camera_image(colors, stats: dict, cameras, index: int, start: float, build: float):
-    """Image (H, W, 3) float32 in [0, 1] of camera ``index``'s colours (H W, 3) from
-    :func:`neural.render.view.render_bodies`, and its ``stats`` with ``counts`` (H, W), ``build_ms``
-    (``build`` seconds) and ``ms`` since ``start`` (``time.perf_counter``)."""
+def _camera_image(colors, stats: dict, cameras, index: int, start: float):
+    """Image (H, W, 3) float32 of camera ``index``'s colours (H W, 3) in [0, 1] from a tracer, and its
+    ``stats`` with ``counts`` (H, W) and ``ms`` since ``start`` (``time.perf_counter``)."""
     h, w = int(cameras.height[index]), int(cameras.width[index])
     stats["counts"] = stats["counts"].reshape(h, w)
-    stats["build_ms"] = 1000.0 * build
     stats["ms"] = 1000.0 * (time.perf_counter() - start)
-    return colors.clamp(0, 1).reshape(h, w, 3).cpu().numpy(), stats
+    return colors.reshape(h, w, 3).cpu().numpy(), stats
 
 
 def _without_ground(look):

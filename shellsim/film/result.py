@@ -26,7 +26,8 @@ class RenderResult:
     samples_per_pixel : mean samples evaluated per pixel (None when none was rendered, or for a motion's own
         surface drawn with pyvista)
     stage_ms : mean milliseconds per frame of each stage (``build``, ``sample``, ``map``, ``shade``,
-        ``world``: :data:`shellsim.film.renderer.STAGES`); empty when none was rendered or for a surface
+        ``world``, ``static``, ``shadow``: :data:`shellsim.film.renderer.STAGES`); empty when none was
+        rendered or for a surface
     video : the MP4 assembled from ``frames``, None without one
     """
 

@@ -19,11 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from shellsim.errors import SettingError
+from shellsim.film.antialias import ADAPTIVE_THRESHOLD, adaptive, pixel_offsets
 from shellsim.film.cameras import MOTION_ANTIALIAS, VIDEO_SIZE, MotionTrack
 from shellsim.film.motion_frames import (
-    antialiased,
     check_quality,
-    pixel_offsets,
     preview_look,
     preview_size,
     quality_identity,
@@ -112,7 +111,8 @@ def scene_renderer(scene, device: str, look):
 
 def _scene_frames(scene, device: str, antialias: int, look):
     """``render_one((view, k))`` of :func:`render_frames`: motion frame ``k`` of ``scene`` seen by the
-    one-camera ``view`` (world frame), ``antialias`` jittered rays per pixel."""
+    one-camera ``view`` (world frame), ``antialias`` jittered rays per pixel where its neighbourhood varies
+    (:func:`shellsim.film.antialias.adaptive`), the static world kept while the view repeats."""
     from shellsim.motion.read import read_frames
 
     renderer = scene_renderer(scene, device, look)
@@ -124,7 +124,7 @@ def _scene_frames(scene, device: str, antialias: int, look):
         positions = read_frames(scene.path, [k])[0]
         cages = [b.placement.to_asset(positions[b.vertices]) for b in neural]
         surfaces = [(b.surface_points(positions[b.vertices]), b.surface_faces, b.color) for b in meshes]
-        return antialiased(lambda v: renderer.render(v, 0, cages, surfaces), antialias)(view)
+        return adaptive(renderer.tracer(cages, surfaces), antialias)(view)
 
     return render_one
 
@@ -166,6 +166,7 @@ def scene_renderer_identity(scene, antialias: int, look) -> str:
         "narrowband": [dataclasses.asdict(b.asset.narrowband_config()) for b in scene.bodies if b.asset],
         "colors": [b.color for b in scene.bodies],
         "antialias": antialias,
+        "adaptive": ADAPTIVE_THRESHOLD,
         "world": {"renderer": WORLD_RENDERER, "look": dataclasses.asdict(scene_look(scene, look))},
     }
     return digest("scene", json.dumps(settings, sort_keys=True))

@@ -107,18 +107,23 @@ def stale_reason(path: Path, record: dict) -> str | None:
     return ", ".join(parts)
 
 
-def renderer_identity(asset, antialias: int = 1, world: dict | None = None) -> str:
+def renderer_identity(
+    asset, antialias: int = 1, world: dict | None = None, adaptive: float | None = None
+) -> str:
     """Digest of the narrow-band renderer's settings for ``asset`` (its sampling and background), the
-    jittered rays per pixel ``antialias`` (:func:`shellsim.film.motion_frames.antialiased`; 1, one ray through
-    each pixel's centre, leaves the digest as it was before antialiasing, so those PNGs stay valid) and the
-    ``world`` around the body (JSON: its look, the body's placement and the static obstacles,
-    :func:`shellsim.film.motion_frames.world_record`; None, the asset's background, leaves the digest as it
-    was)."""
+    jittered rays per pixel ``antialias`` (:func:`shellsim.film.antialias.antialiased`; 1, one ray through
+    each pixel's centre, leaves the digest as it was before antialiasing, so those PNGs stay valid), given
+    only where a pixel's neighbourhood spans more than ``adaptive`` (:func:`shellsim.film.antialias.adaptive`;
+    None: everywhere), and the ``world`` around the body (JSON: its look, the body's placement and the static
+    obstacles, :func:`shellsim.film.motion_frames.world_record`; None, the asset's background, leaves the
+    digest as it was)."""
     from dataclasses import asdict
 
     settings = {"narrowband": asdict(asset.narrowband_config()), "background": list(asset.background)}
     if antialias != 1:
         settings["antialias"] = antialias
+        if adaptive is not None:
+            settings["adaptive"] = adaptive
     if world is not None:
         settings["world"] = world
     return digest("narrow band", json.dumps(settings, sort_keys=True))

@@ -107,7 +107,7 @@ def evaluate(settings: EvalSettings) -> EvalResult:
     from neural.metrics import lpips_status
     from neural.render.view import asset_sampler, full_ray_sampler, render_camera
     from neural.train import evaluate as evaluate_views
-    from shellsim.film.motion_frames import antialiased
+    from shellsim.film.antialias import antialiased
     from shellsim.io.outputs import check_writable_dir, check_writable_file, lock_output
 
     if settings.json:

@@ -76,7 +76,8 @@ class RenderSettings:
     video: str | None = option(help="with --motion: also write the frames as this MP4")
     fps: float | None = option(help="video frame rate", shown_default="the motion's")
     antialias: int | None = option(
-        help="jittered rays per pixel, averaged (1: one ray through each pixel's centre, as 'eval' scores)",
+        help="jittered rays per pixel, averaged, where a pixel's neighbourhood varies (edges, texture, "
+        "silhouettes; one ray elsewhere); 1: one ray through each pixel's centre, as 'eval' scores",
         shown_default=f"{MOTION_ANTIALIAS} with --motion, else 1",
     )
     ground: bool = option(

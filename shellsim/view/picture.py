@@ -48,7 +48,7 @@ class PictureSettings:
     low_side : long side in pixels of the pictures made while requests keep coming (one ray per pixel)
     max_side : cap of the refined pictures' long side (the window's size when the camera gives it, else this)
     antialias : jittered rays per pixel of the last refinement
-        (:func:`shellsim.film.motion_frames.antialiased`; 1: none)
+        (:func:`shellsim.film.antialias.antialiased`; 1: none)
     settle : seconds without a new request before refining
     tile_rows : rows per tile of a refinement (a newer request is seen between two tiles)
     moving_shadows : shadow rays in the low-resolution pictures (False: the light is never blocked there)
@@ -62,7 +62,7 @@ class PictureSettings:
     moving_shadows: bool = True
 
     def __post_init__(self):
-        from shellsim.film.motion_frames import pixel_offsets
+        from shellsim.film.antialias import pixel_offsets
 
         for name in ("low_side", "max_side", "tile_rows"):
             value = getattr(self, name)
@@ -438,7 +438,7 @@ class NeuralPicture:
         unless ``with_depth``; ``moving``: the backdrop of :attr:`PictureSettings.moving_shadows`."""
         import torch
 
-        from shellsim.film.motion_frames import pixel_offsets
+        from shellsim.film.antialias import pixel_offsets
 
         frame = self._frame_of(positions)
         view = camera.cameras(width, height)

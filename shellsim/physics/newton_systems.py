@@ -3,10 +3,10 @@ iteration, their sparsity patterns mostly alike from one to the next (the cage's
 
 Two ways, the faster where it is installed:
 
-- ``"cholesky"``: MKL Pardiso's supernodal sparse Cholesky (``pypardiso``'s binding; sequential MKL, see
-  :func:`pardiso_solver`), on the upper triangle with METIS ordering. The ordering and symbolic analysis are
-  kept while the pattern holds (a contact between bodies changes it), so an iteration costs one numeric
-  factorisation and one solve.
+- ``"cholesky"``: MKL Pardiso's supernodal sparse Cholesky (``pypardiso``'s binding; two threads for large
+  systems, :data:`PARALLEL_UNKNOWNS`), on the upper triangle with METIS ordering. The ordering and symbolic
+  analysis are kept while the pattern holds (a contact between bodies changes it), so an iteration costs one
+  numeric factorisation and one solve.
 - ``"cg"``: SciPy only. Conjugate gradients preconditioned by the exact factorisation (SuperLU,
   minimum-degree ordering of ``A^T + A``, symmetric pivoting) of an earlier ``H``, refactored from the
   current one when CG would need more than :data:`REUSE_ITERATIONS`.
@@ -17,6 +17,7 @@ and 54 (docs/measurements.md).
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import logging
 import os
@@ -33,6 +34,11 @@ REUSE_ITERATIONS = 25
 #: The analysed pattern of :class:`PardisoCholesky` restarts from the current matrix's when it holds more
 #: than this many times the current matrix's entries.
 UNION_GROWTH = 1.2
+#: Systems of fewer unknowns are factorised on one thread. On 2 cores of a quiet machine: a live cage's (some
+#: 3,000; the viewer's picture and Warp busy meanwhile) ran at 7.7 / 8.8 live frames a second on two against
+#: 8.2 / 9.9 on one; sim_bench's 8k-tet cube (5,184) took 69 against 96 ms a step, a lego_on_bunny system
+#: (13,698) factorised in 15 against 26-37 ms (docs/measurements.md).
+PARALLEL_UNKNOWNS = 4000
 #: The hint when ``pypardiso`` cannot be loaded.
 PARDISO_HINT = "pypardiso (MKL) is not installed: Newton systems use SciPy's SuperLU, several times slower"
 
@@ -45,10 +51,9 @@ def pardiso_solver():
     named there first: from the ``mkl`` package's file list, else as the first solver found it."""
     import pypardiso
 
-    # one thread: on 2 cores shared with Warp, ipctk (TBB) and torch (GNU OpenMP), MKL's own OpenMP runtime
-    # ran 2-3x slower than sequential whenever another thread was busy, and two OpenMP runtimes in one
-    # process can hang (docs/measurements.md)
-    os.environ.setdefault("MKL_THREADING_LAYER", "SEQUENTIAL")
+    # MKL's threads on GNU OpenMP (torch's runtime): Intel's own beside it is a second OpenMP runtime in the
+    # process, which can hang at exit
+    os.environ.setdefault("MKL_THREADING_LAYER", "GNU")
     if "PYPARDISO_MKL_RT" not in os.environ:
         from importlib import metadata
 
@@ -94,6 +99,8 @@ class PardisoCholesky:
         solver.set_iparm(1, 1)  # these parameters, not the defaults
         solver.set_iparm(2, 2)  # METIS nested dissection
         self._error = pypardiso.pardiso_wrapper.PyPardisoError
+        self._threads = solver.libmkl.MKL_Set_Num_Threads_Local  # this thread's MKL threads; 0: the default
+        self._threads.argtypes, self._threads.restype = [ctypes.c_int], ctypes.c_int
         self._base: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # indptr, indices, keys
         self._union: np.ndarray | None = None  # keys of the analysed pattern
         self._pattern: tuple[np.ndarray, np.ndarray, np.ndarray] | None = (
@@ -105,7 +112,11 @@ class PardisoCholesky:
 
     def _call(self, phase: int, upper: sp.csr_matrix, rhs: np.ndarray) -> np.ndarray:
         self._solver.set_phase(phase)
-        return self._solver._call_pardiso(upper, rhs)
+        before = self._threads(0 if upper.shape[0] >= PARALLEL_UNKNOWNS else 1)
+        try:
+            return self._solver._call_pardiso(upper, rhs)
+        finally:
+            self._threads(before)
 
     def factor(self, base: sp.csr_matrix, extra: sp.csr_matrix | None = None) -> bool:
         """Factorises the matrix whose upper triangle is ``base + extra`` (n, n); False when it is not

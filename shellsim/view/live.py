@@ -45,9 +45,9 @@ LIVE_TETS = 1200
 LIVE_MARGIN = 0.05
 #: Substeps per live frame and Newton iterations per substep at most. On 2 CPU cores, a poke held on the
 #: furry bunny / the LEGO resting on it (``examples/scenes/lego_on_bunny.toml``, live cages of 1,799 and
-#: 1,602 tets) runs at 2.7 / 3.2 frames/s with these, 4.4 / 5.5 with 1 substep (which strays: a pulled
-#: cantilever's point drifted 1 cm sideways in tests/test_view_live.py's scene), 1.0 / 0.7 with 2 substeps
-#: of up to 8 iterations (``bench/live_bench.py``); most of an iteration is ipctk's broad phase.
+#: 1,602 tets) runs at 7.2-8.8 / 9.4-10.0 frames/s with these, 13.5 / 17.7 with 1 substep (which strays: a
+#: pulled cantilever's point drifts sideways in tests/test_view_live.py's scene), 4.2 / 7.4 with 2 substeps
+#: converged (``bench/live_bench.py``); most of an iteration is the Newton system's factorisation.
 LIVE_SUBSTEPS = 2
 LIVE_NEWTON_ITERATIONS = 3
 #: Half-width of a recorded push's region, relative to the body's largest extent at t = 0.

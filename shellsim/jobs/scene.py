@@ -138,9 +138,10 @@ def scene_record(spec) -> dict:
 
 def simulated_part(record: dict) -> dict:
     """What of a :func:`scene_record` the motion depends on: all but the cameras, the look and the colours
-    of bodies and colliders; a record made before ``[world] settle`` existed settled for 0 s."""
+    of bodies and colliders; a record made before ``[world] settle`` and ``integrator`` existed settled for
+    0 s and integrated by backward Euler."""
     part = {k: v for k, v in record.items() if k not in ("cameras", "look")}
-    part["world"] = {"settle": 0.0, **part.get("world", {})}
+    part["world"] = {"settle": 0.0, "integrator": "euler", **part.get("world", {})}
     for table in ("bodies", "colliders"):
         part[table] = [{k: v for k, v in e.items() if k != "color"} for e in part.get(table, [])]
     return part

@@ -38,9 +38,11 @@ from shellsim.film.world import WorldSettings, world_option
 from shellsim.io.outputs import holds_outputs
 from shellsim.jobs.recording import REPLACE
 from shellsim.motion.format import MAX_FPS, MAX_FRAMES
+from shellsim.physics.model import INTEGRATORS
 from shellsim.physics.selection import selection_text
 from shellsim.settings import (
     allow_stretch_option,
+    check_choice,
     check_range,
     device_setting,
     floats,
@@ -99,6 +101,12 @@ class SimulateSettings:
     frames: int = option(90, help="number of frames, the first the initial state")
     fps: float = option(30.0, help="frames per second")
     substeps: int = option(8, help="implicit steps per frame")
+    integrator: str = option(
+        "euler",
+        help="time integration: euler (backward Euler, first order: motion loses energy to it) or bdf2 "
+        "(second order: a rubber ball bounces)",
+        choices=INTEGRATORS,
+    )
     size: float | None = option(
         help="scale the body so that its visible surface's largest extent measures this many metres",
         shown_default=f"{BODY_SIZE} for --asset; a --mesh keeps its own size, see --units",
@@ -203,6 +211,7 @@ class SimulateSettings:
             check_range("margin", self.margin, 0, 1, "a fraction of the shell's diagonal", "(]")
         check_range("frames", self.frames, 1, MAX_FRAMES, "an integer")
         check_range("substeps", self.substeps, 1, MAX_SUBSTEPS, "an integer")
+        check_choice("integrator", self.integrator, INTEGRATORS)
         if self.tets is not None:
             check_range("tets", self.tets, 10, 1_000_000_000, "an integer")
         check_range("fps", self.fps, 0, MAX_FPS, "a number of frames per second", "(]")
@@ -270,6 +279,11 @@ def motion_settings(settings: SimulateSettings) -> dict:
     return record
 
 
+def _as_recorded(record: dict) -> dict:
+    """``record`` as it compares: one made before ``integrator`` existed integrated by backward Euler."""
+    return {"integrator": "euler", **record}
+
+
 #: How a changed setting is named when it is not the field itself (placeholders of SettingError).
 _OPTIONS = {
     "youngs": "Young's modulus ({youngs})",
@@ -325,7 +339,7 @@ def simulate(settings: SimulateSettings, progress: bool = True) -> SimulateResul
         log.info("the scene file of this run: %s ('shellsim scene %s' makes the same motion)", path, path)
 
     record = motion_settings(s)
-    writer = resume_or_refuse(out, PRODUCER, record, s.overwrite, s.resume, _OPTIONS)
+    writer = resume_or_refuse(out, PRODUCER, record, s.overwrite, s.resume, _OPTIONS, compared=_as_recorded)
     if writer is not None and not writer.motion.placement:
         raise SettingError(
             "out", f"was made by an earlier shellsim in the asset's own units, not metres; {REPLACE}", out
@@ -409,6 +423,7 @@ def scene_of(settings: SimulateSettings) -> SceneSpec:
         fps=float(s.fps),
         frames=s.frames,
         substeps=s.substeps,
+        integrator=s.integrator,
         ground=s.ground,
         ground_friction=s.friction,
         damping=s.damping,

@@ -210,15 +210,25 @@ class Contact:
     # ------------------------------------------------------------------------------------------------------
 
     def begin_step(
-        self, x_start: np.ndarray, h: float, grad_energy, average_mass: float, size: float
+        self,
+        x_start: np.ndarray,
+        h: float,
+        grad_energy,
+        average_mass: float,
+        size: float,
+        x_base: np.ndarray | None = None,
     ) -> None:
         """Fix the barrier stiffness and the lagged friction of a step of ``h`` [s] at its start ``x_start``
         (N, 3): ``grad_energy()`` (N, 3) the gradient of the rest of the potential there (called only at the
         first step, which sets the stiffness), ``average_mass`` the mean vertex mass over ``h^2`` (the
-        inertia term's scale), ``size`` the scene's bounding-box diagonal."""
+        inertia term's scale), ``size`` the scene's bounding-box diagonal; friction's slip is measured from
+        ``x_base`` (N, 3), the point the step's velocity is taken from (None: ``x_start``; BDF2's differs)."""
         ipctk = self._ipctk
         found = self._found(x_start)
-        self._starts = [(part, u) for part, u, _ in found]  # (part, its vertices at the step's start)
+        if x_base is None or x_base is x_start:
+            self._starts = [(part, u) for part, u, _ in found]  # (part, its vertices slip is measured from)
+        else:
+            self._starts = self._each(self.surface(x_base))
         self._size = size
         unit = ipctk.BarrierPotential(self.dhat, 1.0)
         if self.kappa == 0.0:  # the first step; later ones keep the stiffness the gaps were balanced with

@@ -20,6 +20,10 @@ from shellsim.physics.materials import Material
 from shellsim.physics.state import State
 from shellsim.tetcage.geometry import MIN_VOLUME_RATIO, check_tets, tet_volumes
 
+#: The time integrators: backward Euler (first order: it damps motion numerically, and a rubber ball's
+#: bounce dies with it) and BDF2 (second order: far less numerical damping at the same step).
+INTEGRATORS = ("euler", "bdf2")
+
 
 @dataclass(frozen=True)
 class SolverSettings:
@@ -33,6 +37,8 @@ class SolverSettings:
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     damping: float = 0.0  # Kelvin-Voigt beta [s]
     drag: float = 0.0  # velocity drag alpha [1/s]
+    # time integration: "euler" (backward Euler) or "bdf2" (second-order backward differences)
+    integrator: str = "euler"
     # Newton's method
     newton_iterations: int = 40  # at most, per substep
     newton_tol: float = 1.0e-2  # stop when max |dx| / h < newton_tol * (smallest body's diagonal) per s
@@ -57,6 +63,10 @@ class SolverSettings:
         for name in ("substeps", "newton_iterations"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"SolverSettings.{name} must be >= 1, got {getattr(self, name)}")
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(
+                f"SolverSettings.integrator must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}"
+            )
         up = np.asarray(self.up, dtype=np.float64)
         if up.shape != (3,) or not np.isfinite(up).all() or np.linalg.norm(up) == 0:
             raise ValueError(f"SolverSettings.up must be a non-zero 3-vector, got {self.up!r}")

@@ -78,9 +78,35 @@ class Solver:
         self.size = float(np.linalg.norm(rest.max(0) - rest.min(0)))
         self._tol_size = min(m.size for m in self.models)
         self.systems = NewtonSystems(linear_solver)
+        self._base = [m.state() for m in self.models]  # BDF2's starting states
+        #: BDF2's memory: the last step's (x_in, v_in, x_out, v_out) (N, 3) and its h, or None
+        self._history: tuple | None = None
         self._pattern = _block_diagonal_pattern(
             [t.hessian_pattern for t in self.bodies], self.starts, upper=self.systems.triangle == "upper"
         )
+
+    def memory(self) -> dict[str, np.ndarray]:
+        """What BDF2 keeps of the last step, which led to the current state, for a run to continue exactly:
+        ``last_positions``, ``last_velocities`` (N, 3) and ``last_step`` (1,) [s]; empty when there is none
+        (backward Euler, or no step yet)."""
+        if self._history is None:
+            return {}
+        x_last, v_last, _, _, h = self._history
+        return {"last_positions": x_last, "last_velocities": v_last, "last_step": np.array([h])}
+
+    def remember(self, memory: dict[str, np.ndarray], positions: np.ndarray, velocities: np.ndarray) -> None:
+        """Take back a :meth:`memory` of the step that led to ``positions``, ``velocities`` (N, 3) (empty:
+        the next step starts afresh, as BDF2's first does); a ValueError when it does not fit."""
+        if not memory:
+            self._history = None
+            return
+        x_last, v_last = (
+            np.asarray(memory.get(k), np.float64) for k in ("last_positions", "last_velocities")
+        )
+        h = np.asarray(memory.get("last_step"), np.float64).ravel()
+        if x_last.shape != positions.shape or v_last.shape != positions.shape or h.shape != (1,):
+            raise ValueError("the integrator's memory of the last step does not fit the bodies")
+        self._history = (x_last, v_last, positions.copy(), velocities.copy(), float(h[0]))
 
     def split(self, x: np.ndarray) -> list[np.ndarray]:
         """The bodies' rows of global positions ``x`` (N, 3)."""
@@ -125,8 +151,20 @@ class Solver:
         """One step of ``h`` [s] of every body from ``states_in`` into ``states_out`` under ``controls``."""
         s, contact = self.settings, self.contact
         stats = SolveStats()
-        steps = [terms.prepare(a, c, h) for terms, a, c in zip(self.bodies, states_in, controls, strict=True)]
         x_n = np.concatenate([st.positions.numpy() for st in states_in])
+        v_n = np.concatenate([st.velocities.numpy() for st in states_in])
+        # the state the step starts from and its length: the last state and h (backward Euler), or BDF2's
+        # combination of the last two states and 2h/3 (when the last step led here with the same h)
+        base, x_base, h_step = states_in, x_n, h
+        if s.integrator == "bdf2" and self._history is not None:
+            x_last, v_last, x_end, v_end, h_last = self._history
+            if h_last == h and np.array_equal(x_end, x_n) and np.array_equal(v_end, v_n):
+                x_base, h_step = (4.0 * x_n - x_last) / 3.0, 2.0 * h / 3.0
+                v_base = (4.0 * v_n - v_last) / 3.0
+                base = self._base
+                for state, x_part, v_part in zip(base, self.split(x_base), self.split(v_base), strict=True):
+                    state.set(x_part, v_part)
+        steps = [terms.prepare(a, c, h_step) for terms, a, c in zip(self.bodies, base, controls, strict=True)]
         x_tilde = np.concatenate([terms.prediction for terms in self.bodies])
         pinned = np.concatenate([c.pinned for c in controls])
         free = (~pinned).astype(np.float64)
@@ -147,7 +185,11 @@ class Solver:
             def grad_energy():
                 return -self._bodies(x_n, steps, FORCE)[2]
 
-            contact.begin_step(x_n, h, grad_energy, float(self.masses.mean()) / (h * h), self.size)
+            # the barrier's first stiffness from the step h (not BDF2's 2h/3), so that a run continued with
+            # BDF2's memory sets it as the run from the start did
+            contact.begin_step(
+                x_n, h_step, grad_energy, float(self.masses.mean()) / (h * h), self.size, x_base
+            )
             _, start_fraction = contact.candidates(x_n, x_tilde)
             if start_fraction < 1.0 and pinned.any():
                 _, pin_fraction = contact.candidates(x_n, held)
@@ -209,7 +251,8 @@ class Solver:
                 break
             if contact is not None and contact.update_stiffness(x):
                 energy, min_det, force = total(x, order=FORCE)  # the barrier's weight changed
-        velocities = (x - x_n) / h
+        velocities = (x - x_base) / h_step
+        self._history = (x_n, v_n, x, velocities, h) if s.integrator == "bdf2" else None
         for state_in, state_out, part, v in zip(
             states_in, states_out, self.split(x), self.split(velocities), strict=True
         ):

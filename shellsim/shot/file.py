@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 from neural.asset import resolve_asset, shipped_assets_dir
 from neural.errors import InputError
 from shellsim.physics.materials import PRESETS, RANGES
+from shellsim.physics.model import INTEGRATORS
 from shellsim.physics.selection import parse_selection
 from shellsim.shot.spec import (
     RGB,
@@ -64,6 +65,7 @@ WORLD_KEYS = (
     "contact_gap",
     "friction_velocity",
     "settle",
+    "integrator",
 )
 BODY_KEYS = (
     "name",
@@ -324,6 +326,7 @@ def _world(t: _Table) -> WorldSpec:
         contact_gap=t.number("contact_gap", d.contact_gap, (0.0, MAX_CONTACT_GAP, "(]")),
         friction_velocity=t.number("friction_velocity", d.friction_velocity, _POSITIVE),
         settle=t.number("settle", d.settle, (0.0, MAX_SETTLE, "[]")),
+        integrator=t.choice("integrator", d.integrator, INTEGRATORS),
     )
 
 

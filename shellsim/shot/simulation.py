@@ -45,6 +45,8 @@ log = logging.getLogger(__name__)
 
 #: Prefix of the actions' state arrays in a motion's state (after the velocities).
 ACTION_STATE = "action_"
+#: Prefix of the integrator's memory of the last step in a motion's state (BDF2's).
+SOLVER_STATE = "solver_"
 #: A body whose estimated sag exceeds this fraction of its height is warned about; the ``youngs`` the
 #: warning names holds it to :data:`SAG_HELD`.
 SAG_WARNING = 0.10
@@ -107,6 +109,7 @@ class SceneSimulation:
             drag=world.drag,
             dt=1.0 / world.fps,
             substeps=world.substeps,
+            integrator=world.integrator,
             max_stretch=max_stretch,
             allow_stretch=allow_stretch,
             **({} if newton_iterations is None else {"newton_iterations": int(newton_iterations)}),
@@ -226,10 +229,15 @@ class SceneSimulation:
 
     def snapshot(self) -> tuple[np.ndarray, float, dict]:
         """(positions (N, 3), time [s], state): the current frame and what continuing from it needs, the
-        velocities (N, 3) and the actions' state (prefixed :data:`ACTION_STATE`)."""
+        velocities (N, 3), the actions' state (prefixed :data:`ACTION_STATE`) and the integrator's memory of
+        the last step (prefixed :data:`SOLVER_STATE`; BDF2's)."""
         x = np.concatenate([st.positions.numpy() for st in self.states])
         v = np.concatenate([st.velocities.numpy() for st in self.states])
-        state = {"velocities": v, **{ACTION_STATE + k: a for k, a in self.actions.state().items()}}
+        state = {
+            "velocities": v,
+            **{ACTION_STATE + k: a for k, a in self.actions.state().items()},
+            **{SOLVER_STATE + k: a for k, a in self.driver.solver.memory().items()},
+        }
         return x, self.time, state
 
     def restore(self, positions: np.ndarray, time: float, state: dict, source: str) -> None:
@@ -247,6 +255,11 @@ class SceneSimulation:
         try:
             self.actions.restore(
                 {k[len(ACTION_STATE) :]: v for k, v in state.items() if k.startswith(ACTION_STATE)}
+            )
+            self.driver.solver.remember(
+                {k[len(SOLVER_STATE) :]: v for k, v in state.items() if k.startswith(SOLVER_STATE)},
+                np.concatenate([st.positions.numpy() for st in self.states]),
+                np.concatenate([st.velocities.numpy() for st in self.states]),
             )
         except ValueError as err:
             raise InputError(f"{source}: {err}; cannot resume it") from None

@@ -38,6 +38,9 @@ class WorldSpec:
     contact_gap: float = CONTACT_GAP  # the barrier's activation distance dhat [m]
     friction_velocity: float = FRICTION_VELOCITY  # sliding speed below which friction is smoothed [m/s]
     settle: float = 0.0  # [s] simulated before frame 0 with gravity, contact and pins only, strongly damped
+    integrator: str = (
+        "euler"  # "euler" (backward Euler) or "bdf2" (second order: livelier, less numerical damping)
+    )
 
     @property
     def duration(self) -> float:

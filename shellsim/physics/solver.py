@@ -13,6 +13,11 @@ by Newton's method: the Hessian is the block diagonal of the bodies' plus ``W^T 
 collision detection finds, then halved until ``E`` decreases and no tet inverts. Newton starts from the
 inertial prediction when the way there is free of contact, else from the last step's end with the pinned
 vertices (timed pins, grabs) at their targets, as far as contact lets them; their rows are the identity.
+
+The step is backward Euler's (``integrator = "euler"``: from ``x^n``, ``v^n``, of length ``h``) or BDF2's
+(``"bdf2"``: the same potential from ``(4 x^n - x^(n-1)) / 3`` and ``(4 v^n - v^(n-1)) / 3``, of length
+``2h/3``, the new velocity ``(x - start) / (2h/3)``; the first step, and one after a different step or a
+state set from outside, is backward Euler's).
 """
 
 from __future__ import annotations
@@ -55,9 +60,9 @@ class SolveStats:
 
 
 class Solver:
-    """Backward-Euler Newton solver of several ``models`` with ``contact`` among them (None: none, then the
-    bodies are independent); ``settings`` the tolerances (``newton_tol``, ``newton_iterations``);
-    ``linear_solver`` how the Newton systems are solved (:class:`NewtonSystems`)."""
+    """Newton solver of the implicit step of several ``models`` with ``contact`` among them (None: none,
+    then the bodies are independent); ``settings`` the integrator and the tolerances (``newton_tol``,
+    ``newton_iterations``); ``linear_solver`` how the Newton systems are solved (:class:`NewtonSystems`)."""
 
     def __init__(
         self,

@@ -23,6 +23,10 @@ from neural.errors import InputError
 #: Height of the ground plane (metres); the world's up axis.
 GROUND_Z = 0.0
 UP = (0.0, 0.0, 1.0)
+#: How the world's time advances, a simulation's step: backward Euler (first order: it damps motion
+#: numerically, and a rubber ball's bounce dies with it) or BDF2 (second order: far less numerical damping at
+#: the same step).
+INTEGRATORS = ("euler", "bdf2")
 #: Named views of the world: (azimuth, elevation) in degrees of the direction from what is viewed to the
 #: camera, the azimuth about up from +x towards +y; None: the camera's own elevation. The presets of a
 #: motion's camera (:class:`shellsim.film.cameras.CameraSettings`) and of a scene file's ``[[camera]]``.

@@ -196,19 +196,19 @@ def test_a_motion_of_another_version_of_the_scene_is_marked_stale(shot):
 
 @pytest.mark.slow
 def test_simulate_streams_frames_into_the_timeline(shot, viewer):
-    path = shot(frames=240)  # some seconds: the run's log gets a chunk every 2 s
+    path = shot(frames=1000)  # several seconds (about 6 ms a frame): the run's log gets a chunk every 2 s
     viewer.open(path)
     assert viewer.n_frames == 1
     sim = viewer.simulate()
     seen, deadline = set(), time.monotonic() + 180
     while time.monotonic() < deadline:
         seen.add(viewer.n_frames)
-        if sim.poll() is not None and viewer.n_frames == 240:
+        if sim.poll() is not None and viewer.n_frames == 1000:
             break
         time.sleep(0.1)
-    assert sim.poll() == ("done", 240), sim.poll()
-    assert any(1 < n < 240 for n in seen), sorted(seen)  # frames shown while the run wrote its log
-    assert viewer.n_frames == 240 and viewer._gui["frame"].max == 239
+    assert sim.poll() == ("done", 1000), sim.poll()
+    assert any(1 < n < 1000 for n in seen), sorted(seen)  # frames shown while the run wrote its log
+    assert viewer.n_frames == 1000 and viewer._gui["frame"].max == 999
     assert (path.with_suffix("") / "motion.npz").is_file()
     viewer.frame(239)
 

@@ -38,7 +38,6 @@ from shellsim.film.world import WorldSettings, world_option
 from shellsim.io.outputs import holds_outputs
 from shellsim.jobs.recording import REPLACE
 from shellsim.motion.format import MAX_FPS, MAX_FRAMES
-from shellsim.physics.model import INTEGRATORS
 from shellsim.physics.selection import selection_text
 from shellsim.settings import (
     allow_stretch_option,
@@ -52,7 +51,7 @@ from shellsim.settings import (
     pixels,
     resume_option,
 )
-from shellsim.world import BODY_SIZE, UNITS, UP, describe_placement
+from shellsim.world import BODY_SIZE, INTEGRATORS, UNITS, UP, describe_placement
 
 if TYPE_CHECKING:
     from shellsim.shot.spec import SceneSpec

@@ -19,10 +19,7 @@ from shellsim.physics.elastic import f64, mat33
 from shellsim.physics.materials import Material
 from shellsim.physics.state import State
 from shellsim.tetcage.geometry import MIN_VOLUME_RATIO, check_tets, tet_volumes
-
-#: The time integrators: backward Euler (first order: it damps motion numerically, and a rubber ball's
-#: bounce dies with it) and BDF2 (second order: far less numerical damping at the same step).
-INTEGRATORS = ("euler", "bdf2")
+from shellsim.world import INTEGRATORS
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,6 @@ from typing import TYPE_CHECKING
 from neural.asset import resolve_asset, shipped_assets_dir
 from neural.errors import InputError
 from shellsim.physics.materials import PRESETS, RANGES
-from shellsim.physics.model import INTEGRATORS
 from shellsim.physics.selection import parse_selection
 from shellsim.shot.spec import (
     RGB,
@@ -37,7 +36,7 @@ from shellsim.shot.spec import (
     Vec3,
     WorldSpec,
 )
-from shellsim.world import CAMERA_PRESETS, UNITS
+from shellsim.world import CAMERA_PRESETS, INTEGRATORS, UNITS
 
 if TYPE_CHECKING:
     from neural.data import Cameras

@@ -153,3 +153,21 @@ def test_a_drop_onto_the_ground_is_the_same_either_way():
         ends[method] = state.positions.numpy()
     assert ends["cholesky"][:, 2].min() < 0.002  # it did reach the ground
     assert np.abs(ends["cholesky"] - ends["cg"]).max() < 1e-6  # m
+
+
+def test_without_pardiso_the_systems_go_the_scipy_way_with_a_one_line_hint(monkeypatch, caplog):
+    import logging
+
+    import shellsim.physics.newton_systems as newton_systems
+
+    monkeypatch.setattr(newton_systems, "pardiso_available", lambda: False)
+    monkeypatch.setattr(newton_systems, "_hinted", False)
+    with caplog.at_level(logging.INFO, logger="shellsim.physics.newton_systems"):
+        systems = [NewtonSystems() for _ in range(2)]
+    assert [s.method for s in systems] == ["cg", "cg"] and systems[0].triangle == "full"
+    hints = [r.getMessage() for r in caplog.records if "pypardiso" in r.getMessage()]
+    assert len(hints) == 1  # once per process
+    matrix, rhs = grid_stiffness(4, 0.5), np.ones(64)
+    np.testing.assert_allclose(
+        systems[0].solve(matrix, rhs), np.linalg.solve(matrix.toarray(), rhs), rtol=1e-3
+    )

@@ -24,9 +24,8 @@ def bar_energy(model: Model, state, material) -> float:
     x, v = state.positions.numpy(), state.velocities.numpy()
     ds = np.stack([x[model.tets[:, k]] - x[model.tets[:, 0]] for k in (1, 2, 3)], axis=-1)
     f = ds @ model.dm_inv
-    density = snh_energy_reference(f, material.mu, material.lam)
-    density -= snh_energy_reference(np.eye(3), material.mu, material.lam)  # the stable form is not 0 at rest
-    elastic = float(model.volumes @ density)
+    # the stable form's Lame parameter is lambda + mu (as the solver's kernels and tests/test_fem.py take it)
+    elastic = float(model.volumes @ snh_energy_reference(f, material.mu, material.lam + material.mu))
     return 0.5 * float(model.masses @ (v * v).sum(1)) + elastic
 
 

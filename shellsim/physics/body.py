@@ -171,21 +171,6 @@ class StepInputs:
     pinned: wp.array
 
 
-def csr_pattern(offsets: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The scalar CSR pattern of a block-CSR matrix of 3x3 blocks (``offsets`` (V+1,), sorted block
-    ``columns`` (B,)): ``indptr`` (3V+1,), ``indices`` (9B,) and ``gather`` (9B,), the place of each entry in
-    the flattened blocks (B, 3, 3)."""
-    block_rows = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-    slot, a, b = (
-        g.ravel() for g in np.meshgrid(np.arange(len(columns)), np.arange(3), np.arange(3), indexing="ij")
-    )
-    rows, cols = 3 * block_rows[slot] + a, 3 * columns[slot].astype(np.int64) + b
-    order = np.lexsort((cols, rows))
-    indptr = np.zeros(3 * (len(offsets) - 1) + 1, np.int64)
-    np.cumsum(np.bincount(rows, minlength=len(indptr) - 1), out=indptr[1:])
-    return indptr.astype(np.int32), cols[order].astype(np.int32), (9 * slot + 3 * a + b)[order]
-
-
 class BodyTerms:
     """The incremental potential's terms of one :class:`Model` (module docstring); owns the Hessian blocks
     and every scratch buffer, sized for that model."""
@@ -205,7 +190,7 @@ class BodyTerms:
         def arr(a, dtype):
             return wp.array(a, dtype=dtype, device=dev)
 
-        self._csr = csr_pattern(offsets, columns)
+        self._offsets, self._columns = offsets, columns
         self._diag_index = arr(diag_index, wp.int32)
         self._values = wp.zeros(len(columns), dtype=mat33, device=dev)
         self._x_tilde = wp.zeros(n, dtype=vec3, device=dev)
@@ -345,21 +330,20 @@ class BodyTerms:
         return float(energy), float(min_det)
 
     def hessian_matrix(self):
-        """The last HESSIAN :meth:`evaluate`'s matrix as a ``scipy.sparse.csr_matrix`` (3V, 3V) (pinned
-        vertices: identity rows and zero columns), on the fixed pattern :attr:`hessian_pattern`."""
-        from scipy.sparse import csr_matrix
+        """The last HESSIAN :meth:`evaluate`'s matrix as a ``scipy.sparse.bsr_matrix`` (3V, 3V) with 3x3
+        blocks (pinned vertices: identity rows and zero columns)."""
+        from scipy.sparse import bsr_matrix
 
         n = self.model.n_vertices
-        indptr, indices, gather = self._csr
-        return csr_matrix((self._values.numpy().ravel()[gather], indices, indptr), shape=(3 * n, 3 * n))
+        return bsr_matrix((self._values.numpy(), self._columns, self._offsets), shape=(3 * n, 3 * n))
 
     def hessian_blocks(self) -> np.ndarray:
         """(B, 3, 3) the last HESSIAN :meth:`evaluate`'s blocks (a view: the next evaluation overwrites it),
-        in the order :attr:`hessian_pattern` places them."""
+        in the order of :attr:`hessian_pattern`."""
         return self._values.numpy()
 
     @property
-    def hessian_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The CSR pattern of :meth:`hessian_matrix`: ``indptr`` (3V+1,), sorted ``indices`` (9B,) and the
-        entries' places ``gather`` (9B,) in the flattened 3x3 blocks (B, 3, 3) of the Hessian."""
-        return self._csr
+    def hessian_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        """The block-CSR pattern of the Hessian's 3x3 blocks: ``offsets`` (V+1,) and sorted block
+        ``columns`` (B,)."""
+        return self._offsets, self._columns

@@ -79,6 +79,13 @@ def pardiso_available() -> bool:
     return True
 
 
+def row_pointers(rows: np.ndarray, n: int) -> np.ndarray:
+    """(n+1,) int32 the CSR ``indptr`` of entries in rows ``rows`` (nnz,) of an (n, ...) matrix."""
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    return indptr.astype(np.int32)
+
+
 def _keys(upper: sp.csr_matrix) -> np.ndarray:
     """(nnz,) ``row * n + column`` of each entry stored in ``upper`` (n, n), ascending (sorted CSR)."""
     rows = np.repeat(np.arange(upper.shape[0], dtype=np.int64), np.diff(upper.indptr))
@@ -103,9 +110,8 @@ class PardisoCholesky:
         self._threads.argtypes, self._threads.restype = [ctypes.c_int], ctypes.c_int
         self._base: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # indptr, indices, keys
         self._union: np.ndarray | None = None  # keys of the analysed pattern
-        self._pattern: tuple[np.ndarray, np.ndarray, np.ndarray] | None = (
-            None  # its indptr, indices; base's places
-        )
+        # the analysed pattern's indptr, indices and the base's places in it
+        self._pattern: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._upper: sp.csr_matrix | None = None
         self.analyses = 0
         weakref.finalize(self, _release, solver)
@@ -130,27 +136,26 @@ class PardisoCholesky:
         base_keys = self._base[2]
         extra_keys = _keys(extra) if extra is not None and extra.nnz else np.zeros(0, np.int64)
         union = self._union
-        if union is not None and len(extra_keys):
+        if union is not None:
             places = np.minimum(np.searchsorted(union, extra_keys), len(union) - 1)
-            if not np.array_equal(union[places], extra_keys):
+            if not np.array_equal(union[places], extra_keys):  # a new entry: the union grows
                 union = np.union1d(union, extra_keys)
                 if len(union) > UNION_GROWTH * (len(base_keys) + len(extra_keys)):
                     union = None
         if union is None:
             union = np.union1d(base_keys, extra_keys)
         if union is not self._union:
+            places = np.searchsorted(union, extra_keys)
             rows, columns = np.divmod(union, n)
-            indptr = np.zeros(n + 1, np.int64)
-            np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
             self._pattern = (
-                indptr.astype(np.int32),
+                row_pointers(rows, n),
                 columns.astype(np.int32),
                 np.searchsorted(union, base_keys),
             )
         data = np.zeros(len(union))
         data[self._pattern[2]] = base.data
         if len(extra_keys):
-            data[np.searchsorted(union, extra_keys)] += extra.data
+            data[places] += extra.data
         upper = sp.csr_matrix((data, self._pattern[1], self._pattern[0]), shape=(n, n))
         zero = np.zeros(n)
         try:

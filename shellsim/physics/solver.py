@@ -35,7 +35,7 @@ from shellsim.physics.control import Control
 from shellsim.physics.elastic import ENERGY, FORCE, HESSIAN, vec3
 from shellsim.physics.ipc import Contact
 from shellsim.physics.model import Model, SolverSettings
-from shellsim.physics.newton_systems import NewtonSystems
+from shellsim.physics.newton_systems import NewtonSystems, row_pointers
 from shellsim.physics.state import State
 
 #: Newton's step tolerance with contact is at most this fraction of the barrier's reach ``dhat``, so that the
@@ -268,19 +268,25 @@ class Solver:
 
 
 def _block_diagonal_pattern(patterns, starts: np.ndarray, upper: bool) -> tuple[np.ndarray, ...]:
-    """CSR ``indptr``, ``indices`` and the entries' places ``gather`` in the bodies' concatenated flattened
-    Hessian blocks, of the block diagonal of the bodies' Hessians (their ``hessian_pattern``), the k-th at
-    vertex ``starts[k]``; only the upper triangle when ``upper``."""
-    rows, indices, gather, offset = [], [], [], 0
-    for (ptr, cols, places), start in zip(patterns, starts, strict=False):
-        rows.append(np.repeat(np.arange(len(ptr) - 1), np.diff(ptr)) + 3 * start)
-        indices.append(cols.astype(np.int64) + 3 * start)
-        gather.append(places + offset)
-        offset += len(places)
-    rows, indices, gather = np.concatenate(rows), np.concatenate(indices), np.concatenate(gather)
-    if upper:
-        keep = indices >= rows
-        rows, indices, gather = rows[keep], indices[keep], gather[keep]
-    indptr = np.zeros(3 * int(starts[-1]) + 1, np.int64)
-    np.cumsum(np.bincount(rows, minlength=len(indptr) - 1), out=indptr[1:])
-    return indptr.astype(np.int32), indices.astype(np.int32), gather
+    """The scalar CSR ``indptr``, sorted ``indices`` and the entries' places ``gather`` in the bodies'
+    concatenated flattened 3x3 Hessian blocks, of the block diagonal of the bodies' Hessians (their block
+    patterns ``(offsets, columns)``, the k-th at vertex ``starts[k]``); only the upper triangle when
+    ``upper``."""
+    block_rows = np.concatenate(
+        [
+            np.repeat(np.arange(len(o) - 1), np.diff(o)) + s
+            for (o, _), s in zip(patterns, starts, strict=False)
+        ]
+    )
+    block_columns = np.concatenate(
+        [c.astype(np.int64) + s for (_, c), s in zip(patterns, starts, strict=False)]
+    )
+    slot, a, b = (
+        g.ravel() for g in np.meshgrid(np.arange(len(block_rows)), np.arange(3), np.arange(3), indexing="ij")
+    )
+    rows, columns, gather = 3 * block_rows[slot] + a, 3 * block_columns[slot] + b, 9 * slot + 3 * a + b
+    keep = columns >= rows if upper else slice(None)
+    rows, columns, gather = rows[keep], columns[keep], gather[keep]
+    order = np.lexsort((columns, rows))
+    indptr = row_pointers(rows, 3 * int(starts[-1]))
+    return indptr, columns[order].astype(np.int32), gather[order]

@@ -39,6 +39,7 @@ REQUIRED_FILES = ("field", "shell_outer", "shell_inner")
 #: of a field's bytes (Instant-NGP keeps its tables in half precision too).
 HALF_PRECISION = ("encoding.table",)
 CAGE_FILE = "cage.npz"
+VISIBILITY_FILE = "visibility.safetensors"  # neural.visibility's grid of what the training views saw
 
 
 SHIPPED_PACKAGE = "shellsim_assets"  # the repository's assets/, installed as package data (pyproject.toml)
@@ -165,6 +166,18 @@ class Asset:
         """(M+, M-) of a cut asset's backdrop, ``trimesh.Trimesh`` in world coordinates."""
         return load_mesh(self.file("backdrop_outer")), load_mesh(self.file("backdrop_inner"))
 
+    def visibility(self):
+        """The :class:`~neural.visibility.Visibility` of what the asset's training views saw, None for an
+        asset trained before it was recorded."""
+        from .visibility import Visibility
+
+        if "visibility" not in self.meta.get("files", {}):
+            return None
+        path = self.file("visibility")
+        if not path.is_file():
+            raise InputError(f"{path}: file listed in asset.json is missing")
+        return Visibility.load(path)
+
     def outer_mesh(self):
         """M+ as a ``trimesh.Trimesh`` in world coordinates."""
         return load_mesh(self.file("shell_outer"))
@@ -268,13 +281,18 @@ def write_safetensors(path, tensors: dict, metadata: dict[str, str] | None = Non
     write_bytes_atomically(path, save(tensors, metadata=metadata))
 
 
-def save_asset(root, field, outer, inner, meta: dict) -> Path:
+def save_asset(root, field, outer, inner, meta: dict, visibility=None) -> Path:
     """Write an asset directory: ``field.safetensors`` (:data:`HALF_PRECISION` weights as float16), the two
-    shells as PLY and ``asset.json`` (last, so a directory with an ``asset.json`` is complete). ``meta``
-    supplies everything but format/files/field."""
+    shells as PLY, with ``visibility`` (a :class:`~neural.visibility.Visibility`) ``visibility.safetensors``,
+    and ``asset.json`` (last, so a directory with an ``asset.json`` is
+    complete). ``meta`` supplies everything but format/files/field/visibility."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     files = {"field": "field.safetensors", "shell_outer": "shell_outer.ply", "shell_inner": "shell_inner.ply"}
+    if visibility is not None:
+        files["visibility"] = VISIBILITY_FILE
+        visibility.save(root / VISIBILITY_FILE)
+        meta = {**meta, "visibility": visibility.record()}
     state = {k: v.detach().contiguous().cpu() for k, v in field.state_dict().items()}
     state.update({k: state[k].half() for k in HALF_PRECISION})
     write_safetensors(root / files["field"], state)

@@ -208,6 +208,13 @@ class Stage1Config:
     random_background: bool = False  # see PixelSampler; only for images with alpha
     error_sampling: float = 0.0  # share of the rays drawn where the running error is high (see PixelSampler)
     error_tile: int = 16  # pixels per side of the tiles whose error PixelSampler keeps
+    lambda_mask: float = 0.1  # opacity against the photos' alpha (binary cross-entropy; NeuS's mask loss)
+    # the prior for unseen space (neural.visibility): measured every visibility_every steps from that step on
+    # (at once when continuing a field); 0 weights leave it off
+    lambda_carve: float = 1.0
+    lambda_paint: float = 0.1
+    prior_points: int = 4096  # points drawn per step for each of the two terms
+    visibility_every: int = 2000
     eval_every: int = 1000
     eval_views: int = 2  # held-out views of the periodic evaluations (0: all); the final one uses all
     checkpoint_every: int = 250
@@ -222,6 +229,8 @@ class Stage1Config:
         _check(self, 0, 1, "min_transmittance", ends="[)")
         _check(self, 0, 1, "reg_fraction", ends="(]")
         _check(self, 0, math.inf, "lambda_e", "lambda_n", "lambda_s", "lambda_k", "sharp_floor", "smooth_eps")
+        _check(self, 0, math.inf, "lambda_mask", "lambda_carve", "lambda_paint")
+        _check(self, 1, math.inf, "prior_points", "visibility_every", integer=True)
         _check(self, 0, math.inf, "fd_eps", "step_size", ends="()")
 
 
@@ -253,6 +262,8 @@ class Stage2Config:
     random_background: bool = False  # see PixelSampler; only for images with alpha
     error_sampling: float = 0.0  # share of the rays drawn where the running error is high (see PixelSampler)
     error_tile: int = 16  # pixels per side of the tiles whose error PixelSampler keeps
+    lambda_paint: float = 0.1  # stage 1's paint term of the unseen prior (neural.visibility), kept on
+    prior_points: int = 4096
     eval_every: int = 500
     eval_views: int = 2  # held-out views of the periodic evaluations (0: all); the final one uses all
     checkpoint_every: int = 250
@@ -261,7 +272,8 @@ class Stage2Config:
 
     def __post_init__(self):
         _check_stage(self)
-        _check(self, 1, math.inf, "rays", integer=True)
+        _check(self, 1, math.inf, "rays", "prior_points", integer=True)
+        _check(self, 0, math.inf, "lambda_paint")
 
 
 @dataclass
@@ -382,11 +394,13 @@ def scaled_defaults(stage1_steps: int) -> dict:
     Stage 2 takes 1/6 of stage 1 (1000 for the default 6000). A quick try (fewer than ``QUICK_STEPS``)
     also trains on 16384 instead of 65536 samples per batch with a 64^3 instead of 128^3 occupancy grid,
     and extracts its shells on a 128^3 instead of 256^3 grid: each about 4-8x cheaper, so that 200 steps
-    at a small downscale take minutes."""
+    at a small downscale take minutes. The unseen prior is measured every third of the steps, at most every
+    2000."""
     quick = stage1_steps < QUICK_STEPS
     return {
         "stage2_steps": max(1, math.ceil(stage1_steps / 6)),
         "shell_resolution": 128 if quick else ShellConfig.resolution,
         "target_samples": 16384 if quick else Stage1Config.target_samples,
         "occupancy_resolution": 64 if quick else Stage1Config.occupancy_resolution,
+        "visibility_every": max(1, min(Stage1Config.visibility_every, stage1_steps // 3)),
     }

@@ -30,6 +30,13 @@ def color_loss(color: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (color - target).abs().mean()
 
 
+def mask_loss(opacity: torch.Tensor, coverage: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy of rendered opacities (R,) against the photos' alpha (R,) -> scalar (NeuS's mask
+    loss): a ray through what the photo shows as empty must stay empty, whatever its colour."""
+    o = opacity.clamp(1e-4, 1.0 - 1e-4)
+    return -(coverage * torch.log(o) + (1.0 - coverage) * torch.log1p(-o)).mean()
+
+
 def eikonal_loss(grad: torch.Tensor) -> torch.Tensor:
     """Eq. 10: ``mean (|grad f(x)| - 1)^2`` over gradients (N, 3) -> scalar."""
     return ((grad.norm(dim=-1) - 1.0) ** 2).mean()
@@ -61,9 +68,11 @@ def kernel_sharpness_loss(inv_s: torch.Tensor, s_floor: float) -> torch.Tensor:
 
 
 def total_loss(terms: dict[str, torch.Tensor], weights: dict[str, float]) -> torch.Tensor:
-    """Eq. 8 (with the sharpness prior): ``L_c + sum_k weights[k] * terms[k]``; ``terms`` holds ``"color"``
-    and a scalar for every key of ``weights``."""
+    """Eq. 8 (with the sharpness prior and the optional terms): ``L_c + sum_k weights[k] * terms[k]`` over the
+    keys of ``weights`` that ``terms`` holds besides ``"color"`` (a term a step did not compute, such as the
+    mask loss of photos without alpha, adds nothing)."""
     loss = terms["color"]
     for name, weight in weights.items():
-        loss = loss + weight * terms[name]
+        if name in terms:
+            loss = loss + weight * terms[name]
     return loss

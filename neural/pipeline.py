@@ -25,7 +25,8 @@ from .field import ShellField
 from .field.contraction import CONTRACTED_RADIUS
 from .files import write_atomically, write_text_atomically
 from .shell.from_field import FieldShells, extract_field_shells
-from .train import Continuation, train_stage1, train_stage2
+from .train import Continuation, train_stage1, train_stage2, unseen_prior
+from .visibility import Visibility, measure_visibility
 
 log = logging.getLogger(__name__)
 
@@ -131,11 +132,26 @@ def finetune_asset(
             "stage2_narrow_band": stage2["final"],
         },
     )
-    save_asset(out_dir, field_, outer, inner, new_meta)
+    save_asset(out_dir, field_, outer, inner, new_meta, asset_visibility(field_, data))
     if not keep_checkpoints:
         _remove_checkpoints(out_dir)
     log.info("fine-tuned asset written to %s: %s", out_dir, json.dumps(stage2["final"]))
     return out_dir
+
+
+def asset_visibility(field_: ShellField, data: SceneData) -> Visibility:
+    """The trained field's :class:`~neural.visibility.Visibility` from its training views: what an asset
+    records of what its cameras saw."""
+    was_training = field_.training
+    field_.eval()
+    try:
+        visibility, _ = measure_visibility(field_, data)
+    finally:
+        field_.train(was_training)
+    log.info(
+        "%.1f%% of the surface lies where no training view saw it", 100 * visibility.unseen_surface_share
+    )
+    return visibility
 
 
 def _refuse_finished(out_dir: Path) -> None:
@@ -184,9 +200,13 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
         extraction_seconds = time.perf_counter() - tick
         _save_shells(out_dir / "checkpoints", config, shells, extraction_seconds)
     narrowband = config.narrowband.scaled(1.0 / float(data.normalisation.scale))  # unit cube -> world
+    prior = None
+    if config.stage2.lambda_paint > 0 and (config.stage1.lambda_carve > 0 or config.stage1.lambda_paint > 0):
+        prior = unseen_prior(field_, data)
     stage2 = train_stage2(
-        field_, data, shells.outer, shells.inner, out_dir, config.stage2, narrowband, device
+        field_, data, shells.outer, shells.inner, out_dir, config.stage2, narrowband, device, prior
     )
+    visibility = asset_visibility(field_, data)
     meta = {
         "name": name or out_dir.name,
         "normalisation": {
@@ -215,7 +235,7 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
         },
         "metrics": {"stage1_full_ray": stage1["final"], "stage2_narrow_band": stage2["final"]},
     }
-    save_asset(out_dir, field_, shells.outer, shells.inner, meta)
+    save_asset(out_dir, field_, shells.outer, shells.inner, meta, visibility)
     if not keep_checkpoints:
         _remove_checkpoints(out_dir)
     log.info("asset written to %s:\n%s", out_dir, json.dumps(meta["metrics"], indent=1))

@@ -29,6 +29,7 @@ from .losses import (
     finite_difference_gradient,
     kernel_sharpness_loss,
     kernel_smoothness_loss,
+    mask_loss,
     normal_loss,
     total_loss,
 )
@@ -41,6 +42,7 @@ from .render.view import (
     render_camera,
     sdf_kernel_fn,
 )
+from .visibility import UnseenPrior, measure_visibility
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +111,8 @@ class PixelSampler:
         self.empty = None  # (N, H, W) bool, alpha == 0: the pixels that get a random background
         if random_background and data.alphas is not None:
             self.empty = torch.as_tensor(data.alphas[idx] == 0, device=device)
+        self.alphas = None if data.alphas is None else torch.as_tensor(data.alphas[idx], device=device)
+        self.coverage = None  # (n,) the photos' alpha at the pixels last drawn, None without alpha
         self.background = torch.as_tensor(data.background, dtype=torch.float32, device=device)
         self.height, self.width = self.images.shape[1:3]
         self.device = device
@@ -119,7 +123,8 @@ class PixelSampler:
         self.drawn = torch.zeros(0, dtype=torch.long, device=device)  # (n,) tile of each ray last drawn
 
     def sample(self, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """n random pixels -> origins (n, 3), dirs (n, 3), rgb (n, 3), background (3,) or (n, 3)."""
+        """n random pixels -> origins (n, 3), dirs (n, 3), rgb (n, 3), background (3,) or (n, 3); their
+        photos' alpha is left in ``coverage`` (n,) (None for photos without alpha)."""
         g = self.generator
         k, py, px = self._uniform(n - round(n * self.error_sampling))
         if self.error_sampling > 0:
@@ -128,6 +133,7 @@ class PixelSampler:
             self.drawn = (k * self.tiles[0] + py // self.tile) * self.tiles[1] + px // self.tile
         origins, dirs = pixel_to_ray(self.cameras, self.views[k], px + 0.5, py + 0.5)
         rgb = self.images[k, py, px]
+        self.coverage = None if self.alphas is None else self.alphas[k, py, px]
         if self.empty is None:
             return origins, dirs, rgb, self.background
         empty = self.empty[k, py, px, None]
@@ -345,7 +351,11 @@ def train_stage1(
         "normal": config.lambda_n,
         "smooth": config.lambda_s,
         "sharp": config.lambda_k,
+        "mask": config.lambda_mask,
+        "carve": config.lambda_carve,
+        "paint": config.lambda_paint,
     }
+    prior, prior_at = None, None
     bar = _progress(config.steps, start, "stage 1")
     history, clock = _resumed_history(meta)
     fresh_at = int(meta.get("fresh_at", 0))
@@ -364,6 +374,8 @@ def train_stage1(
             set_learning_rate(
                 optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor, fresh_at
             )
+            if _prior_due(config, step, prior_at, fresh_at):
+                prior, prior_at = unseen_prior(field, data, bar), step
             origins, dirs, target, ray_background = pixels.sample(n_rays)
             anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
             candidates = sampler(origins, dirs)
@@ -379,7 +391,12 @@ def train_stage1(
             reg = regularisers(
                 field, out["points"][pick].detach(), out["normal"][pick], out["inv_s"][pick], config, reg_gen
             )
-            loss = total_loss({"color": color_loss(out["color"], target), **reg}, weights)  # Eq. 8
+            terms = {"color": color_loss(out["color"], target), **reg}  # Eq. 8
+            if pixels.coverage is not None and config.lambda_mask > 0:
+                terms["mask"] = mask_loss(out["opacity"], pixels.coverage)
+            if prior is not None:
+                terms.update(prior.losses(field, config.prior_points, reg_gen))
+            loss = total_loss(terms, weights)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -413,6 +430,30 @@ def train_stage1(
     return {"history": history, "final": history[-1] if history else final, "occupancy": grid}
 
 
+def _prior_due(config: Stage1Config, step: int, measured_at: int | None, fresh_at: int) -> bool:
+    """Whether stage 1 measures the unseen prior again before ``step``: every ``visibility_every`` steps
+    from that step on, at once when a continued (``fresh_at`` > 0) or resumed run is past it."""
+    if config.lambda_carve == 0 and config.lambda_paint == 0:
+        return False
+    if measured_at is None:
+        return step >= config.visibility_every or (fresh_at > 0 and step == fresh_at)
+    return step - measured_at >= config.visibility_every
+
+
+def unseen_prior(field: ShellField, data: SceneData, bar=None) -> UnseenPrior:
+    """The :class:`~neural.visibility.UnseenPrior` of the field as trained so far, from the training views;
+    logged on ``bar`` (a tqdm bar) when given."""
+    was_training = field.training
+    field.eval()
+    try:
+        visibility, surface = measure_visibility(field, data)
+        prior = UnseenPrior(visibility, surface, field)
+    finally:
+        field.train(was_training)
+    (bar.write if bar is not None else log.info)(prior.summary())
+    return prior
+
+
 def train_stage2(
     field: ShellField,
     data: SceneData,
@@ -422,9 +463,11 @@ def train_stage2(
     config: Stage2Config,
     narrowband,
     device: str,
+    prior: UnseenPrior | None = None,
 ) -> dict:
     """Stage 2 (Procedure 4 lines 8-13): fine-tune inside the shells M+ (``outer``) / M- (``inner``) with the
-    color loss (Eq. 9) only. Resumes from ``out_dir/checkpoints/stage2.safetensors``."""
+    color loss (Eq. 9), and with ``prior`` its paint term (unseen surface keeps the nearest seen colour).
+    Resumes from ``out_dir/checkpoints/stage2.safetensors``."""
     from .render.raycast import EmbreeCaster
 
     torch.manual_seed(config.seed)
@@ -439,6 +482,7 @@ def train_stage2(
     pixels = _pixel_sampler(data, device, config, start, extra)
     bar = _progress(config.steps, start, "stage 2")
     history, clock = _resumed_history(meta)
+    paint_gen = torch.Generator().manual_seed(config.seed + 11 + start)
 
     def save(done: int) -> None:
         meta = {"step": done, "final": final if done == config.steps else None}
@@ -453,7 +497,11 @@ def train_stage2(
             samples = sampler(origins, dirs)
             out = render_rays(field, origins, dirs, samples, ray_background)
             pixels.record(out["color"], target)
-            loss = color_loss(out["color"], target)  # Eq. 9 only: no regularisers in stage 2
+            loss = color_loss(out["color"], target)  # Eq. 9: no regularisers in stage 2
+            if prior is not None and config.lambda_paint > 0 and len(prior.paint_cells):
+                loss = (
+                    loss + config.lambda_paint * prior.losses(field, config.prior_points, paint_gen)["paint"]
+                )
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()

@@ -3,6 +3,8 @@ NeRF-synthetic format (``transforms_train.json`` + RGBA PNGs) or, for a real-cap
 instant-ngp / nerfstudio format (``transforms.json`` + RGB PNGs) so they go through the real loaders.
 
 - :func:`write_sphere_scene`: an opaque coloured sphere, ray-traced analytically (colour from the normal).
+- :func:`write_block_scene`: an opaque block with coloured faces photographed only from above (its
+  underside unseen), ray-traced analytically; :data:`BLOCK` holds its geometry.
 - :func:`write_fuzzy_scene`: a solid sphere with a translucent, cloud-like shell on one side (+x), rendered
   by brute-force volume integration of an emission-absorption density.
 - :func:`write_unbounded_scene`: an unbounded capture (:data:`UNBOUNDED`): a sphere on a textured table
@@ -103,10 +105,13 @@ def _write(root: Path, images: list[np.ndarray], c2ws: np.ndarray, angle_x: floa
     return root
 
 
-def write_sphere_scene(root: Path, n_views: int = 24, size: int = 32, radius: float = 0.6) -> Path:
-    """An opaque sphere of ``radius`` at the origin, ``n_views`` RGBA views of ``size``^2 pixels."""
+def write_sphere_scene(
+    root: Path, n_views: int = 24, size: int = 32, radius: float = 0.6, elevation=(-20.0, 60.0)
+) -> Path:
+    """An opaque sphere of ``radius`` at the origin, ``n_views`` RGBA views of ``size``^2 pixels from cameras
+    at ``elevation`` (degrees, see :func:`orbit_cameras`)."""
     angle_x = 0.69
-    c2ws = orbit_cameras(n_views, 3.0)
+    c2ws = orbit_cameras(n_views, 3.0, elevation=elevation)
     images = []
     for m in c2ws:
         o, d = _rays(m, size, angle_x)
@@ -117,6 +122,54 @@ def write_sphere_scene(root: Path, n_views: int = 24, size: int = 32, radius: fl
         n = (o + t[:, None] * d) / radius
         shade = 0.35 + 0.65 * np.clip((n * np.array([0.3, 0.5, 0.8])).sum(-1), 0, 1)
         rgb = sphere_color(n) * shade[:, None]
+        rgba = np.concatenate([np.where(hit[:, None], rgb, 0), hit[:, None].astype(float)], -1)
+        images.append(rgba.reshape(size, size, 4))
+    return _write(Path(root), images, c2ws, angle_x)
+
+
+@dataclass(frozen=True)
+class Block:
+    """The fixed geometry of :func:`write_block_scene` (world units, z up): an axis-aligned block."""
+
+    half: tuple[float, float, float] = (0.55, 0.45, 0.25)  # half extents; the centre is the origin
+    top: tuple[float, float, float] = (0.85, 0.25, 0.2)  # albedo of the +z face
+    x_sides: tuple[float, float, float] = (0.2, 0.65, 0.3)  # of the +-x faces
+    y_sides: tuple[float, float, float] = (0.25, 0.35, 0.85)  # of the +-y faces, and of the unseen -z face
+    elevation: tuple[float, float] = (20.0, 70.0)  # degrees: every camera looks down on it
+
+
+BLOCK = Block()
+
+
+def trace_block(o: np.ndarray, d: np.ndarray, block: Block = BLOCK) -> tuple[np.ndarray, np.ndarray]:
+    """Slab-method hits of rays ``o``, ``d`` (N, 3) on the block: (N,) bool and (N, 3) shaded colour."""
+    half = np.asarray(block.half)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (-half - o) / d, (half - o) / d
+    near, far = np.minimum(t0, t1), np.maximum(t0, t1)
+    t_in, axis = near.max(1), near.argmax(1)
+    hit = (t_in <= far.min(1)) & (t_in > 0)
+    normal = np.zeros_like(o)
+    normal[np.arange(len(o)), axis] = -np.sign(d[np.arange(len(o)), axis])
+    albedo = np.select(
+        [axis[:, None] == 2, axis[:, None] == 0],
+        [np.asarray(block.top), np.asarray(block.x_sides)],
+        block.y_sides,
+    )
+    albedo = np.where((axis[:, None] == 2) & (normal[:, 2:] < 0), np.asarray(block.y_sides), albedo)
+    shade = 0.55 + 0.45 * np.clip(normal @ np.array([0.3, 0.5, 0.81]), 0, 1)
+    return hit, albedo * shade[:, None]
+
+
+def write_block_scene(root: Path, n_views: int = 24, size: int = 32, block: Block = BLOCK) -> Path:
+    """The block of ``block``, ``n_views`` RGBA views of ``size``^2 pixels from cameras above it only (at
+    ``block.elevation``): no view sees its underside."""
+    angle_x = 0.69
+    c2ws = orbit_cameras(n_views, 3.0, seed=2, elevation=block.elevation)
+    images = []
+    for m in c2ws:
+        o, d = _rays(m, size, angle_x)
+        hit, rgb = trace_block(o, d, block)
         rgba = np.concatenate([np.where(hit[:, None], rgb, 0), hit[:, None].astype(float)], -1)
         images.append(rgba.reshape(size, size, 4))
     return _write(Path(root), images, c2ws, angle_x)

@@ -76,6 +76,8 @@ class EvalResult:
     narrow_band : the asset's renderer (Procedure 3); full_ray : full-ray rendering of the same field (None
         when not asked for); speedup : full ray's ms per frame over narrow band's (None without full ray)
     lpips : why LPIPS is not reported
+    unseen_surface_share : the area share (0-1) of the field's surface that no training view saw (the
+        asset's record, :mod:`neural.visibility`, else measured from the dataset's training views)
     """
 
     asset: str
@@ -88,10 +90,21 @@ class EvalResult:
     full_ray: ViewMetrics | None
     speedup: float | None
     lpips: str
+    unseen_surface_share: float
 
     def as_dict(self) -> dict:
         """The figures as written to ``settings.json`` and recorded in the asset (None ones left out)."""
         return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+
+
+def _unseen_share(asset, field, data) -> float:
+    """The share of ``asset``'s surface no training view saw: its record, else measured on ``data``."""
+    from neural.visibility import measure_visibility
+
+    visibility = asset.visibility()
+    if visibility is None:
+        visibility, _ = measure_visibility(field, data)
+    return visibility.unseen_surface_share
 
 
 @holds_outputs
@@ -142,6 +155,7 @@ def evaluate(settings: EvalSettings) -> EvalResult:
         full_ray=None if full_ray is None else ViewMetrics.of(full_ray),
         speedup=None if full_ray is None else full_ray["ms_per_frame"] / narrow_band["ms_per_frame"],
         lpips=lpips_status(),
+        unseen_surface_share=_unseen_share(asset, field, data),
     )
     if settings.json:
         write_text_atomically(settings.json, json.dumps(result.as_dict(), indent=1))

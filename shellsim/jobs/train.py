@@ -104,6 +104,14 @@ class TrainSettings:
         "no floater can hide in background-coloured space (costs about 1.3 dB held-out on lego; small "
         "floaters apart from the object are dropped from the shells anyway)",
     )
+    unseen_prior: bool = option(
+        True,
+        flag="--no-unseen-prior",
+        negate=True,
+        help="leave out the prior for what no training camera saw (an object's underside): by default the "
+        "unseen space below the lowest seen surface is carved empty and unseen surface takes the colour of "
+        "the nearest seen surface",
+    )
     error_sampling: float = option(
         Stage1Config.error_sampling,
         help="share of the training rays drawn where the colour error is high (tiles of the training views "
@@ -195,6 +203,8 @@ class TrainSettings:
             lambda_k=self.sharpness,
             random_background=self.random_background,
             error_sampling=self.error_sampling,
+            visibility_every=scaled["visibility_every"],
+            **({} if self.unseen_prior else {"lambda_carve": 0.0, "lambda_paint": 0.0}),
             checkpoint_seconds=seconds,
             eval_every=self.eval_every,
             eval_views=self.eval_views,
@@ -208,6 +218,7 @@ class TrainSettings:
             seed=(self.seed + 1) % (MAX_SEED + 1),
             random_background=self.random_background,
             error_sampling=self.error_sampling,
+            lambda_paint=config.stage2.lambda_paint if self.unseen_prior else 0.0,
             checkpoint_seconds=seconds,
             eval_views=self.eval_views,
         )

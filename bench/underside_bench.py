@@ -18,15 +18,9 @@ import math
 from pathlib import Path
 
 import numpy as np
-import torch
 from PIL import Image
 
-from neural.asset import load_asset, load_field
-from neural.data import Cameras, look_at
 from neural.device import configure_process
-from neural.render.view import asset_sampler, render_camera
-from shellsim.jobs.scene import SceneSettings, scene
-from shellsim.motion.read import load_motion
 
 SKY = (0.35, 0.55, 0.85)
 SIDE = 256
@@ -44,8 +38,10 @@ material = "wood"
 """
 
 
-def cameras_around(asset, elevation_deg: float, n: int, distance: float) -> Cameras:
+def cameras_around(asset, elevation_deg: float, n: int, distance: float):
     """n cameras at ``elevation_deg`` (about the asset's up) around its centre, looking at it, 40 degrees."""
+    from neural.data import Cameras, look_at
+
     up = asset.up / np.linalg.norm(asset.up)
     side = np.cross(up, [1.0, 0, 0] if abs(up[0]) < 0.9 else [0, 1.0, 0])
     side /= np.linalg.norm(side)
@@ -72,8 +68,13 @@ def cameras_around(asset, elevation_deg: float, n: int, distance: float) -> Came
     )
 
 
-def pictures(asset, cameras: Cameras) -> tuple[list[np.ndarray], list[np.ndarray]]:
+def pictures(asset, cameras) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Each camera's picture over the sky (H, W, 3) and its opacity (H, W)."""
+    import torch
+
+    from neural.asset import load_field
+    from neural.render.view import asset_sampler, render_camera
+
     field, sampler = load_field(asset), asset_sampler(asset)
     images, alphas = [], []
     for i in range(len(cameras)):
@@ -107,6 +108,10 @@ def main() -> None:
     parser.add_argument("--out", default="underside_bench")
     args = parser.parse_args()
     configure_process()
+    from neural.asset import load_asset
+    from shellsim.jobs.scene import SceneSettings, scene
+    from shellsim.motion.read import load_motion
+
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print("asset  near-white from below  tilt max / last [deg]  unseen surface")

@@ -82,7 +82,8 @@ def finetune_asset(
 ) -> Path:
     """Stage 2 again (Procedure 4 lines 8-13) on a finished asset: its field fine-tuned inside its own shells
     with the narrow-band sampling ``narrowband`` (world units), so that it adapts to denser or sparser
-    samples; written as a new asset to ``out_dir`` (resumed from ``out_dir/checkpoints``). ``data_dir`` must
+    samples, unseen surface kept in the nearest seen colour (:mod:`neural.visibility`); written as a new
+    asset to ``out_dir`` (resumed from ``out_dir/checkpoints``). ``data_dir`` must
     hold the asset's training data. The new ``asset.json`` keeps the asset's record; ``training.finetune``
     lists the fine-tunings and the curve goes on from the asset's minutes."""
     from .asset import load_asset, load_field, load_mesh
@@ -101,7 +102,8 @@ def finetune_asset(
     field_ = load_field(asset, device).train()
     outer, inner = (load_mesh(asset.file(key)) for key in ("shell_outer", "shell_inner"))
     with _counted_runs(out_dir / "checkpoints") as (runs, started):
-        stage2 = train_stage2(field_, data, outer, inner, out_dir, config, narrowband, device)
+        prior = unseen_prior(field_, data) if config.lambda_paint > 0 else None
+        stage2 = train_stage2(field_, data, outer, inner, out_dir, config, narrowband, device, prior)
         wall_minutes = (runs["seconds"] + time.time() - started) / 60.0
     minutes = _asset_minutes(asset)
     curve = [

@@ -11,6 +11,7 @@ import igl
 import numpy as np
 import pytest
 import torch
+from configs import SMALL
 from scenes import write_fuzzy_scene, write_sphere_scene
 
 from neural.asset import load_asset
@@ -34,24 +35,8 @@ TINY = PipelineConfig(  # a sphere trained in seconds: 10 stage-1 steps, 4 stage
 def fuzzy(tmp_path_factory):
     root = tmp_path_factory.mktemp("fuzzy")
     data = write_fuzzy_scene(root / "data", n_views=24, size=32)
-    config = PipelineConfig(
-        field=FieldConfig(hashgrid=HashGridConfig(log2_table_size=14, max_resolution=256)),
-        stage1=Stage1Config(
-            steps=300,
-            target_samples=8192,
-            initial_rays=256,
-            eval_every=10**6,
-            checkpoint_every=10**6,
-            occupancy_resolution=32,
-            warmup_steps=20,
-            eval_views=3,
-        ),
-        shell=ShellConfig(resolution=96),
-        stage2=Stage2Config(steps=40, rays=1024, eval_every=10**6, checkpoint_every=10**6),
-        bound=1.0,
-    )
     torch.manual_seed(0)
-    asset_dir = train_asset(data, root / "asset", config, "cpu", name="fuzzy")
+    asset_dir = train_asset(data, root / "asset", SMALL, "cpu", name="fuzzy")
     return data, asset_dir
 
 

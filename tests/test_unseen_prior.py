@@ -5,17 +5,17 @@ the asset records the share of its surface that no camera saw."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
+from configs import SMALL
 from scenes import BLOCK, trace_block, write_block_scene
 
 from neural.asset import load_asset, load_field
-from neural.config import FieldConfig, HashGridConfig, PipelineConfig
 from neural.pipeline import train_asset
-from neural.shell import ShellConfig
 from neural.shell.extract import marching_cubes_mesh, sample_grid
-from neural.train import Stage1Config, Stage2Config
 
 pytestmark = pytest.mark.slow
 SIZE = 96  # pixels of the photos: one is 0.022 world units at the block
@@ -25,23 +25,7 @@ SIZE = 96  # pixels of the photos: one is 0.022 world units at the block
 def block(tmp_path_factory):
     root = tmp_path_factory.mktemp("block")
     data = write_block_scene(root / "data", n_views=24, size=SIZE)
-    config = PipelineConfig(
-        field=FieldConfig(hashgrid=HashGridConfig(log2_table_size=14, max_resolution=256)),
-        stage1=Stage1Config(
-            steps=300,
-            target_samples=8192,
-            initial_rays=256,
-            eval_every=10**6,
-            checkpoint_every=10**6,
-            occupancy_resolution=32,
-            warmup_steps=20,
-            eval_views=3,
-            visibility_every=100,
-        ),
-        shell=ShellConfig(resolution=96),
-        stage2=Stage2Config(steps=40, rays=1024, eval_every=10**6, checkpoint_every=10**6),
-        bound=1.0,
-    )
+    config = dataclasses.replace(SMALL, stage1=dataclasses.replace(SMALL.stage1, visibility_every=100))
     torch.manual_seed(0)
     asset = load_asset(train_asset(data, root / "asset", config, "cpu", name="block"))
     return asset, load_field(asset)

@@ -26,7 +26,7 @@ from .field.contraction import CONTRACTED_RADIUS
 from .files import write_atomically, write_text_atomically
 from .shell.from_field import FieldShells, extract_field_shells
 from .train import Continuation, train_stage1, train_stage2, unseen_prior
-from .visibility import Visibility, measure_visibility
+from .visibility import VISIBILITY_RESOLUTION, Visibility, measure_visibility
 
 log = logging.getLogger(__name__)
 
@@ -102,7 +102,8 @@ def finetune_asset(
     field_ = load_field(asset, device).train()
     outer, inner = (load_mesh(asset.file(key)) for key in ("shell_outer", "shell_inner"))
     with _counted_runs(out_dir / "checkpoints") as (runs, started):
-        prior = unseen_prior(field_, data) if config.lambda_paint > 0 else None
+        resolution = _visibility_resolution(meta.get("shell", {}).get("resolution", VISIBILITY_RESOLUTION))
+        prior = unseen_prior(field_, data, resolution=resolution) if config.lambda_paint > 0 else None
         stage2 = train_stage2(field_, data, outer, inner, out_dir, config, narrowband, device, prior)
         wall_minutes = (runs["seconds"] + time.time() - started) / 60.0
     minutes = _asset_minutes(asset)
@@ -134,20 +135,32 @@ def finetune_asset(
             "stage2_narrow_band": stage2["final"],
         },
     )
-    save_asset(out_dir, field_, outer, inner, new_meta, asset_visibility(field_, data))
+    save_asset(out_dir, field_, outer, inner, new_meta, asset_visibility(field_, data, resolution))
     if not keep_checkpoints:
         _remove_checkpoints(out_dir)
     log.info("fine-tuned asset written to %s: %s", out_dir, json.dumps(stage2["final"]))
     return out_dir
 
 
-def asset_visibility(field_: ShellField, data: SceneData) -> Visibility:
-    """The trained field's :class:`~neural.visibility.Visibility` from its training views: what an asset
-    records of what its cameras saw."""
+def _visibility_resolution(shell_resolution) -> int:
+    """The visibility grid of a field whose shells were extracted at ``shell_resolution``: as fine, at most
+    :data:`~neural.visibility.VISIBILITY_RESOLUTION` cells a side."""
+    try:
+        return max(8, min(VISIBILITY_RESOLUTION, int(shell_resolution)))
+    except (TypeError, ValueError):
+        return VISIBILITY_RESOLUTION
+
+
+def asset_visibility(field_: ShellField, data: SceneData, resolution: int) -> Visibility | None:
+    """The trained field's :class:`~neural.visibility.Visibility` from its training views on a
+    ``resolution``^3 grid: what an asset records of what its cameras saw. None for a field in contracted
+    space (a capture's room; see :func:`~neural.train.unseen_prior`)."""
+    if field_.contraction is not None:
+        return None
     was_training = field_.training
     field_.eval()
     try:
-        visibility, _ = measure_visibility(field_, data)
+        visibility, _ = measure_visibility(field_, data, resolution=resolution)
     finally:
         field_.train(was_training)
     log.info(
@@ -202,13 +215,13 @@ def _train(data_dir, out_dir: Path, config, device, name, keep_checkpoints, runs
         extraction_seconds = time.perf_counter() - tick
         _save_shells(out_dir / "checkpoints", config, shells, extraction_seconds)
     narrowband = config.narrowband.scaled(1.0 / float(data.normalisation.scale))  # unit cube -> world
-    prior = None
+    prior, resolution = None, _visibility_resolution(config.shell.resolution)
     if config.stage2.lambda_paint > 0 and (config.stage1.lambda_carve > 0 or config.stage1.lambda_paint > 0):
-        prior = unseen_prior(field_, data)
+        prior = unseen_prior(field_, data, resolution=resolution)
     stage2 = train_stage2(
         field_, data, shells.outer, shells.inner, out_dir, config.stage2, narrowband, device, prior
     )
-    visibility = asset_visibility(field_, data)
+    visibility = asset_visibility(field_, data, resolution)
     meta = {
         "name": name or out_dir.name,
         "normalisation": {

@@ -42,7 +42,7 @@ from .render.view import (
     render_camera,
     sdf_kernel_fn,
 )
-from .visibility import UnseenPrior, measure_visibility
+from .visibility import VISIBILITY_RESOLUTION, UnseenPrior, measure_visibility
 
 log = logging.getLogger(__name__)
 
@@ -374,7 +374,7 @@ def train_stage1(
             set_learning_rate(
                 optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor, fresh_at
             )
-            if _prior_due(config, step, prior_at, fresh_at):
+            if _prior_due(config, step, prior_at, fresh_at, field.contraction is not None):
                 prior, prior_at = unseen_prior(field, data, bar), step
             origins, dirs, target, ray_background = pixels.sample(n_rays)
             anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
@@ -430,23 +430,32 @@ def train_stage1(
     return {"history": history, "final": history[-1] if history else final, "occupancy": grid}
 
 
-def _prior_due(config: Stage1Config, step: int, measured_at: int | None, fresh_at: int) -> bool:
+def _prior_due(
+    config: Stage1Config, step: int, measured_at: int | None, fresh_at: int, field_is_contracted: bool
+) -> bool:
     """Whether stage 1 measures the unseen prior again before ``step``: every ``visibility_every`` steps
-    from that step on, at once when a continued (``fresh_at`` > 0) or resumed run is past it."""
-    if config.lambda_carve == 0 and config.lambda_paint == 0:
+    from that step on, at once when a continued (``fresh_at`` > 0) or resumed run is past it; never for a
+    field in contracted space (a capture's room: see :func:`unseen_prior`)."""
+    if config.lambda_carve == 0 and config.lambda_paint == 0 or field_is_contracted:
         return False
     if measured_at is None:
         return step >= config.visibility_every or (fresh_at > 0 and step == fresh_at)
     return step - measured_at >= config.visibility_every
 
 
-def unseen_prior(field: ShellField, data: SceneData, bar=None) -> UnseenPrior:
-    """The :class:`~neural.visibility.UnseenPrior` of the field as trained so far, from the training views;
-    logged on ``bar`` (a tqdm bar) when given."""
+def unseen_prior(
+    field: ShellField, data: SceneData, bar=None, resolution: int = VISIBILITY_RESOLUTION
+) -> UnseenPrior | None:
+    """The :class:`~neural.visibility.UnseenPrior` of the field as trained so far, from the training views
+    on a ``resolution``^3 grid; logged on ``bar`` (a tqdm bar) when given. None for a field in contracted
+    space: a real capture's photos see a room, whose unseen space is not an object's underside (the prior is
+    for objects photographed with alpha)."""
+    if field.contraction is not None:
+        return None
     was_training = field.training
     field.eval()
     try:
-        visibility, surface = measure_visibility(field, data)
+        visibility, surface = measure_visibility(field, data, resolution=resolution)
         prior = UnseenPrior(visibility, surface, field)
     finally:
         field.train(was_training)

@@ -246,10 +246,10 @@ def test_finetune_continues_the_assets_field_in_its_shells_with_denser_samples(t
     seen = {}
     stage2 = pipeline.train_stage2
 
-    def watched_stage2(field, data, outer, inner, out_dir, config, narrowband, device):
+    def watched_stage2(field, data, outer, inner, out_dir, config, narrowband, device, prior):
         seen.update(weights={k: v.clone() for k, v in field.state_dict().items()}, config=config)
-        seen.update(narrowband=narrowband, outer=outer.vertices.copy())
-        return stage2(field, data, outer, inner, out_dir, config, narrowband, device)
+        seen.update(narrowband=narrowband, outer=outer.vertices.copy(), prior=prior)
+        return stage2(field, data, outer, inner, out_dir, config, narrowband, device, prior)
 
     monkeypatch.setattr(pipeline, "train_stage2", watched_stage2)
     before = first.meta["narrowband"]
@@ -264,6 +264,7 @@ def test_finetune_continues_the_assets_field_in_its_shells_with_denser_samples(t
     assert seen["config"].lr_network == pytest.approx(0.5 * TINY.stage1.lr_network)
     assert seen["narrowband"].w_s == pytest.approx(before["w_s"] / 4)
     assert seen["narrowband"].delta_s == before["delta_s"]
+    assert seen["prior"] is not None  # unseen surface keeps the nearest seen colour while it is fine-tuned
     tuned = load_asset(out)
     assert tuned.meta["narrowband"]["w_s"] == pytest.approx(before["w_s"] / 4)
     for key in ("shell_outer", "shell_inner"):

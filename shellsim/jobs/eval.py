@@ -77,7 +77,8 @@ class EvalResult:
         when not asked for); speedup : full ray's ms per frame over narrow band's (None without full ray)
     lpips : why LPIPS is not reported
     unseen_surface_share : the area share (0-1) of the field's surface that no training view saw (the
-        asset's record, :mod:`neural.visibility`, else measured from the dataset's training views)
+        asset's record, :mod:`neural.visibility`, else measured from the dataset's training views; None for
+        a field in contracted space, a capture's room)
     """
 
     asset: str
@@ -90,17 +91,20 @@ class EvalResult:
     full_ray: ViewMetrics | None
     speedup: float | None
     lpips: str
-    unseen_surface_share: float
+    unseen_surface_share: float | None
 
     def as_dict(self) -> dict:
         """The figures as written to ``settings.json`` and recorded in the asset (None ones left out)."""
         return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
 
 
-def _unseen_share(asset, field, data) -> float:
-    """The share of ``asset``'s surface no training view saw: its record, else measured on ``data``."""
+def _unseen_share(asset, field, data) -> float | None:
+    """The share of ``asset``'s surface no training view saw: its record, else measured on ``data``; None
+    for a field in contracted space."""
     from neural.visibility import measure_visibility
 
+    if field.contraction is not None:
+        return None
     visibility = asset.visibility()
     if visibility is None:
         visibility, _ = measure_visibility(field, data)

@@ -33,5 +33,6 @@ def run(args: argparse.Namespace) -> None:
     if result.full_ray is not None:
         gain = result.narrow_band.psnr - result.full_ray.psnr
         print(f"narrow band is {result.speedup:.1f}x faster, {gain:+.2f} dB")
-    print(f"surface no training view saw: {100 * result.unseen_surface_share:.1f}%")
+    if result.unseen_surface_share is not None:
+        print(f"surface no training view saw: {100 * result.unseen_surface_share:.1f}%")
     print(result.lpips)

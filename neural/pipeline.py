@@ -157,12 +157,7 @@ def asset_visibility(field_: ShellField, data: SceneData, resolution: int) -> Vi
     space (a capture's room; see :func:`~neural.train.unseen_prior`)."""
     if field_.contraction is not None:
         return None
-    was_training = field_.training
-    field_.eval()
-    try:
-        visibility, _ = measure_visibility(field_, data, resolution=resolution)
-    finally:
-        field_.train(was_training)
+    visibility, _ = measure_visibility(field_, data, resolution=resolution)
     log.info(
         "%.1f%% of the surface lies where no training view saw it", 100 * visibility.unseen_surface_share
     )

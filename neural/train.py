@@ -452,13 +452,7 @@ def unseen_prior(
     for objects photographed with alpha)."""
     if field.contraction is not None:
         return None
-    was_training = field.training
-    field.eval()
-    try:
-        visibility, surface = measure_visibility(field, data, resolution=resolution)
-        prior = UnseenPrior(visibility, surface, field)
-    finally:
-        field.train(was_training)
+    prior = UnseenPrior(*measure_visibility(field, data, resolution=resolution), field)
     (bar.write if bar is not None else log.info)(prior.summary())
     return prior
 

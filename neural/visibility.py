@@ -283,7 +283,14 @@ def measure_visibility(
     up = np.asarray(data.up, dtype=np.float64)
     if sampler is None:
         sampler = occupancy_sampler(fitted_occupancy_grid(field, OCCUPANCY_RESOLUTION), field)
-    views = _Views(field, data, sampler, progress)
+    was_training = getattr(field, "training", False)
+    if was_training:
+        field.eval()
+    try:
+        views = _Views(field, data, sampler, progress)
+    finally:
+        if was_training:
+            field.train()
     centers = cell_centers(lo, cell, resolution)
     counts = torch.zeros(len(centers), dtype=torch.int32)
     for k in range(len(views.views)):

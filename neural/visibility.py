@@ -42,8 +42,8 @@ log = logging.getLogger(__name__)
 SEEN_TRANSMITTANCE = 0.5
 #: Cells per side of the visibility grid over the field's box.
 VISIBILITY_RESOLUTION = 128
-#: The longest side, in pixels, of the views' images of opaque depth (about a third of a cell at the LEGO's
-#: camera distance, so a cell is never missed between pixels).
+#: The longest side, in pixels, of the views' images of opaque depth (a pixel is about 0.6 of a 128^3 grid's
+#: cell at the LEGO's camera distance, so no cell falls between pixels).
 DEPTH_SIDE = 200
 #: The seen support is this quantile of the seen surface's heights, not its lowest point: a field may draw a
 #: seen surface deeper than it is in a few spots (the shipped LEGO, through a hole in its plate, shows the
@@ -92,14 +92,6 @@ class Visibility:
     def heights(self, points: torch.Tensor) -> torch.Tensor:
         """(N,) height ``dot(p - lo, up)`` of world points (N, 3)."""
         return (points - torch.as_tensor(self.lo).to(points)) @ torch.as_tensor(self.up).to(points)
-
-    def seen_at(self, points: torch.Tensor) -> torch.Tensor:
-        """(N,) int views that see the cell holding each world point (N, 3); 0 outside the grid."""
-        index = torch.floor((points - torch.as_tensor(self.lo).to(points)) / self.cell).long()
-        inside = ((index >= 0) & (index < self.resolution)).all(1)
-        index = index.clamp(0, self.resolution - 1)
-        counts = self.seen_views[index[:, 0], index[:, 1], index[:, 2]].long()
-        return torch.where(inside, counts, torch.zeros_like(counts))
 
     def record(self) -> dict:
         """What ``asset.json`` records under ``visibility``."""

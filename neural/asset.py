@@ -284,8 +284,8 @@ def write_safetensors(path, tensors: dict, metadata: dict[str, str] | None = Non
 def save_asset(root, field, outer, inner, meta: dict, visibility=None) -> Path:
     """Write an asset directory: ``field.safetensors`` (:data:`HALF_PRECISION` weights as float16), the two
     shells as PLY, with ``visibility`` (a :class:`~neural.visibility.Visibility`) ``visibility.safetensors``,
-    and ``asset.json`` (last, so a directory with an ``asset.json`` is
-    complete). ``meta`` supplies everything but format/files/field/visibility."""
+    and ``asset.json`` (last, so a directory with an ``asset.json`` is complete). ``meta`` supplies
+    everything but format/files/field/visibility."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     files = {"field": "field.safetensors", "shell_outer": "shell_outer.ply", "shell_inner": "shell_inner.ply"}

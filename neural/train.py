@@ -374,7 +374,7 @@ def train_stage1(
             set_learning_rate(
                 optimizer, step, config.steps, config.warmup_steps, config.final_lr_factor, fresh_at
             )
-            if _prior_due(config, step, prior_at, fresh_at, field.contraction is not None):
+            if _prior_due(config, step, prior_at, fresh_at):
                 prior, prior_at = unseen_prior(field, data, bar), step
             origins, dirs, target, ray_background = pixels.sample(n_rays)
             anneal = min(1.0, step / max(config.cos_anneal_steps, 1))
@@ -395,7 +395,9 @@ def train_stage1(
             if pixels.coverage is not None and config.lambda_mask > 0:
                 terms["mask"] = mask_loss(out["opacity"], pixels.coverage)
             if prior is not None:
-                terms.update(prior.losses(field, config.prior_points, reg_gen))
+                for name, term in (("carve", prior.carve), ("paint", prior.paint)):
+                    value = term(field, config.prior_points, reg_gen)
+                    terms.update({} if value is None else {name: value})
             loss = total_loss(terms, weights)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -430,13 +432,10 @@ def train_stage1(
     return {"history": history, "final": history[-1] if history else final, "occupancy": grid}
 
 
-def _prior_due(
-    config: Stage1Config, step: int, measured_at: int | None, fresh_at: int, field_is_contracted: bool
-) -> bool:
+def _prior_due(config: Stage1Config, step: int, measured_at: int | None, fresh_at: int) -> bool:
     """Whether stage 1 measures the unseen prior again before ``step``: every ``visibility_every`` steps
-    from that step on, at once when a continued (``fresh_at`` > 0) or resumed run is past it; never for a
-    field in contracted space (a capture's room: see :func:`unseen_prior`)."""
-    if config.lambda_carve == 0 and config.lambda_paint == 0 or field_is_contracted:
+    from that step on, at once when a continued (``fresh_at`` > 0) or resumed run is past it."""
+    if config.lambda_carve == 0 and config.lambda_paint == 0:
         return False
     if measured_at is None:
         return step >= config.visibility_every or (fresh_at > 0 and step == fresh_at)
@@ -452,7 +451,7 @@ def unseen_prior(
     for objects photographed with alpha)."""
     if field.contraction is not None:
         return None
-    prior = UnseenPrior(*measure_visibility(field, data, resolution=resolution), field)
+    prior = UnseenPrior(*measure_visibility(field, data, resolution=resolution))
     (bar.write if bar is not None else log.info)(prior.summary())
     return prior
 
@@ -486,6 +485,7 @@ def train_stage2(
     bar = _progress(config.steps, start, "stage 2")
     history, clock = _resumed_history(meta)
     paint_gen = torch.Generator().manual_seed(config.seed + 11 + start)
+    prior = prior if config.lambda_paint > 0 else None
 
     def save(done: int) -> None:
         meta = {"step": done, "final": final if done == config.steps else None}
@@ -501,10 +501,9 @@ def train_stage2(
             out = render_rays(field, origins, dirs, samples, ray_background)
             pixels.record(out["color"], target)
             loss = color_loss(out["color"], target)  # Eq. 9: no regularisers in stage 2
-            if prior is not None and config.lambda_paint > 0 and len(prior.paint_cells):
-                loss = (
-                    loss + config.lambda_paint * prior.losses(field, config.prior_points, paint_gen)["paint"]
-                )
+            paint = None if prior is None else prior.paint(field, config.prior_points, paint_gen)
+            if paint is not None:
+                loss = loss + config.lambda_paint * paint
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()

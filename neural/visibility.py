@@ -165,14 +165,13 @@ def opaque_depth(
         if kept.ray_indices.numel() == 0:
             continue
         _, alpha = _opacity(field, *field_space(field, kept.points(o, d), *_sections(d, kept)), 1.0)
-        log_after = log_transmittance(alpha, kept.ray_indices, kept.n_rays) + torch.log1p(
-            -alpha.double().clamp(max=1 - 1e-12)
-        )
+        log_before = log_transmittance(alpha, kept.ray_indices, kept.n_rays)
+        log_after = log_before + torch.log1p(-alpha.double().clamp(max=1 - 1e-12))
         crossed = log_after < math.log(SEEN_TRANSMITTANCE)
         part = torch.full((len(o),), math.inf, device=o.device)
         part.scatter_reduce_(0, kept.ray_indices[crossed], kept.t_ends[crossed].float(), "amin")
         depth[start : start + len(o)] = part
-        weights = (torch.exp(log_after - torch.log1p(-alpha.double().clamp(max=1 - 1e-12))) * alpha).float()
+        weights = (torch.exp(log_before) * alpha).float()
         total = torch.zeros(len(o), device=o.device).index_add_(0, kept.ray_indices, weights)
         moment = torch.zeros(len(o), device=o.device).index_add_(0, kept.ray_indices, weights * kept.t_mid)
         mean[start : start + len(o)] = torch.where(total > 1e-3, moment / total.clamp_min(1e-3), math.inf)
@@ -261,9 +260,10 @@ def measure_visibility(
 ) -> tuple[Visibility, dict]:
     """The field's :class:`Visibility` from the training views of ``data`` (rendered with ``sampler``, by
     default an occupancy sampler of the field fitted at :data:`OCCUPANCY_RESOLUTION`), and its surface:
-    ``{"mesh": the field's zero level on the grid (a ``trimesh.Trimesh``), "points": (P, 3), "colors": (P,
-    3)}``, the mesh's vertices that a view sees where its photo covers them (alpha >= 0.5, any pixel without
-    alpha) with the mean of those photos' pixels (float32). ``progress``: a tqdm bar, one update a view."""
+    ``{"mesh": the field's zero level on the grid (a ``trimesh.Trimesh``), "sdf": (R^3,) the field's signed
+    distance at the cell centres, "points": (P, 3), "colors": (P, 3)}``, the mesh's vertices that a view
+    sees where its photo covers them (alpha >= 0.5, any pixel without alpha) with the mean of those photos'
+    pixels (float32). ``progress``: a tqdm bar, one update a view."""
     import trimesh
 
     from .shell.extract import marching_cubes_mesh
@@ -287,12 +287,14 @@ def measure_visibility(
     counts = torch.zeros(len(centers), dtype=torch.int32)
     for k in range(len(views.views)):
         counts += views.seeing(k, centers, margin)[0].int()
-    sdf = _sdf_grid(field, centers).reshape(resolution, resolution, resolution).numpy()
+    sdf = field.sdf_and_kernel(centers)[0].float().cpu()
     mesh = trimesh.Trimesh()
     if sdf.min() < 0 < sdf.max():
-        mesh = marching_cubes_mesh(sdf, lo + 0.5 * cell, cell)
+        mesh = marching_cubes_mesh(
+            sdf.reshape(resolution, resolution, resolution).numpy(), lo + 0.5 * cell, cell
+        )
     points = torch.as_tensor(np.asarray(mesh.vertices, dtype=np.float32)).reshape(-1, 3)
-    surface = {"mesh": mesh, **_seen_surface(views, data, points, margin)}
+    surface = {"mesh": mesh, "sdf": sdf, **_seen_surface(views, data, points, margin)}
     heights = (surface["points"].double() - torch.as_tensor(lo)) @ torch.as_tensor(up)
     support = float(torch.quantile(heights, SUPPORT_QUANTILE)) if len(heights) else None
     seen = counts.clamp(max=255).to(torch.uint8).reshape(resolution, resolution, resolution)
@@ -308,15 +310,6 @@ def _unseen_share(mesh, seen: torch.Tensor) -> float:
     unseen = (~seen).double().numpy()[np.asarray(mesh.faces)].mean(1)
     area = np.asarray(mesh.area_faces)
     return float((unseen * area).sum() / max(area.sum(), 1e-30))
-
-
-def _sdf_grid(field, points: torch.Tensor, chunk: int = 262144) -> torch.Tensor:
-    """(N,) float32 signed distances of ``field`` at world points (N, 3), evaluated in chunks."""
-    device = field.center.device
-    with torch.no_grad():
-        return torch.cat(
-            [field.sdf(points[s : s + chunk].to(device)).float().cpu() for s in range(0, len(points), chunk)]
-        )
 
 
 def _seen_surface(views: _Views, data: SceneData, points: torch.Tensor, margin: float) -> dict:
@@ -346,7 +339,7 @@ def _seen_surface(views: _Views, data: SceneData, points: torch.Tensor, margin: 
 
 class UnseenPrior:
     """The carve and paint losses of a field's unseen space (see the module's docstring), drawn from the
-    cells of a :class:`Visibility` and the seen surface :func:`measure_visibility` found.
+    cells of a :class:`Visibility` and the surface :func:`measure_visibility` found with it.
 
     ``carve_cells`` (C, 3) world centres of unseen cells whose centre lies less than a cell above the seen
     support; ``paint_cells`` (P, 3) centres of unseen cells within ``paint_band`` cells of the field's zero
@@ -354,7 +347,7 @@ class UnseenPrior:
     nearest seen surface point.
     """
 
-    def __init__(self, visibility: Visibility, surface: dict, field, paint_band: float = 2.0):
+    def __init__(self, visibility: Visibility, surface: dict, paint_band: float = 2.0):
         from scipy.spatial import cKDTree
 
         self.visibility = visibility
@@ -369,7 +362,7 @@ class UnseenPrior:
             return
         self.carve_cells = centers[unseen & (heights < support + cell)]
         candidates = unseen & (heights >= support - cell)
-        sdf = _sdf_grid(field, centers[candidates])
+        sdf = surface["sdf"][candidates]
         near = (sdf.abs() < paint_band * cell) | (
             (heights[candidates] < support + paint_band * cell) & (sdf < paint_band * cell)
         )
@@ -394,25 +387,28 @@ class UnseenPrior:
         jitter = (torch.rand((n, 3), generator=generator) - 0.5) * self.visibility.cell
         return cells[index] + jitter, index
 
-    def losses(self, field, n: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
-        """``{"carve": ..., "paint": ...}`` on ``n`` points each (terms without cells are left out).
-
-        carve: mean of ``max(0, (support - height) - f(p))`` in the field's unit lengths over points below
-        the support (the signed distance ``f`` at least the depth below it); paint: mean absolute colour
-        error against the nearest seen surface's colour, seen along a random direction."""
+    def carve(self, field, n: int, generator: torch.Generator) -> torch.Tensor | None:
+        """Mean of ``max(0, (support - height) - f(p))`` in the field's unit lengths over ``n`` points drawn
+        in the carve cells, those below the support (the signed distance ``f`` at least the depth below it);
+        None without carve cells or points below the support."""
+        if not len(self.carve_cells):
+            return None
+        points = self._draw(self.carve_cells, n, generator)[0]
+        depth = self.visibility.support - self.visibility.heights(points)
         device = field.center.device
-        out = {}
-        scale = float(field.scale)
-        if len(self.carve_cells):
-            points = self._draw(self.carve_cells, n, generator)[0]
-            depth = self.visibility.support - self.visibility.heights(points)
-            points, depth = points[depth > 0].to(device), depth[depth > 0].to(device)
-            if len(points):
-                out["carve"] = torch.relu(depth - field.sdf(points)).mean() * scale
-        if len(self.paint_cells):
-            points, index = self._draw(self.paint_cells, n, generator)
-            dirs = torch.nn.functional.normalize(torch.randn((n, 3), generator=generator), dim=1)
-            points, dirs = points.to(device), dirs.to(device)
-            color = field.radiance(points, dirs, field.geometry(points))
-            out["paint"] = (color - self.paint_colors[index].to(device)).abs().mean()
-        return out
+        points, depth = points[depth > 0].to(device), depth[depth > 0].to(device)
+        if not len(points):
+            return None
+        return torch.relu(depth - field.sdf(points)).mean() * float(field.scale)
+
+    def paint(self, field, n: int, generator: torch.Generator) -> torch.Tensor | None:
+        """Mean absolute colour error against the nearest seen surface's colour of ``n`` points drawn in the
+        paint cells, each seen along a random direction; None without paint cells."""
+        if not len(self.paint_cells):
+            return None
+        points, index = self._draw(self.paint_cells, n, generator)
+        dirs = torch.nn.functional.normalize(torch.randn((n, 3), generator=generator), dim=1)
+        device = field.center.device
+        points, dirs = points.to(device), dirs.to(device)
+        color = field.radiance(points, dirs, field.geometry(points))
+        return (color - self.paint_colors[index].to(device)).abs().mean()
